@@ -1,0 +1,16 @@
+"""Occupancy maps: the grid type, ROS map_server I/O, a seeded generator and the bundled maps."""
+
+from flashnav.maps.grid import OccupancyMap
+from flashnav.maps.ros import load_ros_map, save_ros_map
+from flashnav.maps.generate import generate_map
+from flashnav.maps.bundled import bundled_map, bundled_map_names, resolve_map
+
+__all__ = [
+    "OccupancyMap",
+    "load_ros_map",
+    "save_ros_map",
+    "generate_map",
+    "bundled_map",
+    "bundled_map_names",
+    "resolve_map",
+]

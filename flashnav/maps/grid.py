@@ -1,0 +1,135 @@
+"""The occupancy map: the one geometry that LiDAR, collision and start/goal sampling all read.
+
+Conventions (used everywhere in FlashNav):
+- ``occupied[i, j]`` is cell row ``i`` (y increases with i) and column ``j`` (x increases with j).
+  Row 0 is the *bottom* of the map (lowest y); ROS images store the top row first, and the ROS
+  reader flips them.
+- Cell ``(i, j)`` is the closed square ``[ox + j*res, ox + (j+1)*res] x [oy + i*res, oy + (i+1)*res]``.
+- Everything outside the map rectangle counts as occupied; so do unknown cells.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+MAX_CELLS = 1 << 28  # 268 M cells (~256 MiB as bool): larger maps are refused with a clear error
+
+
+@dataclass(frozen=True, eq=False)
+class OccupancyMap:
+    """A boolean occupancy grid with its resolution and origin.
+
+    Attributes:
+        occupied: [H, W] bool, True = obstacle (or unknown). Row 0 is the lowest y.
+        resolution: metres per cell (> 0).
+        origin: world (x, y) of the lower-left corner of cell (0, 0), metres.
+        name: a label (the bundled map's name, or the file stem).
+        source: the file it was read from, if any.
+    """
+
+    occupied: np.ndarray
+    resolution: float
+    origin: tuple[float, float] = (0.0, 0.0)
+    name: str = "map"
+    source: Path | None = None
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        where = f"{self.source}: " if self.source else ""
+        occ = np.asarray(self.occupied)
+        if occ.ndim != 2 or occ.shape[0] < 1 or occ.shape[1] < 1:
+            raise ValueError(f"{where}occupancy grid must be 2-D and non-empty, got shape {occ.shape}")
+        if occ.size > MAX_CELLS:
+            raise ValueError(f"{where}map of {occ.shape[1]} x {occ.shape[0]} cells exceeds the limit of {MAX_CELLS} cells")
+        if not (self.resolution > 0 and math.isfinite(self.resolution)):
+            raise ValueError(f"{where}resolution must be a positive number of metres per cell, got {self.resolution}")
+        object.__setattr__(self, "occupied", np.ascontiguousarray(occ, dtype=bool))
+        object.__setattr__(self, "origin", (float(self.origin[0]), float(self.origin[1])))
+        self.occupied.setflags(write=False)
+
+    # ---- geometry ---------------------------------------------------------------------------------
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.occupied.shape
+
+    @property
+    def width_m(self) -> float:
+        return self.occupied.shape[1] * self.resolution
+
+    @property
+    def height_m(self) -> float:
+        return self.occupied.shape[0] * self.resolution
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) in metres."""
+        ox, oy = self.origin
+        return ox, oy, ox + self.width_m, oy + self.height_m
+
+    def cell_centres(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ox, oy = self.origin
+        return ox + (cols + 0.5) * self.resolution, oy + (rows + 0.5) * self.resolution
+
+    def padded(self, pad: int) -> np.ndarray:
+        """[H + 2 pad, W + 2 pad] bool: the grid inside a border of ``pad`` occupied cells."""
+        key = ("padded", pad)
+        if key not in self._cache:
+            out = np.ones((self.shape[0] + 2 * pad, self.shape[1] + 2 * pad), dtype=bool)
+            out[pad : pad + self.shape[0], pad : pad + self.shape[1]] = self.occupied
+            out.setflags(write=False)
+            self._cache[key] = out
+        return self._cache[key]
+
+    # ---- derived once per map ---------------------------------------------------------------------
+    @cached_property
+    def centre_distance(self) -> np.ndarray:
+        """[H, W] float64 metres: Euclidean distance from each cell centre to the nearest occupied
+        cell centre, the outside of the map counting as occupied (0 on occupied cells)."""
+        free = np.pad(~self.occupied, 1, constant_values=False)
+        d = ndimage.distance_transform_edt(free)[1:-1, 1:-1] * self.resolution
+        d.setflags(write=False)
+        return d
+
+    @cached_property
+    def clearance(self) -> np.ndarray:
+        """[H, W] float64 metres: a lower bound on the distance from each cell centre to the nearest
+        occupied cell square (or the map boundary); exact to within (sqrt(2) - 1) / 2 cells."""
+        c = np.maximum(self.centre_distance - self.resolution * math.sqrt(0.5), 0.0)
+        c[self.occupied] = 0.0
+        c.setflags(write=False)
+        return c
+
+    def free_space(self, radius: float) -> np.ndarray:
+        """[H, W] bool: cells whose centre is farther than ``radius`` metres from any obstacle."""
+        return self.clearance > radius
+
+    def components(self, radius: float) -> tuple[np.ndarray, int]:
+        """Connected components (4-connected) of ``free_space(radius)``: (labels [H, W] int32, count).
+        Label 0 is 'not free'. Two cells with the same label can be joined by a path along which a
+        disc of ``radius`` never touches an obstacle."""
+        key = ("components", round(radius, 9))
+        if key not in self._cache:
+            labels, count = ndimage.label(self.free_space(radius))
+            self._cache[key] = (labels.astype(np.int32), int(count))
+        return self._cache[key]
+
+    def check_free_space(self, radius: float, what: str = "the robot") -> None:
+        """Raise a clear error if no cell can hold a disc of ``radius`` metres."""
+        if not self.free_space(radius).any():
+            where = f"{self.source}: " if self.source else f"map {self.name!r}: "
+            raise ValueError(
+                f"{where}no free space for {what}: no cell centre is more than {radius:.3f} m from an "
+                f"obstacle (map {self.shape[1]} x {self.shape[0]} cells at {self.resolution} m)"
+            )
+
+    def __repr__(self) -> str:
+        return (
+            f"OccupancyMap(name={self.name!r}, cells={self.shape[1]}x{self.shape[0]}, "
+            f"resolution={self.resolution}, origin={self.origin}, occupied={self.occupied.mean():.1%})"
+        )
