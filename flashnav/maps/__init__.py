@@ -2,7 +2,6 @@
 
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.ros import load_ros_map, save_ros_map
-from flashnav.maps.generate import generate_map
 from flashnav.maps.bundled import bundled_map, bundled_map_names, resolve_map
 
 __all__ = [
@@ -14,3 +13,12 @@ __all__ = [
     "bundled_map_names",
     "resolve_map",
 ]
+
+
+def __getattr__(name: str):
+    # imported lazily so `python -m flashnav.maps.generate` does not import itself twice
+    if name == "generate_map":
+        from flashnav.maps.generate import generate_map
+
+        return generate_map
+    raise AttributeError(name)

@@ -49,7 +49,7 @@ class OccupancyMap:
             raise ValueError(f"{where}map of {occ.shape[1]} x {occ.shape[0]} cells exceeds the limit of {MAX_CELLS} cells")
         if not (self.resolution > 0 and math.isfinite(self.resolution)):
             raise ValueError(f"{where}resolution must be a positive number of metres per cell, got {self.resolution}")
-        object.__setattr__(self, "occupied", np.ascontiguousarray(occ, dtype=bool))
+        object.__setattr__(self, "occupied", np.array(occ, dtype=bool, order="C"))  # own copy: frozen below
         object.__setattr__(self, "origin", (float(self.origin[0]), float(self.origin[1])))
         self.occupied.setflags(write=False)
 
