@@ -1,0 +1,246 @@
+"""Seed-aggregated threshold tables (the paper's Table 2) and their Markdown / LaTeX / CSV writers.
+
+Pure functions over pandas DataFrames; no MLflow here. Input: the normalised run frame of
+`services.report.normalize_runs` (one row per trial; tags and metrics as plain columns, see
+docs/run-schema.md). Times are wall-clock training seconds (`time_to_90` etc., censored where
+`reached_90 == 0`).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+THRESHOLDS = (90, 95, 100)
+GROUP = ("embodiment", "algorithm", "platform")
+PAPER_CSV = Path(__file__).resolve().parent / "data" / "paper_table2.csv"
+
+# Display order and names follow the paper; unknown names sort after these, alphabetically.
+ROBOT_ORDER = {"turtlebot2": "TurtleBot2", "go2": "Go2"}
+ALGO_ORDER = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
+BOOTSTRAP_RESAMPLES = 10_000
+BOOTSTRAP_SEED = 0
+MISSING = "—"
+
+
+def bootstrap_mean_ci(values, confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES,
+                      seed: int = BOOTSTRAP_SEED) -> tuple[float, float] | None:
+    """Percentile-bootstrap interval of the mean over seeds, e.g. seconds -> (low, high) seconds.
+
+    Deterministic: a fixed-seed generator over the *sorted* values, so row order does not matter.
+    None when fewer than 2 values (an interval from one seed means nothing).
+    """
+    x = np.sort(np.asarray(values, dtype=float))
+    x = x[np.isfinite(x)]
+    if x.size < 2:
+        return None
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
+    alpha = (1.0 - confidence) / 2.0
+    low, high = np.percentile(means, [100 * alpha, 100 * (1 - alpha)])
+    return float(low), float(high)
+
+
+def _order_key(values: pd.Series, known: dict) -> pd.Series:
+    rank = {name: i for i, name in enumerate(known)}
+    return values.map(lambda v: (rank.get(v, len(rank)), str(v)))
+
+
+def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS) -> pd.DataFrame:
+    """Best / mean seconds to each success threshold, one row per embodiment x algorithm x platform.
+
+    runs: one row per trial with columns robot, algorithm, device_name, time_to_<t> [s], reached_<t>.
+    Returns columns embodiment, algorithm, platform, n (seeds), and per threshold t:
+    best_<t>, mean_<t> [s] (over seeds with reached_<t> == 1; NaN when none), reached_<t> (k),
+    ci_low_<t>, ci_high_<t> [s] (95 % bootstrap of the mean; None when k < 2),
+    bold_best_<t>, bold_mean_<t> (the lowest value among platforms of the same embodiment x algorithm;
+    ties are all bold; cells without a value are never bold).
+    """
+    rows = []
+    frame = runs.rename(columns={"robot": "embodiment", "device_name": "platform"})
+    for key, grp in frame.groupby(list(GROUP), sort=False, dropna=False):
+        row = dict(zip(GROUP, key))
+        row["n"] = int(len(grp))
+        for t in thresholds:
+            hit = grp.loc[grp[f"reached_{t}"].fillna(0).astype(float) >= 1.0, f"time_to_{t}"].astype(float)
+            row[f"best_{t}"] = float(hit.min()) if len(hit) else math.nan
+            row[f"mean_{t}"] = float(hit.mean()) if len(hit) else math.nan
+            row[f"reached_{t}"] = int(len(hit))
+            ci = bootstrap_mean_ci(hit.to_numpy())
+            row[f"ci_low_{t}"], row[f"ci_high_{t}"] = ci if ci else (None, None)
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    if table.empty:
+        return table
+    for col in [c for c in table if c.startswith("ci_")]:
+        # None, not NaN, marks "no interval" (k < 2): DataFrame construction turned it into NaN
+        table[col] = pd.Series([None if pd.isna(v) else float(v) for v in table[col]], dtype=object)
+    table = sort_table(table)
+    return mark_best(table, thresholds)
+
+
+def sort_table(table: pd.DataFrame, platforms: list[str] | None = None) -> pd.DataFrame:
+    """Paper order for robots and algorithms; platforms in the given order, else by name (the same
+    order in every group)."""
+    keys = pd.DataFrame({"e": _order_key(table["embodiment"], ROBOT_ORDER),
+                         "a": _order_key(table["algorithm"], ALGO_ORDER),
+                         "p": _order_key(table["platform"], dict.fromkeys(platforms or []))})
+    order = sorted(range(len(table)), key=lambda i: (keys["e"].iat[i], keys["a"].iat[i], keys["p"].iat[i]))
+    return table.iloc[order].reset_index(drop=True)
+
+
+def mark_best(table: pd.DataFrame, thresholds=THRESHOLDS) -> pd.DataFrame:
+    """Add bold_best_<t> / bold_mean_<t>: the paper bolds, per column, the fastest platform of a group."""
+    table = table.copy()
+    for t in thresholds:
+        for stat in ("best", "mean"):
+            col = f"{stat}_{t}"
+            if col not in table:
+                continue
+            group_min = table.groupby(["embodiment", "algorithm"], sort=False)[col].transform("min")
+            # Exact float equality is intended: ties come from identical logged values.
+            table[f"bold_{col}"] = table[col].notna() & (table[col] == group_min)
+    return table
+
+
+def load_paper_table(path: str | Path = PAPER_CSV) -> pd.DataFrame:
+    """The paper's published Table 2 in threshold_table's layout (k, n and intervals unknown)."""
+    paper = pd.read_csv(path, comment="#")
+    paper = paper.rename(columns={"seeds": "n"})
+    for t in THRESHOLDS:
+        paper[f"reached_{t}"] = pd.NA
+        paper[f"ci_low_{t}"], paper[f"ci_high_{t}"] = None, None
+    return mark_best(sort_table(paper, platforms=list(dict.fromkeys(paper["platform"]))))  # paper's row order
+
+
+def comparison_table(ours: pd.DataFrame, paper: pd.DataFrame) -> pd.DataFrame:
+    """Both tables stacked with a `source` column ("this report" / "paper"), for CSV and plotting."""
+    cols = [c for c in ours.columns if c in paper.columns]
+    return pd.concat([ours[cols].assign(source="this report"), paper[cols].assign(source="paper")],
+                     ignore_index=True)
+
+
+# ---------------------------------------------------------------- display (shared by md / tex / html)
+
+def short_platform(name: str) -> str:
+    """'NVIDIA GeForce RTX 5090' -> 'RTX 5090', the paper's platform labels; others unchanged."""
+    s = str(name)
+    for prefix in ("NVIDIA ", "GeForce "):
+        s = s[len(prefix):] if s.startswith(prefix) else s
+    return s
+
+
+def fmt_s(x) -> str:
+    """Seconds with one decimal, as in the paper; MISSING when no seed reached."""
+    return MISSING if x is None or (isinstance(x, float) and math.isnan(x)) or pd.isna(x) else f"{x:.1f}"
+
+
+def display_rows(table: pd.DataFrame, with_counts: bool = True, thresholds=THRESHOLDS) -> list[dict]:
+    """Rows ready to print: labels, row spans for the multirow cells, and per-threshold cells.
+
+    Each cell is {"text", "bold", "ci"} (ci: "[low, high]" or ""). Spans are 0 on continuation rows.
+    """
+    out = []
+    for i, r in table.reset_index(drop=True).iterrows():
+        cells = []
+        for t in thresholds:
+            cells.append({"text": fmt_s(r[f"best_{t}"]), "bold": bool(r.get(f"bold_best_{t}", False)), "ci": ""})
+            lo, hi = r.get(f"ci_low_{t}"), r.get(f"ci_high_{t}")
+            ci = f"[{lo:.1f}, {hi:.1f}]" if lo is not None and not pd.isna(lo) else ""
+            cells.append({"text": fmt_s(r[f"mean_{t}"]), "bold": bool(r.get(f"bold_mean_{t}", False)), "ci": ci})
+            if with_counts:
+                cells.append({"text": f"{int(r[f'reached_{t}'])}/{int(r['n'])}", "bold": False, "ci": ""})
+        out.append({"embodiment": ROBOT_ORDER.get(r["embodiment"], str(r["embodiment"])),
+                    "algorithm": ALGO_ORDER.get(r["algorithm"], str(r["algorithm"])),
+                    "platform": short_platform(r["platform"]), "cells": cells,
+                    "embodiment_span": 0, "algorithm_span": 0, "new_embodiment": False, "new_algorithm": False})
+    for i, row in enumerate(out):
+        e, a = table["embodiment"].iat[i], table["algorithm"].iat[i]
+        if i == 0 or table["embodiment"].iat[i - 1] != e:
+            row["new_embodiment"] = row["new_algorithm"] = True
+            row["embodiment_span"] = int((table["embodiment"].iloc[i:] == e).cummin().sum())
+        if row["new_embodiment"] or table["algorithm"].iat[i - 1] != a:
+            row["new_algorithm"] = True
+            same = (table["embodiment"].iloc[i:] == e) & (table["algorithm"].iloc[i:] == a)
+            row["algorithm_span"] = int(same.cummin().sum())
+    return out
+
+
+def header_cells(with_counts: bool = True, thresholds=THRESHOLDS) -> tuple[list[str], list[str]]:
+    """(threshold group labels, sub-column labels)."""
+    sub = ["Best", "Mean", "k/n"] if with_counts else ["Best", "Mean"]
+    return [f"{t}% success" for t in thresholds], sub * len(thresholds)
+
+
+def to_markdown(table: pd.DataFrame, with_counts: bool = True) -> str:
+    """GitHub Markdown table; bold cells as **x**; the bootstrap interval after the mean."""
+    groups, sub = header_cells(with_counts)
+    per = len(sub) // len(groups)
+    head = ["Embodiment", "Algorithm", "Platform"] + [f"{g.split()[0]} {s}" for g in groups for s in sub[:per]]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 3 + "--:|" * len(sub)]
+    for row in display_rows(table, with_counts):
+        cells = []
+        for c in row["cells"]:
+            text = f"**{c['text']}**" if c["bold"] else c["text"]
+            cells.append(f"{text} {c['ci']}".strip())
+        lines.append("| " + " | ".join([row["embodiment"], row["algorithm"], row["platform"]] + cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+_TEX_ESCAPE = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+               "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+
+
+def latex_escape(text: str) -> str:
+    return "".join(_TEX_ESCAPE.get(ch, ch) for ch in str(text))
+
+
+def to_latex(table: pd.DataFrame, with_counts: bool = True, caption: str | None = None,
+             label: str = "tab:flashnav_report_thresholds") -> str:
+    """A booktabs + multirow `table*` like the paper's Table 2 (needs \\usepackage{booktabs,multirow})."""
+    groups, sub = header_cells(with_counts)
+    per, ncol = len(sub) // len(groups), 3 + len(sub)
+    if caption is None:
+        caption = ("Time to success threshold over seeds: best / mean wall-clock seconds computed over "
+                   "reached seeds only" + (", $k/n$ seeds reached, 95\\,\\% bootstrap interval of the mean "
+                                           "in brackets" if with_counts else "") + ". Bold: fastest platform.")
+    spec = "lll" + "".join("c" * per for _ in groups)
+    head1 = " & ".join([r"\multirow{2}{*}{Embodiment}", r"\multirow{2}{*}{Algorithm}",
+                        r"\multirow{2}{*}{Platform}"]
+                       + [rf"\multicolumn{{{per}}}{{c}}{{{latex_escape(g)}}}" for g in groups]) + r" \\"
+    rules = " ".join(rf"\cmidrule(lr){{{4 + i * per}-{3 + (i + 1) * per}}}" for i in range(len(groups)))
+    head2 = " & & & " + " & ".join(r"$k/n$" if s == "k/n" else s for s in sub) + r" \\"
+    body = []
+    for i, row in enumerate(display_rows(table, with_counts)):
+        if i and row["new_embodiment"]:
+            body.append(r"\midrule")
+        elif i and row["new_algorithm"]:
+            body.append(rf"\cmidrule(lr){{2-{ncol}}}")
+        emb = rf"\multirow{{{row['embodiment_span']}}}{{*}}{{{latex_escape(row['embodiment'])}}}" \
+            if row["embodiment_span"] else ""
+        alg = rf"\multirow{{{row['algorithm_span']}}}{{*}}{{{latex_escape(row['algorithm'])}}}" \
+            if row["algorithm_span"] else ""
+        cells = []
+        for c in row["cells"]:
+            text = "--" if c["text"] == MISSING else latex_escape(c["text"])
+            text = rf"\textbf{{{text}}}" if c["bold"] else text
+            cells.append(text + (rf"\,{{\scriptsize{latex_escape(c['ci'])}}}" if c["ci"] else ""))
+        body.append(" & ".join([emb, alg, latex_escape(row["platform"])] + cells) + r" \\")
+    return "\n".join([r"\begin{table*}[t]", r"\centering", rf"\caption{{{caption}}}", rf"\label{{{label}}}",
+                      r"\setlength{\tabcolsep}{4pt}", rf"\begin{{tabular}}{{{spec}}}", r"\toprule", head1,
+                      rules, head2, r"\midrule", *body, r"\bottomrule", r"\end{tabular}", r"\end{table*}", ""])
+
+
+def latex_document(fragments: list[str]) -> str:
+    """A standalone document around table fragments (landscape: the 12-column table is wide)."""
+    return "\n".join([r"\documentclass{article}", r"\usepackage[a4paper,landscape,margin=1.5cm]{geometry}",
+                      r"\usepackage[T1]{fontenc}", r"\usepackage{booktabs}", r"\usepackage{multirow}",
+                      r"\begin{document}", *fragments, r"\end{document}", ""])
+
+
+def to_csv(table: pd.DataFrame) -> str:
+    """Machine-readable table: raw names (robot key, full device_name), seconds with 3 decimals."""
+    floats = {c: pd.to_numeric(table[c], errors="coerce") for c in table if c.startswith("ci_")}
+    return table.assign(**floats).to_csv(index=False, float_format="%.3f", lineterminator="\n")
