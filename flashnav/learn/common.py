@@ -1,0 +1,200 @@
+"""Helpers shared by the three learners: optimisers, Polyak averaging, seeding, checkpoint state."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from flashnav.learn.networks import Actor, TwinCritic
+
+
+def adamw(params: Iterable[torch.Tensor], lr: float, betas: Sequence[float], weight_decay: float) -> torch.optim.AdamW:
+    """AdamW, fused (one kernel for all parameters) where this torch/device supports it, else foreach."""
+    params = list(params)
+    try:
+        return torch.optim.AdamW(params, lr=lr, betas=tuple(betas), weight_decay=weight_decay, fused=True)
+    except (RuntimeError, TypeError, ValueError):
+        return torch.optim.AdamW(params, lr=lr, betas=tuple(betas), weight_decay=weight_decay, foreach=True)
+
+
+@torch.no_grad()
+def polyak_(target: Sequence[torch.Tensor], source: Sequence[torch.Tensor], tau: float) -> None:
+    """``target <- (1 - tau) * target + tau * source`` for every pair, as one foreach op."""
+    torch._foreach_lerp_(list(target), list(source), tau)
+
+
+@torch.no_grad()
+def copy_params_(target: nn.Module, source: nn.Module) -> None:
+    """Copy ``source``'s parameters and buffers into ``target`` (same architecture), foreach."""
+    dst = list(target.parameters()) + list(target.buffers())
+    src = list(source.parameters()) + list(source.buffers())
+    torch._foreach_copy_(dst, src)
+
+
+def frozen_copy(module: nn.Module) -> nn.Module:
+    """A deep copy with gradients off: target critics, the collector's actor."""
+    clone = copy.deepcopy(module)
+    clone.requires_grad_(False)
+    return clone
+
+
+def optimizer_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer, params: Sequence[torch.Tensor],
+                   max_grad_norm: float) -> torch.Tensor:
+    """zero_grad, backward, optional global-norm clip (``max_grad_norm`` > 0), step.
+
+    Returns the pre-clip gradient norm (a device tensor; zeros when clipping is off, to avoid the
+    extra reduction)."""
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    if max_grad_norm > 0:
+        norm = torch.nn.utils.clip_grad_norm_(params, max_grad_norm, foreach=True)
+    else:
+        norm = torch.zeros((), device=loss.device)
+    optimizer.step()
+    return norm.detach()
+
+
+def derive_seeds(seed: int, n: int) -> list[int]:
+    """``n`` independent 63-bit seeds from one training seed (init, collection, update streams)."""
+    return [int(s) >> 1 for s in np.random.SeedSequence(seed).generate_state(n, dtype=np.uint64)]
+
+
+def generator(device: torch.device, seed: int) -> torch.Generator:
+    gen = torch.Generator(device=device)
+    gen.manual_seed(seed)
+    return gen
+
+
+def uniform(shape: Sequence[int], low: float, high: float, gen: torch.Generator, device: torch.device) -> torch.Tensor:
+    return torch.rand(shape, generator=gen, device=device) * (high - low) + low
+
+
+def state_to_dict(state: Any) -> dict[str, Any]:
+    """Checkpointable snapshot of a learner state dataclass: modules and optimisers as state dicts,
+    tensors cloned, generators as their RNG state, plain numbers as they are. Lists and dicts
+    (cached parameter lists, last metrics) are derived data and are skipped. Everything is copied:
+    ``Optimizer.load_state_dict`` keeps the given tensors when dtype and device match, so an
+    uncopied in-memory round trip would leave two learners sharing Adam moments."""
+    out: dict[str, Any] = {}
+    for field in dataclasses.fields(state):
+        value = getattr(state, field.name)
+        if isinstance(value, (nn.Module, torch.optim.Optimizer)):
+            out[field.name] = copy.deepcopy(value.state_dict())
+        elif isinstance(value, torch.Tensor):
+            out[field.name] = value.detach().clone()
+        elif isinstance(value, torch.Generator):
+            out[field.name] = value.get_state()
+        elif isinstance(value, (int, float, bool)):
+            out[field.name] = value
+    return out
+
+
+def load_state_from_dict(state: Any, data: dict[str, Any]) -> None:
+    """Inverse of :func:`state_to_dict`, in place (parameters keep their identity, so optimisers and
+    cached parameter lists stay valid)."""
+    missing = [f.name for f in dataclasses.fields(state) if f.name not in data
+               and isinstance(getattr(state, f.name), (nn.Module, torch.optim.Optimizer, torch.Tensor))]
+    if missing:
+        raise KeyError(f"learner state dict lacks {', '.join(missing)}")
+    for field in dataclasses.fields(state):
+        if field.name not in data:
+            continue
+        value, saved = getattr(state, field.name), data[field.name]
+        if isinstance(value, (nn.Module, torch.optim.Optimizer)):
+            value.load_state_dict(saved)
+        elif isinstance(value, torch.Tensor):
+            with torch.no_grad():
+                value.copy_(saved)
+        elif isinstance(value, torch.Generator):
+            value.set_state(saved)
+        elif isinstance(value, (int, float, bool)):
+            setattr(state, field.name, type(value)(saved))
+
+
+@dataclasses.dataclass
+class LearnerState:
+    """Everything one learner owns. Fields an algorithm does not use stay ``None``.
+
+    ``explore_scale [N, 1]``: FastTD3 per-env noise std sigma_e, FastDSAC per-env DEM scale s_e.
+    ``atoms [K]``: C51 support (FastTD3, FastSAC). ``log_alpha []``: entropy temperature (FastSAC,
+    FastDSAC). ``running_std [2]``: FastDSAC per-critic EMA of the batch-mean critic std (-1 until
+    the first update). ``num_updates``: critic updates so far (host int: the actor schedule is
+    decided without reading the device).
+    """
+
+    hp: Any
+    actor: nn.Module
+    collector: nn.Module
+    critic: nn.Module
+    critic_target: nn.Module
+    actor_opt: torch.optim.Optimizer
+    critic_opt: torch.optim.Optimizer
+    collect_gen: torch.Generator
+    update_gen: torch.Generator
+    explore_scale: torch.Tensor | None = None
+    atoms: torch.Tensor | None = None
+    log_alpha: torch.Tensor | None = None
+    alpha_opt: torch.optim.Optimizer | None = None
+    target_entropy: float = 0.0
+    running_std: torch.Tensor | None = None
+    num_updates: int = 0
+    critic_params: list = dataclasses.field(default_factory=list)
+    target_params: list = dataclasses.field(default_factory=list)
+    actor_params: list = dataclasses.field(default_factory=list)
+    last_actor_metrics: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def device(self) -> torch.device:
+        return self.collect_gen.device
+
+
+def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_out: int,
+                device: torch.device | str, seed: int) -> LearnerState:
+    """Actor, collector copy, twin critic and its target, optimisers and RNG streams.
+
+    Weights are drawn on the CPU from a generator seeded by ``seed``, then moved: the same seed gives
+    the same initial network on every device."""
+    device = torch.device(device)
+    init_seed, collect_seed, update_seed = derive_seeds(seed, 3)
+    init_gen = torch.Generator().manual_seed(init_seed)
+    actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen).to(device)
+    critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen).to(device)
+    critic_target = frozen_copy(critic)
+    return LearnerState(
+        hp=hp, actor=actor, collector=frozen_copy(actor), critic=critic, critic_target=critic_target,
+        actor_opt=adamw(actor.parameters(), hp.actor_lr, hp.betas, hp.weight_decay),
+        critic_opt=adamw(critic.parameters(), hp.critic_lr, hp.betas, hp.weight_decay),
+        collect_gen=generator(device, collect_seed), update_gen=generator(device, update_seed),
+        critic_params=list(critic.parameters()), target_params=list(critic_target.parameters()),
+        actor_params=list(actor.parameters()),
+    )
+
+
+def add_temperature(state: LearnerState, alpha_init: float, alpha_lr: float, target_entropy: float) -> None:
+    """Learned entropy temperature: ``log_alpha`` from ``alpha_init``, its own AdamW (no weight
+    decay: decay would pull log alpha towards 0, i.e. alpha towards 1)."""
+    state.log_alpha = torch.tensor(float(np.log(alpha_init)), device=state.device, requires_grad=True)
+    state.alpha_opt = adamw([state.log_alpha], alpha_lr, state.hp.betas, 0.0)
+    state.target_entropy = float(target_entropy)
+
+
+def finish_update(state: LearnerState, critic_metrics: dict, actor_step) -> dict:
+    """After a critic step: count it, run ``actor_step(state)`` every ``policy_frequency``-th update
+    (the 2nd, 4th, ... for 2), Polyak-average the target critics. Returns the merged metrics; actor
+    metrics repeat the last actor step's values between actor steps, so the keys never change."""
+    state.num_updates += 1
+    if state.num_updates % state.hp.policy_frequency == 0:
+        state.last_actor_metrics = actor_step(state)
+    polyak_(state.target_params, state.critic_params, state.hp.tau)
+    return {**critic_metrics, **state.last_actor_metrics}
+
+
+def resample_where(scale: torch.Tensor, done: torch.Tensor, low: float, high: float, gen: torch.Generator) -> None:
+    """``scale [N, 1]``: draw U[low, high] afresh where ``done [N]`` is true, in place, no host sync."""
+    fresh = uniform(scale.shape, low, high, gen, scale.device)
+    scale.copy_(torch.where(done.reshape(-1, 1).bool(), fresh, scale))

@@ -1,0 +1,93 @@
+"""FastSAC: tanh-squashed Gaussian actor, twin C51 critics, learned entropy temperature.
+
+Reference behaviour (notes): the entropy bonus is folded into the reward, each critic regresses to
+its *own* target critic's projected distribution (no min), the actor maximises the mean of the two
+critics, and the temperature is stepped after every critic update.
+Shapes: N envs, B batch, A actions, K atoms.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from flashnav.learn import c51
+from flashnav.learn.common import LearnerState, add_temperature, build_state, finish_update, optimizer_step
+from flashnav.learn.hparams import FastSACHParams
+from flashnav.learn.networks import ObsLayout, bounded_log_std, squashed_gaussian
+from flashnav.learn.replay import Transition
+
+
+def init_state(hp: FastSACHParams, layout: ObsLayout, action_dim: int, num_envs: int,
+               device: torch.device | str, seed: int) -> LearnerState:
+    """Networks, optimisers, the C51 support, and alpha with target entropy ``-ratio * A``."""
+    state = build_state(hp, layout, action_dim, actor_heads=2, critic_out=hp.num_atoms, device=device, seed=seed)
+    state.atoms = c51.support(hp.v_min, hp.v_max, hp.num_atoms, state.device)
+    add_temperature(state, hp.alpha_init, hp.alpha_lr, -hp.target_entropy_ratio * action_dim)
+    zero = torch.zeros((), device=state.device)
+    state.last_actor_metrics = {"actor_loss": zero, "actor_grad_norm": zero}
+    return state
+
+
+def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastSACHParams,
+           gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """``obs [B, D]`` -> reparameterised ``action [B, A]`` in (-1, 1) and ``log_prob [B]``."""
+    mu, raw_log_std = actor(obs).chunk(2, dim=-1)
+    log_std = bounded_log_std(raw_log_std, hp.log_std_min, hp.log_std_max)
+    noise = torch.randn(mu.shape, generator=gen, device=mu.device)
+    return squashed_gaussian(mu, log_std, noise)
+
+
+def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
+    """Exploration action ``[N, A]`` sampled from the collector's copy of the policy."""
+    action, _ = sample(state.collector, obs, state.hp, state.collect_gen)
+    return action.clamp(-1.0, 1.0)
+
+
+def on_episode_end(state: LearnerState, done: torch.Tensor) -> None:
+    """FastSAC keeps no per-env exploration state."""
+
+
+@torch.no_grad()
+def compute_target(state: LearnerState, batch: Transition) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-critic target distributions ``[2, B, K]`` and the next-action ``log_prob [B]``.
+
+    ``a' ~ pi(.|s')`` from the current actor; the soft reward ``r - gamma b alpha log pi(a'|s')``
+    shifts the support with ``r + b gamma z``, and each target critic's distribution is projected.
+    """
+    hp = state.hp
+    bootstrap = 1.0 - batch.terminated
+    next_action, next_log_prob = sample(state.actor, batch.next_obs, hp, state.update_gen)
+    soft_reward = batch.reward - hp.gamma * bootstrap * state.log_alpha.exp() * next_log_prob
+    next_probs = F.softmax(state.critic_target(batch.next_obs, next_action), dim=-1)
+    return c51.project(next_probs, soft_reward, bootstrap, hp.gamma, state.atoms), next_log_prob
+
+
+def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
+    """Critic k minimises cross-entropy to target critic k's projection; then one temperature step
+    with ``-alpha (log pi(a'|s') + H_target)`` (reusing the target's next-action log-probs)."""
+    target, next_log_prob = compute_target(state, batch)
+    logits = state.critic(batch.obs, batch.action)
+    loss = -(target * F.log_softmax(logits, dim=-1)).sum(-1).mean(-1).sum()
+    grad_norm = optimizer_step(loss, state.critic_opt, state.critic_params, state.hp.max_grad_norm)
+    alpha_loss = -(state.log_alpha.exp() * (next_log_prob + state.target_entropy)).mean()
+    optimizer_step(alpha_loss, state.alpha_opt, [state.log_alpha], 0.0)
+    q = c51.expected_value(F.softmax(logits.detach(), dim=-1), state.atoms)
+    return {"critic_loss": loss.detach(), "q_mean": q.mean(), "critic_grad_norm": grad_norm,
+            "alpha": state.log_alpha.detach().exp(), "alpha_loss": alpha_loss.detach(),
+            "entropy": -next_log_prob.mean()}
+
+
+def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
+    """Minimise ``alpha log pi(a|s) - mean(Q1, Q2)`` at reparameterised ``a ~ pi(.|s)``."""
+    action, log_prob = sample(state.actor, batch.obs, state.hp, state.update_gen)
+    logits = state.critic(batch.obs, action, detach_params=True)
+    q = c51.expected_value(F.softmax(logits, dim=-1), state.atoms).mean(dim=0)
+    loss = (state.log_alpha.detach().exp() * log_prob - q).mean()
+    grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, state.hp.max_grad_norm)
+    return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm}
+
+
+def update(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
+    """One critic + temperature update (+ actor every ``policy_frequency``-th) + Polyak."""
+    return finish_update(state, update_critic(state, batch), lambda s: update_actor(s, batch))

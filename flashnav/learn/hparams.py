@@ -1,0 +1,181 @@
+"""Learner hyperparameters: pydantic models (unknown keys rejected) and the preset loader.
+
+The numbers live in ``flashnav/presets/{fastdsac,fastsac,fasttd3}.yaml`` (the paper's appendix A as
+data, plus a CPU recipe); these models only say what a valid value is, and carry no defaults for
+anything a preset must state. ``load_hparams("fastdsac", "turtlebot2", "paper", {"batch_size": 512})``
+returns a validated, frozen model.
+"""
+
+from __future__ import annotations
+
+import difflib
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from flashnav.config import load_yaml
+
+ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
+RECIPES = ("paper", "cpu")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LearnerHParams(_Strict):
+    """Shared training-pipeline parameters (paper table "Shared off-policy training-pipeline
+    parameters" and the per-algorithm tables' common rows)."""
+
+    total_env_steps: int = Field(gt=0, description="environment transitions to collect (all envs together)")
+    num_envs: int = Field(gt=0, description="parallel environments")
+    updates_per_step: int = Field(gt=0, description="gradient updates per vector step (the paper's UTD)")
+    learning_start: int = Field(ge=0, description="stored transitions before the first update")
+    batch_size: int = Field(gt=0, description="transitions per gradient update")
+    gamma: float = Field(gt=0, le=1, description="discount factor")
+    tau: float = Field(gt=0, le=1, description="Polyak rate of the target critics, after every critic update")
+    policy_frequency: int = Field(ge=1, description="actor update every k-th critic update")
+    actor_lr: float = Field(gt=0, description="actor AdamW learning rate")
+    critic_lr: float = Field(gt=0, description="critic AdamW learning rate")
+    weight_decay: float = Field(ge=0, description="AdamW decoupled weight decay (actor and critics)")
+    betas: tuple[float, float] = Field(description="AdamW (beta1, beta2)")
+    actor_hidden: tuple[int, ...] = Field(min_length=1, description="actor hidden layer widths")
+    critic_hidden: tuple[int, ...] = Field(min_length=1, description="critic hidden layer widths")
+    env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
+    max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")
+    buffer_size: int = Field(gt=0, description="replay capacity, transitions (all envs together)")
+    eval_every: int = Field(ge=1, description="evaluate every k vector steps")
+
+    @model_validator(mode="after")
+    def _check_shared(self):
+        if not all(0 <= b < 1 for b in self.betas):
+            raise ValueError(f"betas must lie in [0, 1), got {self.betas}")
+        if min(self.actor_hidden + self.critic_hidden) <= 0:
+            raise ValueError("hidden layer widths must be > 0")
+        return self
+
+
+def _ordered(name: str, pair: tuple[float, float], strict: bool = False) -> None:
+    lo, hi = pair
+    if lo > hi or (strict and lo == hi):
+        raise ValueError(f"{name} must be (min, max) with min {'<' if strict else '<='} max, got ({lo}, {hi})")
+
+
+class FastTD3HParams(LearnerHParams):
+    """Paper table "FastTD3 hyperparameters"."""
+
+    algorithm: Literal["fasttd3"] = "fasttd3"
+    target_noise: float = Field(ge=0, description="target policy smoothing noise std (action units)")
+    noise_clip: float = Field(ge=0, description="target policy smoothing noise clip")
+    collection_noise: tuple[float, float] = Field(description="per-env exploration std range (min, max)")
+    num_atoms: int = Field(ge=2, description="C51 atoms K")
+    v_min: float = Field(description="C51 support lower end (return units)")
+    v_max: float = Field(description="C51 support upper end (return units)")
+
+    @model_validator(mode="after")
+    def _check(self):
+        _ordered("collection_noise", self.collection_noise)
+        _ordered("(v_min, v_max)", (self.v_min, self.v_max), strict=True)
+        if self.collection_noise[0] < 0:
+            raise ValueError("collection_noise must be >= 0")
+        return self
+
+
+class FastSACHParams(LearnerHParams):
+    """Paper table "FastSAC hyperparameters"."""
+
+    algorithm: Literal["fastsac"] = "fastsac"
+    alpha_lr: float = Field(gt=0, description="temperature learning rate")
+    alpha_init: float = Field(gt=0, description="initial entropy temperature alpha")
+    target_entropy_ratio: float = Field(description="target entropy = -ratio * action_dim (nats)")
+    num_atoms: int = Field(ge=2, description="C51 atoms K")
+    v_min: float = Field(description="C51 support lower end (return units)")
+    v_max: float = Field(description="C51 support upper end (return units)")
+    log_std_min: float = Field(description="actor log sigma lower bound")
+    log_std_max: float = Field(description="actor log sigma upper bound")
+
+    @model_validator(mode="after")
+    def _check(self):
+        _ordered("(v_min, v_max)", (self.v_min, self.v_max), strict=True)
+        _ordered("(log_std_min, log_std_max)", (self.log_std_min, self.log_std_max), strict=True)
+        return self
+
+
+class FastDSACHParams(LearnerHParams):
+    """Paper table "FastDSAC hyperparameters"."""
+
+    algorithm: Literal["fastdsac"] = "fastdsac"
+    std_ema: float = Field(gt=0, le=1, description="running-std EMA rate tau_b")
+    reward_scale: float = Field(gt=0, description="rewards are multiplied by this in the critic target")
+    temperature: float = Field(gt=0, description="DEM allocation softmax temperature T")
+    scale_range: tuple[float, float] = Field(description="per-env DEM collection scale range (min, max)")
+    cdq: bool = Field(description="clipped double Q (argmin of target means) instead of the mean of both")
+    log_std_min: float = Field(description="actor log sigma lower bound")
+    log_std_max: float = Field(description="actor log sigma upper bound")
+    huber_delta: float = Field(gt=0, description="Huber delta of the critic loss (return units)")
+    alpha_lr: float = Field(gt=0, description="temperature learning rate")
+    alpha_init: float = Field(gt=0, description="initial entropy temperature alpha")
+    target_entropy_ratio: float = Field(description="target entropy = -ratio * action_dim (nats)")
+
+    @model_validator(mode="after")
+    def _check(self):
+        _ordered("scale_range", self.scale_range)
+        _ordered("(log_std_min, log_std_max)", (self.log_std_min, self.log_std_max), strict=True)
+        if self.scale_range[0] <= 0:
+            raise ValueError("scale_range must be > 0")
+        return self
+
+
+MODELS: dict[str, type[LearnerHParams]] = {
+    "fastdsac": FastDSACHParams, "fastsac": FastSACHParams, "fasttd3": FastTD3HParams,
+}
+AnyHParams = FastDSACHParams | FastSACHParams | FastTD3HParams
+
+
+def preset_path(algorithm: str) -> Path:
+    """``flashnav/presets/<algorithm>.yaml``."""
+    return Path(str(resources.files("flashnav.presets") / f"{algorithm}.yaml"))
+
+
+def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
+                 overrides: dict[str, Any] | None = None) -> AnyHParams:
+    """Validated hyperparameters for ``algorithm`` / ``robot`` / ``recipe`` with dotted-key overrides.
+
+    ``recipe``: ``paper`` (appendix A, GPU) or ``cpu`` (a 2-core CPU recipe). Override keys name
+    fields of the algorithm's model (``{"batch_size": 512, "betas": [0.9, 0.99]}``); an unknown key
+    is an error that suggests the closest names.
+    """
+    if algorithm not in MODELS:
+        raise ValueError(f"unknown algorithm {algorithm!r}: use one of {', '.join(ALGORITHMS)}")
+    if recipe not in RECIPES:
+        raise ValueError(f"unknown recipe {recipe!r}: use one of {', '.join(RECIPES)} "
+                         "(resolve 'auto' from the device before calling)")
+    path = preset_path(algorithm)
+    presets = load_yaml(path) or {}
+    robots = presets.get(recipe) or {}
+    if robot not in robots:
+        raise ValueError(f"{path.name}: no {recipe!r} recipe for robot {robot!r}; have {', '.join(robots) or 'none'}")
+    data = dict(robots[robot])
+    for key, value in (overrides or {}).items():
+        _set_dotted(data, key, value, MODELS[algorithm])
+    try:
+        return MODELS[algorithm].model_validate(data)
+    except ValidationError as exc:
+        raise ValueError(f"{path.name} [{recipe}.{robot}] with overrides {overrides or {}}:\n{exc}") from None
+
+
+def _set_dotted(data: dict, dotted: str, value: Any, model: type[BaseModel]) -> None:
+    *parents, leaf = dotted.split(".")
+    node = data
+    for part in parents:
+        if not isinstance(node.get(part), dict):
+            raise ValueError(f"override {dotted!r}: no section {part!r}")
+        node = node[part]
+    known = set(node) | (set(model.model_fields) if not parents else set())
+    if leaf not in known:
+        close = difflib.get_close_matches(leaf, sorted(known), n=3)
+        hint = f"; did you mean {', '.join(close)}?" if close else ""
+        raise ValueError(f"override {dotted!r}: unknown hyperparameter for {model.__name__}{hint}")
+    node[leaf] = value

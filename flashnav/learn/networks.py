@@ -1,0 +1,267 @@
+"""Actor and critic networks with the IPAPRec input transform (paper eq. 2).
+
+Observation layout (raw physical units, from the simulator), ``obs [N, D] float32``:
+columns ``0..S-1`` pooled LiDAR sector minima (metres, ``(0, max_range]``), ``S`` goal distance
+(metres), ``S+1`` goal angle in the robot frame (radians, ``[-pi, pi)``), then the velocity state
+(``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5). Actions are ``[N, A]`` in ``[-1, 1]``.
+
+Every network owns its input transform: LiDAR readings become ``1 / (l - beta)`` with a trainable
+``beta = r_in - margin - softplus(rho)`` that always stays below the inscribed radius ``r_in``; the
+other features are divided by their known bounds. Twin critics are one batched network (weights
+stacked ``[2, in, out]``, evaluated with ``torch.baddbmm``): one kernel chain instead of two.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+#: Floor on ``r_in - beta`` (metres). softplus(rho) underflows to exactly 0 in float32 for rho below
+#: about -104, which would put beta on the inscribed radius and the feature at infinity; the margin
+#: caps the LiDAR feature at 1 / margin = 100 whatever the optimiser does to rho.
+BETA_MARGIN = 0.01
+#: beta at initialisation (metres): the plain reciprocal 1 / l.
+BETA_INIT = 0.0
+#: std of the actor's output-layer weights at init: actions start near 0, DEM weights near uniform.
+ACTOR_OUT_INIT_STD = 0.01
+
+
+@dataclass(frozen=True)
+class ObsLayout:
+    """Where each feature sits in the observation and the bounds used to scale it.
+
+    ``sectors``: number of pooled LiDAR sectors S (columns 0..S-1).
+    ``inscribed_radius``: smallest reading a collision-free robot can see, metres.
+    ``max_range``: LiDAR maximum range, metres.
+    ``goal_scale``: ``(distance, angle)`` divisors, metres and radians (a float = distance, angle pi).
+    ``velocity_scales``: one divisor per velocity column (m/s or rad/s), e.g. ``(0.5, pi/4)``.
+    """
+
+    sectors: int
+    inscribed_radius: float
+    max_range: float
+    goal_scale: tuple[float, float]
+    velocity_scales: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        goal = self.goal_scale
+        if isinstance(goal, (int, float)):
+            object.__setattr__(self, "goal_scale", (float(goal), math.pi))
+        object.__setattr__(self, "velocity_scales", tuple(float(v) for v in self.velocity_scales))
+        if self.sectors <= 0:
+            raise ValueError(f"ObsLayout.sectors must be > 0, got {self.sectors}")
+        if not 0 < self.inscribed_radius < self.max_range:
+            raise ValueError("ObsLayout needs 0 < inscribed_radius < max_range (metres), got "
+                             f"{self.inscribed_radius} and {self.max_range}")
+        if BETA_INIT >= self.inscribed_radius - BETA_MARGIN:
+            raise ValueError(f"inscribed_radius {self.inscribed_radius} m is too small for beta init {BETA_INIT}")
+        if min(self.goal_scale) <= 0 or any(v <= 0 for v in self.velocity_scales):
+            raise ValueError("ObsLayout scales must all be > 0")
+
+    @property
+    def obs_dim(self) -> int:
+        """D = sectors + 2 goal features + velocity features."""
+        return self.sectors + 2 + len(self.velocity_scales)
+
+    def feature_scales(self) -> torch.Tensor:
+        """``[D - S]`` divisors for the non-LiDAR columns (goal distance, angle, velocities)."""
+        return torch.tensor((*self.goal_scale, *self.velocity_scales), dtype=torch.float32)
+
+    @classmethod
+    def from_robot(cls, preset) -> "ObsLayout":
+        """Layout for a :class:`flashnav.config.RobotPreset`.
+
+        The goal distance is bounded by the map diagonal; velocities by the action bounds (the
+        velocity state follows the commanded velocity); ``vy`` (always 0 on Go2) reuses the v bound.
+        """
+        v_max = max(abs(b) for b in preset.motion.v_bounds)
+        w_max = max(abs(b) for b in preset.motion.w_bounds)
+        velocity = (v_max, w_max) if preset.motion.velocity_state_dims == 2 else (v_max, v_max, w_max)
+        return cls(sectors=preset.lidar.sectors, inscribed_radius=preset.footprint.inscribed_radius,
+                   max_range=preset.lidar.max_range, goal_scale=(math.hypot(*preset.map_size), math.pi),
+                   velocity_scales=velocity)
+
+
+class IPAPRec(nn.Module):
+    """``obs [..., D]`` -> features ``[..., D]``: LiDAR ``1 / (l - beta)``, other columns / bounds.
+
+    ``copies=0``: one transform (scalar rho), any leading shape. ``copies=C``: C independent
+    transforms (rho ``[C]``) for a batched ensemble; input ``[B, D]``, output ``[C, B, D]``.
+    Readings are clamped to ``[inscribed_radius, max_range]`` first: a post-collision final
+    observation can read inside the footprint, and must not reach the pole of the reciprocal.
+    """
+
+    def __init__(self, layout: ObsLayout, copies: int = 0):
+        super().__init__()
+        self.sectors = layout.sectors
+        self.r_in = float(layout.inscribed_radius)
+        self.max_range = float(layout.max_range)
+        self.copies = copies
+        # softplus(rho0) = r_in - margin - BETA_INIT puts beta at BETA_INIT
+        gap = self.r_in - BETA_MARGIN - BETA_INIT
+        rho0 = gap + math.log(-math.expm1(-gap))
+        self.rho = nn.Parameter(torch.full((copies,) if copies else (), rho0))
+        self.register_buffer("inv_scale", 1.0 / layout.feature_scales())
+
+    def beta(self, detach: bool = False) -> torch.Tensor:
+        """Pole position, metres: ``[]`` or ``[C]``, always <= r_in - margin."""
+        rho = self.rho.detach() if detach else self.rho
+        return self.r_in - BETA_MARGIN - F.softplus(rho)
+
+    def forward(self, obs: torch.Tensor, detach_rho: bool = False) -> torch.Tensor:
+        lidar = obs[..., : self.sectors].clamp(min=self.r_in, max=self.max_range)
+        rest = obs[..., self.sectors:] * self.inv_scale
+        beta = self.beta(detach_rho)
+        if self.copies > 0:
+            beta = beta.view(-1, 1, 1)
+            inv = torch.reciprocal(lidar.unsqueeze(0) - beta)
+            rest = rest.unsqueeze(0).expand(self.copies, -1, -1)
+        else:
+            inv = torch.reciprocal(lidar - beta)
+        return torch.cat([inv, rest], dim=-1)
+
+
+def _uniform_(tensor: torch.Tensor, fan_in: int, generator: torch.Generator | None) -> None:
+    """nn.Linear's default init, U(-1/sqrt(fan_in), 1/sqrt(fan_in)), from an explicit generator."""
+    bound = 1.0 / math.sqrt(fan_in)
+    with torch.no_grad():
+        tensor.uniform_(-bound, bound, generator=generator)
+
+
+class MLP(nn.Module):
+    """``[..., in] -> [..., out]``: Linear/LeakyReLU hidden layers, linear output."""
+
+    def __init__(self, in_dim: int, hidden: Sequence[int], out_dim: int,
+                 generator: torch.Generator | None = None, out_init_std: float | None = None):
+        super().__init__()
+        sizes = [in_dim, *hidden, out_dim]
+        layers: list[nn.Module] = []
+        for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+            linear = nn.Linear(n_in, n_out)
+            _uniform_(linear.weight, n_in, generator)
+            _uniform_(linear.bias, n_in, generator)
+            layers.append(linear)
+            if i < len(sizes) - 2:
+                layers.append(nn.LeakyReLU())
+        if out_init_std is not None:
+            with torch.no_grad():
+                layers[-1].weight.normal_(0.0, out_init_std, generator=generator)
+                layers[-1].bias.zero_()
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+class Actor(nn.Module):
+    """``obs [N, D]`` (raw units) -> raw head outputs ``[N, heads * A]``.
+
+    heads = 1 (FastTD3: mu), 2 (FastSAC: mu, raw log sigma), 3 (FastDSAC DEM: mu, raw log sigma,
+    allocation logits). The deterministic action is always ``tanh(mu)``; see :class:`DeterministicActor`.
+    """
+
+    def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], heads: int,
+                 generator: torch.Generator | None = None):
+        super().__init__()
+        self.action_dim = action_dim
+        self.heads = heads
+        self.transform = IPAPRec(layout)
+        self.mlp = MLP(layout.obs_dim, hidden, heads * action_dim, generator, ACTOR_OUT_INIT_STD)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.mlp(self.transform(obs))
+
+
+class DeterministicActor(nn.Module):
+    """Deployable policy: ``obs [N, D]`` raw units -> ``action [N, A]`` = tanh(mu), in [-1, 1].
+
+    Shares parameters with the wrapped actor (evaluation sees the latest weights); deep-copy it to
+    freeze. Plain tensor ops only, so ``torch.export`` / ONNX / TorchScript can trace it.
+    """
+
+    def __init__(self, actor: Actor):
+        super().__init__()
+        self.actor = actor
+        self.action_dim = actor.action_dim
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self.actor(obs)[..., : self.action_dim])
+
+
+class TwinCritic(nn.Module):
+    """Two critics as one batched network: ``(obs [B, D], action [B, A]) -> [2, B, out]``.
+
+    Weights are stacked ``[2, in, out]`` (biases ``[2, 1, out]``) and applied with ``baddbmm``;
+    each critic keeps its own IPAPRec beta. ``out`` = K logits (C51) or 2 (Gaussian: mean, raw std;
+    see :func:`gaussian_head`). ``detach_params=True`` evaluates with detached weights, so the actor
+    loss backpropagates into the action only and never writes critic gradients.
+    """
+
+    def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], out_dim: int,
+                 generator: torch.Generator | None = None, copies: int = 2):
+        super().__init__()
+        self.copies = copies
+        self.transform = IPAPRec(layout, copies=copies)
+        sizes = [layout.obs_dim + action_dim, *hidden, out_dim]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for n_in, n_out in zip(sizes[:-1], sizes[1:]):
+            w = torch.empty(copies, n_in, n_out)
+            b = torch.empty(copies, 1, n_out)
+            for k in range(copies):  # same draw order as copies separate nn.Linear layers
+                _uniform_(w[k], n_in, generator)
+                _uniform_(b[k], n_in, generator)
+            self.weights.append(nn.Parameter(w))
+            self.biases.append(nn.Parameter(b))
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor, detach_params: bool = False) -> torch.Tensor:
+        x = self.transform(obs, detach_rho=detach_params)
+        x = torch.cat([x, action.unsqueeze(0).expand(self.copies, -1, -1)], dim=-1)
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+            if detach_params:
+                w, b = w.detach(), b.detach()
+            x = torch.baddbmm(b, x, w)
+            if i < last:
+                x = F.leaky_relu(x)
+        return x
+
+
+def gaussian_head(out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``[..., 2]`` critic output -> (mean, std = softplus(raw)), each ``[...]``, reward units."""
+    return out[..., 0], F.softplus(out[..., 1])
+
+
+def bounded_log_std(raw: torch.Tensor, log_std_min: float, log_std_max: float) -> torch.Tensor:
+    """``lmin + 0.5 (lmax - lmin)(tanh(raw) + 1)``: smooth map of raw outputs onto [lmin, lmax]."""
+    return log_std_min + 0.5 * (log_std_max - log_std_min) * (torch.tanh(raw) + 1.0)
+
+
+def dem_log_weights(logits: torch.Tensor, temperature: float, scale: torch.Tensor | float = 1.0) -> torch.Tensor:
+    """Log of the DEM allocation ``w = A * softmax(scale * clamp(logits / T, -20, 20))``, ``[..., A]``.
+
+    ``scale`` (per-env ``[N, 1]`` during collection, 1 in training) sharpens (> 1) or flattens (< 1)
+    the allocation. Returned in log space so that ``log sigma_eff = log w + log sigma`` stays finite
+    when one dimension's weight underflows.
+    """
+    a = logits.shape[-1]
+    z = scale * torch.clamp(logits / temperature, -20.0, 20.0)
+    return math.log(a) + torch.log_softmax(z, dim=-1)
+
+
+def squashed_gaussian(mu: torch.Tensor, log_std: torch.Tensor,
+                      noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Reparameterised tanh-Gaussian sample and its log-density.
+
+    ``mu, log_std, noise [N, A]`` -> ``action [N, A]`` in (-1, 1), ``log_prob [N]`` (nats), with the
+    tanh change-of-variables correction ``log(1 - a^2 + 1e-6)`` summed over action dimensions.
+    """
+    action = torch.tanh(mu + torch.exp(log_std) * noise)
+    log_prob = -0.5 * noise.pow(2) - log_std - 0.5 * math.log(2.0 * math.pi)
+    log_prob = log_prob - torch.log(1.0 - action.pow(2) + 1e-6)
+    return action, log_prob.sum(-1)

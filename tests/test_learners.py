@@ -1,0 +1,288 @@
+"""Learners (FastTD3, FastSAC, FastDSAC) through the common interface, and their hyperparameters."""
+
+import math
+
+import pytest
+import torch
+
+from flashnav.learn import c51, fastdsac, fastsac, fasttd3
+from flashnav.learn.hparams import load_hparams
+from flashnav.learn.learners import make_learner
+from flashnav.learn.networks import ObsLayout, gaussian_head
+from flashnav.learn.replay import Transition
+
+ALGORITHMS = ("fasttd3", "fastsac", "fastdsac")
+LAYOUT = ObsLayout(sectors=30, inscribed_radius=0.2, max_range=20.0, goal_scale=(15.0, math.pi),
+                   velocity_scales=(0.5, math.pi / 4))
+N, A, B = 8, 2, 32
+
+
+def random_obs(n, gen):
+    lidar = 0.2 + 19.8 * torch.rand(n, 30, generator=gen) ** 3
+    goal = torch.stack([15 * torch.rand(n, generator=gen), (2 * torch.rand(n, generator=gen) - 1) * math.pi], -1)
+    vel = torch.stack([0.5 * torch.rand(n, generator=gen), (2 * torch.rand(n, generator=gen) - 1) * math.pi / 4], -1)
+    return torch.cat([lidar, goal, vel], -1)
+
+
+def random_batch(seed=0, b=B, terminated=None):
+    gen = torch.Generator().manual_seed(seed)
+    term = (torch.rand(b, generator=gen) < 0.2).float() if terminated is None else torch.full((b,), float(terminated))
+    return Transition(random_obs(b, gen), torch.rand(b, A, generator=gen) * 2 - 1, 3 * torch.randn(b, generator=gen),
+                      term, random_obs(b, gen))
+
+
+def learner(algorithm, seed=0, **overrides):
+    hp = load_hparams(algorithm, "turtlebot2", "paper", overrides)
+    return make_learner(algorithm, hp, LAYOUT, A, N, "cpu", seed)
+
+
+def params(module):
+    return [p.detach().clone() for p in module.parameters()]
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_update_changes_parameters_and_returns_detached_tensors(algorithm):
+    lrn = learner(algorithm)
+    actor0, critic0 = params(lrn.state.actor), params(lrn.state.critic)
+    keys = None
+    for i in range(lrn.hp.policy_frequency):
+        metrics = lrn.update(random_batch(i))
+        assert all(isinstance(v, torch.Tensor) and not v.requires_grad for v in metrics.values())
+        assert all(torch.isfinite(v).all() for v in metrics.values())
+        assert keys is None or set(metrics) == keys
+        keys = set(metrics)
+    assert lrn.num_updates == lrn.hp.policy_frequency
+    assert any(not torch.equal(a, b) for a, b in zip(actor0, params(lrn.state.actor)))
+    assert any(not torch.equal(a, b) for a, b in zip(critic0, params(lrn.state.critic)))
+    # the IPAPRec betas are trained too
+    assert not torch.equal(critic0[0], lrn.state.critic.transform.rho)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_actor_updates_only_every_policy_frequency(algorithm):
+    lrn = learner(algorithm, policy_frequency=3)
+    actor0 = params(lrn.state.actor)
+    lrn.update(random_batch(0))
+    lrn.update(random_batch(1))
+    assert all(torch.equal(a, b) for a, b in zip(actor0, params(lrn.state.actor)))
+    lrn.update(random_batch(2))
+    assert any(not torch.equal(a, b) for a, b in zip(actor0, params(lrn.state.actor)))
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_target_critic_is_a_polyak_average(algorithm):
+    lrn = learner(algorithm)
+    lrn.update(random_batch(0))            # targets and critics now differ
+    target0 = params(lrn.state.critic_target)
+    lrn.update(random_batch(1))
+    tau = lrn.hp.tau
+    for old, new, online in zip(target0, params(lrn.state.critic_target), params(lrn.state.critic)):
+        torch.testing.assert_close(new, (1 - tau) * old + tau * online, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_act_stays_in_bounds_and_uses_the_collector_copy(algorithm):
+    lrn = learner(algorithm)
+    obs = random_obs(N, torch.Generator().manual_seed(3))
+    for _ in range(5):
+        action = lrn.act(obs)
+        assert action.shape == (N, A) and action.abs().max() <= 1.0 and not action.requires_grad
+    for i in range(4):
+        lrn.update(random_batch(i))
+    collector = params(lrn.state.collector)
+    assert any(not torch.equal(a, b) for a, b in zip(collector, params(lrn.state.actor)))
+    lrn.sync_collector()
+    assert all(torch.equal(a, b) for a, b in zip(params(lrn.state.collector), params(lrn.state.actor)))
+
+
+@pytest.mark.parametrize("algorithm,key", [("fasttd3", "collection_noise"), ("fastdsac", "scale_range")])
+def test_episode_end_resamples_only_finished_envs(algorithm, key):
+    lrn = learner(algorithm)
+    before = lrn.state.explore_scale.clone()
+    done = torch.tensor([True, False, True, False, False, False, False, True])
+    lrn.on_episode_end(done)
+    after = lrn.state.explore_scale
+    lo, hi = getattr(lrn.hp, key)
+    assert torch.equal(after[~done], before[~done]) and not torch.equal(after[done], before[done])
+    assert after.min() >= lo and after.max() <= hi
+
+
+def test_fastsac_episode_end_is_a_no_op():
+    learner("fastsac").on_episode_end(torch.ones(N, dtype=torch.bool))
+
+
+def test_terminated_transitions_do_not_bootstrap():
+    batch = random_batch(0, terminated=1)
+    batch = batch._replace(reward=torch.linspace(-9, 9, B))
+    lrn = learner("fasttd3")
+    target, value = fasttd3.compute_target(lrn.state, batch)
+    torch.testing.assert_close(c51.expected_value(target, lrn.state.atoms), batch.reward, rtol=0, atol=1e-4)
+    lrn = learner("fastsac")
+    target, _ = fastsac.compute_target(lrn.state, batch)
+    for k in range(2):
+        torch.testing.assert_close(c51.expected_value(target[k], lrn.state.atoms), batch.reward, rtol=0, atol=1e-4)
+    lrn = learner("fastdsac")
+    y, y_hat = fastdsac.compute_target(lrn.state, batch)
+    torch.testing.assert_close(y, 0.4 * batch.reward)
+    torch.testing.assert_close(y_hat, 0.4 * batch.reward)
+
+
+def test_truncated_transitions_bootstrap_from_the_stored_next_obs():
+    batch = random_batch(0, terminated=0)
+    batch = batch._replace(reward=torch.zeros(B))
+    lrn = learner("fasttd3")
+    _, value = fasttd3.compute_target(lrn.state, batch)
+    assert value.abs().min() > 0
+    lrn = learner("fastdsac")
+    state, hp = lrn.state, lrn.hp
+    saved = state.update_gen.get_state()
+    y, y_hat = fastdsac.compute_target(state, batch)
+    # recompute by hand from the same random draws: y = 0.4 r + gamma (min_k mu'_k - alpha log pi')
+    state.update_gen.set_state(saved)
+    with torch.no_grad():
+        action, log_prob = fastdsac.sample(state.actor, batch.next_obs, hp, state.update_gen)
+        mu, std = gaussian_head(state.critic_target(batch.next_obs, action))
+        zeta = torch.randn(mu.shape, generator=state.update_gen).clamp(-3, 3)
+    k = mu.argmin(dim=0, keepdim=True)
+    alpha = hp.alpha_init
+    torch.testing.assert_close(y, hp.gamma * (mu.gather(0, k)[0] - alpha * log_prob))
+    torch.testing.assert_close(y_hat, hp.gamma * ((mu + zeta * std).gather(0, k)[0] - alpha * log_prob))
+
+
+def test_dsac_critic_loss_gradient_signs():
+    """dL/dmu = w Huber'(mu - y): the mean moves towards y. dL/dsigma = w (s^2 - Huber(mu - y^)) / s:
+    in the quadratic zone sigma grows when |mu - y^| > sqrt(2) sigma and shrinks when smaller."""
+    mu = torch.tensor([[0.0, 0.0, 0.0, 0.0, 100.0]], requires_grad=True)
+    std = torch.ones(1, 5, requires_grad=True)
+    y = torch.tensor([2.0, -2.0, 0.0, 0.0, 0.0])
+    y_hat = torch.tensor([0.0, 0.0, 3.0, 0.5, 0.0])
+    m = torch.tensor([1.0])   # running std = sigma: weight 1
+    fastdsac.critic_loss(mu, std, y, y_hat, m, huber_delta=50.0).backward()
+    g_mu, g_std = mu.grad[0] * 5, std.grad[0] * 5           # undo the batch mean
+    assert g_mu[0] < 0 and g_mu[1] > 0                      # descent moves mu up to 2 / down to -2
+    torch.testing.assert_close(g_mu[:4], torch.tensor([-2.0, 2.0, 0.0, 0.0]), rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(g_mu[4], torch.tensor(50.0))  # Huber: gradient capped at delta
+    assert g_std[2] < 0                                     # |mu - y^| = 3 > sqrt(2): sigma grows
+    assert g_std[3] > 0                                     # |mu - y^| = 0.5 < sqrt(2): sigma shrinks
+    torch.testing.assert_close(g_std[:4], torch.tensor([1.0, 1.0, 1 - 4.5, 1 - 0.125]), rtol=1e-4, atol=1e-4)
+
+
+def test_dsac_loss_weight_uses_running_std():
+    mu, std = torch.zeros(1, 2, requires_grad=True), torch.tensor([[0.1, 10.0]])
+    y = torch.tensor([1.0, 1.0])
+    fastdsac.critic_loss(mu, std, y, torch.zeros(2), torch.tensor([1.0]), 50.0).backward()
+    # weights clamp(1 / s^2, 0.1, 10): 10 for the confident sample, 0.1 for the uncertain one
+    torch.testing.assert_close(mu.grad[0] * 2, torch.tensor([-10.0, -0.1]), rtol=1e-4, atol=1e-6)
+
+
+def test_dsac_running_std_initialised_from_first_batch_then_ema():
+    lrn = learner("fastdsac")
+    assert (lrn.state.running_std < 0).all()
+    batch = random_batch(0)
+    with torch.no_grad():
+        _, std = gaussian_head(lrn.state.critic(batch.obs, batch.action))
+    lrn.update(batch)
+    torch.testing.assert_close(lrn.state.running_std, std.mean(-1))
+    first = lrn.state.running_std.clone()
+    batch2 = random_batch(1)
+    with torch.no_grad():
+        _, std2 = gaussian_head(lrn.state.critic(batch2.obs, batch2.action))
+    lrn.update(batch2)
+    torch.testing.assert_close(lrn.state.running_std, 0.995 * first + 0.005 * std2.mean(-1))
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_same_seed_same_parameters(algorithm):
+    runs = []
+    for seed in (0, 0, 1):
+        lrn = learner(algorithm, seed=seed)
+        obs = random_obs(N, torch.Generator().manual_seed(9))
+        for i in range(3):
+            lrn.act(obs)
+            lrn.update(random_batch(i))
+        runs.append(params(lrn.state.actor) + params(lrn.state.critic) + [lrn.act(obs)])
+    assert all(torch.equal(a, b) for a, b in zip(runs[0], runs[1]))
+    assert any(not torch.equal(a, b) for a, b in zip(runs[0], runs[2]))
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_state_dict_round_trip_continues_identically(algorithm):
+    a = learner(algorithm, seed=0)
+    for i in range(3):
+        a.update(random_batch(i))
+    b = learner(algorithm, seed=123)
+    b.load_state_dict(a.state_dict())
+    ma, mb = a.update(random_batch(7)), b.update(random_batch(7))
+    assert all(torch.equal(ma[k], mb[k]) for k in ma)
+    assert all(torch.equal(x, y) for x, y in zip(params(a.state.critic), params(b.state.critic)))
+    obs = random_obs(N, torch.Generator().manual_seed(2))
+    assert torch.equal(a.act(obs), b.act(obs))
+    with pytest.raises(ValueError):
+        learner("fastsac").load_state_dict(learner("fasttd3").state_dict())
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_policy_is_deterministic_tanh_mean(algorithm):
+    lrn = learner(algorithm)
+    obs = random_obs(N, torch.Generator().manual_seed(4))
+    action = lrn.policy(obs)
+    assert torch.equal(action, lrn.policy(obs)) and action.abs().max() <= 1
+    torch.testing.assert_close(action, torch.tanh(lrn.state.actor(obs)[:, :A]))
+
+
+def test_make_learner_rejects_mismatched_hparams():
+    with pytest.raises(TypeError):
+        make_learner("fastsac", load_hparams("fasttd3", "go2"), LAYOUT, A, N)
+    with pytest.raises(ValueError):
+        make_learner("ppo", load_hparams("fasttd3", "go2"), LAYOUT, A, N)
+
+
+# --- hyperparameters: the presets hold the paper's appendix A numbers -------------------------------
+
+SHARED = dict(batch_size=1024, gamma=0.97, actor_lr=3e-4, critic_lr=3e-4, weight_decay=0.001,
+              actor_hidden=(100,) * 4, critic_hidden=(100,) * 4)
+PAPER = {
+    ("fastdsac", "turtlebot2"): dict(total_env_steps=200_704, env_steps_per_sync=1, policy_frequency=2),
+    ("fastdsac", "go2"): dict(total_env_steps=401_408, env_steps_per_sync=2, policy_frequency=2),
+    ("fastsac", "turtlebot2"): dict(total_env_steps=200_704, env_steps_per_sync=1, policy_frequency=1),
+    ("fastsac", "go2"): dict(total_env_steps=501_760, env_steps_per_sync=2, policy_frequency=2),
+    ("fasttd3", "turtlebot2"): dict(total_env_steps=200_704, env_steps_per_sync=1, policy_frequency=2),
+    ("fasttd3", "go2"): dict(total_env_steps=602_112, env_steps_per_sync=2, policy_frequency=2),
+}
+PER_ALGORITHM = {
+    "fastdsac": dict(num_envs=1024, updates_per_step=40, learning_start=8192, tau=0.1, std_ema=0.005,
+                     reward_scale=0.4, temperature=2.0, scale_range=(0.5, 2.0), cdq=True, log_std_max=0.0,
+                     log_std_min=-5.0, huber_delta=50.0, betas=(0.9, 0.95)),
+    "fastsac": dict(num_envs=1024, updates_per_step=40, learning_start=8192, tau=0.1, alpha_lr=3e-4,
+                    alpha_init=0.001, target_entropy_ratio=0.5, num_atoms=101, v_min=-20.0, v_max=20.0,
+                    betas=(0.9, 0.95)),
+    "fasttd3": dict(num_envs=512, updates_per_step=56, learning_start=16_384, tau=0.01, target_noise=0.1,
+                    noise_clip=0.2, max_grad_norm=10.0, collection_noise=(0.05, 0.25), num_atoms=101,
+                    v_min=-10.0, v_max=10.0),
+}
+
+
+@pytest.mark.parametrize("algorithm,robot", sorted(PAPER))
+def test_paper_presets_hold_appendix_a(algorithm, robot):
+    hp = load_hparams(algorithm, robot, "paper")
+    for key, value in {**SHARED, **PER_ALGORITHM[algorithm], **PAPER[(algorithm, robot)]}.items():
+        assert getattr(hp, key) == pytest.approx(value), key
+    cpu = load_hparams(algorithm, robot, "cpu")
+    assert cpu.algorithm == algorithm and cpu.num_envs <= 256
+
+
+def test_overrides_and_validation_messages():
+    hp = load_hparams("fastdsac", "go2", "paper", {"batch_size": 256, "betas": [0.9, 0.99]})
+    assert hp.batch_size == 256 and hp.betas == (0.9, 0.99)
+    with pytest.raises(ValueError, match="batch_size"):
+        load_hparams("fastdsac", "go2", "paper", {"batch_sise": 256})
+    with pytest.raises(ValueError, match="greater than 0"):
+        load_hparams("fasttd3", "go2", "paper", {"num_envs": 0})
+    with pytest.raises(ValueError, match="v_min"):
+        load_hparams("fastsac", "turtlebot2", "paper", {"v_min": 30.0})
+    with pytest.raises(ValueError, match="recipe"):
+        load_hparams("fastsac", "turtlebot2", "auto")
+    with pytest.raises(ValueError, match="robot"):
+        load_hparams("fastsac", "jackal", "paper")
+    with pytest.raises(ValueError):
+        type(hp).model_validate({**hp.model_dump(), "unknown_key": 1})

@@ -1,0 +1,90 @@
+"""Replay buffer: layout, wrap-around, sampling validity and reproducibility."""
+
+import pytest
+import torch
+
+from flashnav.learn.replay import Replay, Transition
+
+N, D, A = 3, 5, 2
+
+
+def step_data(step: int, n: int = N):
+    """Transitions whose every field encodes (step, env) so a sample can be traced to its origin."""
+    env = torch.arange(n, dtype=torch.float32)
+    code = 100.0 * (step + 1) + env                                   # never 0: unwritten rows are 0
+    obs = code[:, None].expand(n, D).clone()
+    action = torch.stack([code / 1000.0, -code / 1000.0], -1) * 2    # some beyond [-1, 1]
+    return obs, action, code, (env == 1), obs + 0.5
+
+
+def fill(replay: Replay, steps: int, start: int = 0):
+    for t in range(start, start + steps):
+        replay.add(*step_data(t))
+
+
+def test_capacity_rounds_up_to_whole_vector_steps():
+    replay = Replay(N, D, A, capacity=10)
+    assert replay.rows_per_env == 4 and replay.capacity == 12 and replay.size == 0
+
+
+def test_add_stores_clamped_actions_and_float_terminated():
+    replay = Replay(N, D, A, capacity=12)
+    fill(replay, 1)
+    assert replay.size == N
+    assert replay.action.abs().max() <= 1.0
+    torch.testing.assert_close(replay.terminated[0], torch.tensor([0.0, 1.0, 0.0]))
+    torch.testing.assert_close(replay.next_obs[0], replay.obs[0] + 0.5)
+
+
+def test_samples_only_written_rows_before_wrap():
+    replay = Replay(N, D, A, capacity=30, seed=1)
+    fill(replay, 2)
+    batch = replay.sample(batch_size=500, n_batches=3)
+    codes = set(batch.reward.flatten().tolist())
+    assert codes <= {100.0, 101.0, 102.0, 200.0, 201.0, 202.0}
+    assert len(codes) == 6   # every stored transition is reachable
+
+
+def test_wrap_around_overwrites_oldest_and_keeps_fields_aligned():
+    replay = Replay(N, D, A, capacity=12, seed=2)          # 4 slots per env
+    fill(replay, 6)                                          # steps 0, 1 overwritten by 4, 5
+    assert replay.size == 12
+    batch = replay.sample(batch_size=1000, n_batches=2)
+    steps = set((batch.reward // 100).long().flatten().tolist())
+    assert steps == {3, 4, 5, 6}                             # codes of steps 2..5
+    # fields of one sampled row belong to the same transition
+    torch.testing.assert_close(batch.obs[..., 0], batch.reward)
+    torch.testing.assert_close(batch.next_obs[..., 0], batch.reward + 0.5)
+    torch.testing.assert_close(batch.terminated, (batch.reward % 100 == 1).float())
+
+
+def test_sample_shapes_and_at():
+    replay = Replay(N, D, A, capacity=12)
+    fill(replay, 3)
+    batch = replay.sample(batch_size=7, n_batches=4)
+    assert isinstance(batch, Transition)
+    assert batch.obs.shape == (4, 7, D) and batch.action.shape == (4, 7, A)
+    assert batch.reward.shape == (4, 7) and batch.terminated.shape == (4, 7) and batch.next_obs.shape == (4, 7, D)
+    one = batch.at(2)
+    assert one.obs.shape == (7, D) and torch.equal(one.reward, batch.reward[2])
+    assert all(x.dtype == torch.float32 for x in batch)
+
+
+def test_sampling_is_reproducible_with_a_seed():
+    a, b, c = Replay(N, D, A, 12, seed=7), Replay(N, D, A, 12, seed=7), Replay(N, D, A, 12, seed=8)
+    for replay in (a, b, c):
+        fill(replay, 5)
+    sa, sb, sc = a.sample(64, 3), b.sample(64, 3), c.sample(64, 3)
+    assert torch.equal(sa.reward, sb.reward) and torch.equal(sa.obs, sb.obs)
+    assert not torch.equal(sa.reward, sc.reward)
+
+
+def test_errors_and_clear():
+    replay = Replay(N, D, A, 12)
+    with pytest.raises(ValueError):
+        replay.sample(4)
+    with pytest.raises(ValueError):
+        replay.add(torch.zeros(N, D + 1), torch.zeros(N, A), torch.zeros(N), torch.zeros(N), torch.zeros(N, D))
+    fill(replay, 2)
+    replay.clear()
+    assert replay.size == 0
