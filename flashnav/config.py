@@ -51,7 +51,7 @@ class Footprint(Strict):
 class Motion(Strict):
     """Action interface and kinematics. Actions in [-1, 1] map linearly onto [low, high]."""
 
-    model: Literal["diff_drive", "omni"] = "diff_drive"
+    model: Literal["diff_drive"] = "diff_drive"  # the paper's model for both robots
     v_bounds: tuple[float, float] = Field(description="linear velocity command bounds (min, max), m/s")
     w_bounds: tuple[float, float] = Field(description="angular velocity command bounds (min, max), rad/s")
     max_linear_velocity: float = Field(gt=0, description="platform limit, m/s (commands are clamped to it)")

@@ -1,0 +1,100 @@
+"""``flashnav bench ...`` subcommands: speed claims live here, measured as ratios in one run."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import sys
+
+from rich.console import Console
+from rich.table import Table
+
+
+def register_cli(sub: argparse._SubParsersAction) -> None:
+    bench = sub.add_parser("bench", help="benchmarks (simulator, training)")
+    bsub = bench.add_subparsers(dest="bench_command", metavar="BENCH")
+    p = bsub.add_parser("sim", help="simulator env-steps/s per raycaster x num_envs x robot, vs the paper's march and ir-sim")
+    p.add_argument("--robots", default="turtlebot2,go2", help="comma-separated presets")
+    p.add_argument("--raycasters", default="exact,exact-torch,march", help="comma-separated raycasters")
+    p.add_argument("--num-envs", default="1,64,1024", help="comma-separated batch sizes")
+    p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N")
+    p.add_argument("--seconds", type=float, default=2.0, help="minimum timed seconds per row")
+    p.add_argument("--max-steps", type=int, default=2000, help="maximum timed steps per row")
+    p.add_argument("--no-irsim", action="store_true", help="skip the ir-sim peer")
+    p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    p.add_argument("--quick", action="store_true", help="a fast smoke run: turtlebot2, 64 envs, 0.5 s rows")
+    p.set_defaults(func=run_sim)
+    bench.set_defaults(func=lambda args: bench.print_help() or 2)
+    try:
+        from flashnav.bench import train as bench_train
+    except ImportError:
+        return
+    bench_train.register_cli(bsub)
+
+
+def _csv(text: str, cast=str) -> list:
+    return [cast(x) for x in text.split(",") if x.strip()]
+
+
+def run_sim(args) -> int:
+    from flashnav.bench import sim
+    from flashnav.bench.irsim_peer import irsim_available, irsim_steps
+
+    console = Console()
+    robots, raycasters, sizes = _csv(args.robots), _csv(args.raycasters), _csv(args.num_envs, int)
+    seconds = args.seconds
+    if args.quick:
+        robots, sizes, seconds = ["turtlebot2"], [64], 0.5
+    machine = sim.machine_description(args.device)
+    when = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    console.print(f"[bold]flashnav bench sim[/] {when} on {machine}; each row >= {seconds} s of whole env steps")
+    rows, accuracy = [], []
+    for robot in robots:
+        for n in sizes:
+            for rc in raycasters:
+                # march is orders of magnitude slower: a couple of steps give its rate
+                max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
+                row = sim.time_steps(robot, rc, n, args.device, seconds, max_steps)
+                rows.append(row.to_dict(1080))
+                console.print(f"  {robot:10s} {rc:12s} N={n:5d}: {row.env_steps_per_s:12,.0f} env-steps/s")
+        for rc in raycasters:
+            if rc != "exact":
+                accuracy.append(sim.accuracy(robot, rc, args.device))
+    peer = []
+    if not args.no_irsim:
+        if irsim_available():
+            for robot in robots:
+                peer.append(irsim_steps(robot, seconds))
+        else:
+            console.print("[yellow]ir-sim not installed (pip install 'flashnav[bench]'): peer rows skipped[/]")
+    _print_tables(console, rows, accuracy, peer)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump({"machine": machine, "date": when, "argv": sys.argv, "rows": rows,
+                       "accuracy": accuracy, "irsim": peer}, f, indent=2)
+    return 0
+
+
+def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
+    base = {(r["robot"], r["num_envs"]): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
+    t = Table(title="whole env step, random actions (full 1,080-beam scans)")
+    for col in ("robot", "raycaster", "envs", "env-steps/s", "rays/s", "x march"):
+        t.add_column(col, justify="right")
+    for r in rows:
+        ref = base.get((r["robot"], r["num_envs"]))
+        ratio = f"{r['env_steps_per_s'] / ref:,.0f}x" if ref else "-"
+        t.add_row(r["robot"], r["raycaster"], str(r["num_envs"]), f"{r['env_steps_per_s']:,.0f}",
+                  f"{r['rays_per_s']:,.3g}", ratio)
+    for p in peer:
+        t.add_row(p["robot"], "ir-sim (peer)", "1", f"{p['env_steps_per_s']:,.1f}",
+                  f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-")
+    console.print(t)
+    if accuracy:
+        a = Table(title="range error vs the exact raycaster (random free poses, metres)")
+        for col in ("robot", "raycaster", "mean", "p99", "max", "beams > 5 cm"):
+            a.add_column(col, justify="right")
+        for r in accuracy:
+            a.add_row(r["robot"], r["raycaster"], f"{r['mean']:.4f}", f"{r['p99']:.4f}", f"{r['max']:.4f}",
+                      f"{r['frac_over_5cm']:.3%}")
+        console.print(a)

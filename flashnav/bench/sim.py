@@ -1,0 +1,94 @@
+"""``flashnav bench sim``: whole-step simulator throughput per raycaster x num_envs x preset.
+
+Every figure is measured in the same process, side by side, so ratios against the paper-literal
+``march`` raycaster (and the peer simulator ir-sim, when installed) hold on a noisy machine.
+A step here is the whole environment step (motion, full 1,080-beam scan, collision, reward,
+observation, sparse reset of finished slots) driven by uniformly random actions.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from dataclasses import asdict, dataclass
+
+import torch
+
+from flashnav.sim.env import make_env
+from flashnav.sim.raycast import error_stats, make_raycaster, random_free_poses
+
+
+@dataclass
+class StepRow:
+    robot: str
+    raycaster: str
+    num_envs: int
+    device: str
+    steps: int
+    seconds: float
+
+    @property
+    def env_steps_per_s(self) -> float:
+        return self.num_envs * self.steps / self.seconds
+
+    def to_dict(self, beams: int) -> dict:
+        d = asdict(self)
+        d["env_steps_per_s"] = self.env_steps_per_s
+        d["rays_per_s"] = self.env_steps_per_s * beams
+        return d
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
+               max_steps: int, seed: int = 0) -> StepRow:
+    """Step ``num_envs`` environments with random actions for at least ``min_seconds`` (at least 2
+    steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches)."""
+    env = make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)
+    env.reset(seed=seed)
+    dev = env.device
+    gen = torch.Generator(device=dev).manual_seed(seed)
+    actions = [torch.rand(num_envs, 2, generator=gen, device=dev) * 2 - 1 for _ in range(16)]
+    for i in range(2):
+        env.step(actions[i])
+    _sync(dev)
+    steps, start = 0, time.perf_counter()
+    while steps < max_steps:
+        env.step(actions[steps % len(actions)])
+        steps += 1
+        if steps >= 2 and steps % 4 == 0:
+            _sync(dev)
+            if time.perf_counter() - start >= min_seconds:
+                break
+    _sync(dev)
+    return StepRow(robot, raycaster, num_envs, str(dev), steps, time.perf_counter() - start)
+
+
+def accuracy(robot: str, raycaster: str, device: str, num_poses: int = 256, seed: int = 1) -> dict:
+    """Error of ``raycaster`` against the exact raycaster on random free poses of the robot's map."""
+    env = make_env(robot, 1, device=device, seed=seed)
+    poses = random_free_poses(env.map, num_poses, seed=seed).to(env.device)
+    exact = make_raycaster("exact", env.map, env.beam_angles, env.preset.lidar.max_range, env.device)(poses)
+    other = make_raycaster(raycaster, env.map, env.beam_angles, env.preset.lidar.max_range, env.device,
+                           env.preset.lidar.march_step)(poses)
+    return {"robot": robot, "raycaster": raycaster, **error_stats(other, exact)}
+
+
+def machine_description(device: str = "cpu") -> str:
+    if device.startswith("cuda") and torch.cuda.is_available():
+        return torch.cuda.get_device_name(torch.device(device))
+    return f"{cpu_model()} ({torch.get_num_threads()} threads)"
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()

@@ -1,0 +1,90 @@
+"""``flashnav bench train``: S seeds of robot x algorithm x recipe -> time-to-threshold statistics."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import statistics
+
+from rich.console import Console
+from rich.table import Table
+
+from flashnav.learn.config import THRESHOLDS
+
+
+def register_cli(bsub: argparse._SubParsersAction) -> None:
+    p = bsub.add_parser("train", help="time-to-90/95/100%% success over several seeds")
+    p.add_argument("--robots", default="turtlebot2", help="comma-separated presets")
+    p.add_argument("--algos", default="fastdsac", help="comma-separated learners")
+    p.add_argument("--recipe", default="auto", choices=["auto", "paper", "cpu"])
+    p.add_argument("--device", default="auto")
+    p.add_argument("--seeds", type=int, default=3, help="seeds 0..S-1")
+    p.add_argument("--budget-seconds", type=float, default=600.0, help="training-clock budget per run")
+    p.add_argument("--json", metavar="FILE", help="write every run's metrics")
+    p.add_argument("overrides", nargs="*", metavar="key=value", help="as for flashnav train")
+    p.set_defaults(func=run_bench_train)
+
+
+def summarise(runs: list[dict]) -> dict:
+    """Best / mean seconds and env steps to each threshold over the runs that reached it, and k/S."""
+    out = {"runs": len(runs)}
+    for t in THRESHOLDS:
+        secs = [r["time_to_threshold"][str(t)] for r in runs if r["time_to_threshold"][str(t)] is not None]
+        steps = [r["env_steps_to_threshold"][str(t)] for r in runs if r["env_steps_to_threshold"][str(t)] is not None]
+        out[str(t)] = {
+            "reached": len(secs),
+            "best_s": min(secs) if secs else None,
+            "mean_s": statistics.fmean(secs) if secs else None,
+            "mean_env_steps": statistics.fmean(steps) if steps else None,
+        }
+    for k in ("collector_ms", "learner_ms", "effective_ms"):
+        out[k] = statistics.fmean(r["cycle"][k] for r in runs)
+    return out
+
+
+def run_bench_train(args) -> int:
+    from flashnav.learn.cli import build_config
+    from flashnav.learn.loop import train
+
+    console = Console()
+    when = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    results, groups = [], []
+    for robot in args.robots.split(","):
+        for algo in args.algos.split(","):
+            runs = []
+            for seed in range(args.seeds):
+                ns = argparse.Namespace(config=None, robot=robot, algorithm=algo, recipe=args.recipe,
+                                        device=args.device, map=None, seed=seed, sequential=False,
+                                        overrides=list(args.overrides) + [f"budget.max_train_seconds={args.budget_seconds}"])
+                result = train(build_config(ns))
+                r = result.to_dict()
+                r.pop("config")
+                r.update(robot=robot, algorithm=algo, seed=seed, recipe=result.config["recipe"])
+                runs.append(r)
+                t90 = r["time_to_threshold"]["0.9"]
+                console.print(f"  {robot} {algo} seed {seed}: 90% at {'-' if t90 is None else f'{t90:.1f} s'}, "
+                              f"final success {r['curve'][-1]['success_rate']:.1%} ({r['stop_reason']})")
+            results += runs
+            groups.append((robot, algo, runs[0]["recipe"], runs[0]["device_name"], summarise(runs)))
+    _print(console, groups, args.seeds, when)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump({"date": when, "groups": [g[:4] + (g[4],) for g in groups], "runs": results}, f, indent=2)
+    return 0
+
+
+def _print(console: Console, groups, seeds: int, when: str) -> None:
+    t = Table(title=f"flashnav bench train ({when}): seconds of training to success thresholds, {seeds} seeds")
+    for col in ("robot", "algo", "recipe", "device", "90% best/mean (k/S)", "95% best/mean (k/S)",
+                "100% best/mean (k/S)", "env steps to 90%", "collector/learner/cycle ms"):
+        t.add_column(col, justify="right")
+    for robot, algo, recipe, device, s in groups:
+        cells = []
+        for th in THRESHOLDS:
+            c = s[str(th)]
+            cells.append("-" if not c["reached"] else f"{c['best_s']:.1f} / {c['mean_s']:.1f} ({c['reached']}/{s['runs']})")
+        e90 = s["0.9"]["mean_env_steps"]
+        t.add_row(robot, algo, recipe, device, *cells, "-" if e90 is None else f"{e90:,.0f}",
+                  f"{s['collector_ms']:.1f} / {s['learner_ms']:.1f} / {s['effective_ms']:.1f}")
+    console.print(t)

@@ -1,0 +1,80 @@
+"""The ``flashnav`` command.
+
+Library subcommands live here; the experiment service adds its own (``sweep``, ``services``,
+``report``) through the ``flashnav.commands`` entry-point group, so the library never imports it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from importlib.metadata import entry_points
+
+
+def _add_library_commands(sub: argparse._SubParsersAction) -> None:
+    from flashnav.bench import cli as bench_cli
+    from flashnav import demo
+
+    from flashnav import policy_cli
+
+    demo.register_cli(sub)
+    bench_cli.register_cli(sub)
+    policy_cli.register_cli(sub)
+    try:
+        from flashnav.learn import cli as learn_cli
+    except ImportError as exc:  # the learning half is optional at import time, never silently
+        _unavailable(sub, "train", exc)
+    else:
+        learn_cli.register_cli(sub)
+
+
+def _unavailable(sub: argparse._SubParsersAction, name: str, exc: BaseException) -> None:
+    p = sub.add_parser(name, help=f"(unavailable: {exc})")
+
+    def fail(args) -> int:
+        print(f"flashnav {name}: unavailable: {exc}", file=sys.stderr)
+        return 2
+
+    p.set_defaults(func=fail)
+
+
+def _add_plugin_commands(sub: argparse._SubParsersAction) -> None:
+    for ep in entry_points(group="flashnav.commands"):
+        try:
+            register = ep.load()
+        except ImportError as exc:
+            _unavailable(sub, ep.name, f"{exc} (install the extra: pip install 'flashnav[services]')")
+            continue
+        register(sub)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="flashnav",
+        description="Train deployable 2D-LiDAR navigation policies in seconds.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _add_library_commands(sub)
+    _add_plugin_commands(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        # user errors (a bad map, a misspelt key, ...): one clear line, no traceback
+        print(f"flashnav {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

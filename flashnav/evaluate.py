@@ -1,0 +1,65 @@
+"""Deterministic evaluation and time-to-threshold bookkeeping.
+
+Protocol: the evaluation environment is reset with a fixed seed, so every evaluation (of every run and
+every training seed) plays the same E start/goal pairs; each slot's *first* episode counts; success =
+the goal reached before a collision or the horizon.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+
+from flashnav.learn.config import THRESHOLDS
+from flashnav.sim.env import NavVecEnv
+
+
+@torch.no_grad()
+def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, seed: int) -> dict[str, float]:
+    """Run one episode per slot of ``env`` with the deterministic ``policy`` (obs [N, D] -> action [N, 2]).
+
+    Returns success_rate, collision_rate, timeout_rate (fractions of the N episodes), mean_return
+    (undiscounted) and mean_steps.
+    """
+    obs, _ = env.reset(seed=seed)
+    n, dev = env.num_envs, env.device
+    finished = torch.zeros(n, dtype=torch.bool, device=dev)
+    success = torch.zeros(n, dtype=torch.bool, device=dev)
+    collision = torch.zeros(n, dtype=torch.bool, device=dev)
+    returns = torch.zeros(n, device=dev)
+    steps = torch.zeros(n, device=dev)
+    for t in range(env.preset.episode.horizon):
+        obs, _, terminated, truncated, info = env.step(policy(obs))
+        first = (terminated | truncated) & ~finished
+        success |= first & info["success"]
+        collision |= first & info["collision"]
+        returns = torch.where(first, info["episode_return"], returns)
+        steps = torch.where(first, info["episode_steps"].float(), steps)
+        finished |= first
+        if t % 10 == 9 and bool(finished.all()):  # one host sync every 10 steps, outside the clock
+            break
+    return {
+        "success_rate": success.float().mean().item(),
+        "collision_rate": collision.float().mean().item(),
+        "timeout_rate": (~success & ~collision).float().mean().item(),
+        "mean_return": returns.mean().item(),
+        "mean_steps": steps.mean().item(),
+    }
+
+
+class ThresholdTracker:
+    """First training time and env step at which the success rate reached each threshold."""
+
+    def __init__(self, thresholds=THRESHOLDS):
+        self.seconds: dict[float, float | None] = {t: None for t in thresholds}
+        self.env_steps: dict[float, int | None] = {t: None for t in thresholds}
+
+    def update(self, success_rate: float, train_seconds: float, env_steps: int) -> list[float]:
+        """Record an evaluation; returns the thresholds reached for the first time."""
+        new = []
+        for t in self.seconds:
+            if self.seconds[t] is None and success_rate >= t - 1e-9:
+                self.seconds[t], self.env_steps[t] = train_seconds, env_steps
+                new.append(t)
+        return new

@@ -1,0 +1,363 @@
+"""Deployable policies (TorchScript, ONNX) and training checkpoints.
+
+A deployed policy is one self-contained graph from the *raw* observation to the robot command, so a
+robot-side runtime needs no FlashNav code and no knowledge of the input scaling:
+
+    obs [N, D] float32, physical units  ->  IPAPRec transform -> MLP -> tanh  ->  action [N, 2] in [-1, 1]
+                                                                            ->  command [N, 2] (v m/s, w rad/s)
+
+```python
+paths = export_policy(learner.policy, preset, "runs/tb2")   # policy.pt, policy.onnx, policy.json
+policy, meta = load_policy("runs/tb2/policy.onnx")           # obs tensor [N, D] -> action tensor [N, 2]
+```
+
+Checkpoints are plain payloads (tensors, dicts, lists, str, int, float, bool, None) written with
+``torch.save`` and read with ``torch.load(weights_only=True)``: loading a checkpoint never runs code
+from the file.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+import warnings
+from pathlib import Path
+from typing import Any, Callable
+
+import torch
+from torch import nn
+
+import flashnav
+from flashnav.config import RobotPreset
+from flashnav.learn.networks import Actor, DeterministicActor
+
+#: Version of the exported-policy metadata (bumped when its layout changes).
+POLICY_FORMAT_VERSION = 1
+#: Version of the checkpoint payload; load_checkpoint accepts exactly these.
+CHECKPOINT_FORMAT_VERSION = 1
+SUPPORTED_CHECKPOINT_VERSIONS = (1,)
+CHECKPOINT_KEYS = ("format_version", "flashnav_version", "learner", "config", "extra")
+#: ONNX opset: well inside what onnxruntime >= 1.18 implements, and every op used here exists in it.
+ONNX_OPSET = 17
+#: Name of the metadata entry in policy.pt (``_extra_files``) and in policy.onnx (``metadata_props``).
+METADATA_KEY = "flashnav.json"
+#: Largest difference tolerated between the eager policy and an exported file when checking it.
+EXPORT_CHECK_TOL = 1e-4
+
+
+class DeployablePolicy(nn.Module):
+    """``obs [N, D]`` raw units -> ``(action [N, 2] in [-1, 1], command [N, 2] = (v m/s, w rad/s))``.
+
+    ``command`` is :func:`flashnav.sim.motion.action_to_velocity` of ``action``: the same clamp to
+    [-1, 1], the same linear map onto the preset's bounds and the same clamp to the platform limits,
+    with the bounds as float32 buffers. There is no branch on tensor values, so tracing records the
+    whole computation for every input. Shares parameters with ``actor`` (deep-copy it to freeze).
+    """
+
+    def __init__(self, actor: nn.Module, preset: RobotPreset):
+        super().__init__()
+        self.policy = DeterministicActor(actor) if isinstance(actor, Actor) else actor
+        m = preset.motion
+        (v_lo, v_hi), (w_lo, w_hi) = m.v_bounds, m.w_bounds
+        f32 = dict(dtype=torch.float32)
+        self.register_buffer("low", torch.tensor([v_lo, w_lo], **f32))
+        # the half span is rounded from the float64 product, as motion.py's Python-float scalar is
+        self.register_buffer("half_span", torch.tensor([0.5 * (v_hi - v_lo), 0.5 * (w_hi - w_lo)], **f32))
+        self.register_buffer("limit", torch.tensor([m.max_linear_velocity, m.max_angular_velocity], **f32))
+        self.obs_dim = preset.obs_dim
+        self._check_shapes(preset.name)
+
+    def _check_shapes(self, robot: str) -> None:
+        """Fail at construction, not on the robot, when the actor does not fit the robot's layout."""
+        probe = torch.zeros(1, self.obs_dim, device=self.low.device)
+        param = next(self.policy.parameters(), None)
+        if param is not None:
+            probe = probe.to(param.device)
+        try:
+            with torch.no_grad():
+                out = self.policy(probe)
+        except RuntimeError as exc:
+            raise ValueError(f"the actor does not accept {robot}'s observation (obs_dim {self.obs_dim}): {exc}") from None
+        if tuple(out.shape) != (1, 2):
+            raise ValueError(f"the actor maps obs [1, {self.obs_dim}] to {tuple(out.shape)}, expected (1, 2)")
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        action = self.policy(obs).clamp(-1.0, 1.0)
+        command = self.low + (action + 1.0) * self.half_span
+        command = torch.minimum(torch.maximum(command, -self.limit), self.limit)
+        return action, command
+
+
+def policy_metadata(preset: RobotPreset) -> dict[str, Any]:
+    """The JSON stored with every exported policy: robot, versions and the observation layout."""
+    s, lidar, m = preset.lidar.sectors, preset.lidar, preset.motion
+    velocity = ["v", "w"] if m.velocity_state_dims == 2 else ["vx", "vy", "w"]
+    units = {"v": "m/s", "vx": "m/s", "vy": "m/s", "w": "rad/s"}
+    return {
+        "format_version": POLICY_FORMAT_VERSION,
+        "flashnav_version": flashnav.__version__,
+        "torch_version": torch.__version__,
+        "robot": preset.name,
+        "obs_dim": preset.obs_dim,
+        "action_dim": 2,
+        "control_period_s": preset.episode.dt,
+        "inputs": {"obs": "[N, obs_dim] float32, physical units, layout in 'observation'"},
+        "outputs": {"action": "[N, 2] float32 in [-1, 1] (v, w)",
+                    "command": "[N, 2] float32 (v m/s, w rad/s), the action mapped onto the robot's bounds"},
+        "observation": {
+            "lidar": {"columns": [0, s], "units": "m", "range": [0.0, lidar.max_range],
+                      "pooling": f"minimum over {lidar.beams_per_sector} consecutive beams per sector",
+                      "beams": lidar.beams, "fov_deg": lidar.fov_deg,
+                      "order": "sector 0 starts at -fov/2 (the robot's right), counter-clockwise",
+                      "inscribed_radius": preset.footprint.inscribed_radius},
+            "goal_distance": {"column": s, "units": "m"},
+            "goal_angle": {"column": s + 1, "units": "rad", "range": [-math.pi, math.pi],
+                           "convention": "robot frame, positive = left"},
+            "velocity": {"columns": [s + 2, preset.obs_dim], "names": velocity,
+                         "units": [units[v] for v in velocity],
+                         "meaning": "the command executed in the last control step (0 after a reset)"},
+        },
+        "command_bounds": {"v": list(m.v_bounds), "w": list(m.w_bounds),
+                           "max_linear_velocity": m.max_linear_velocity,
+                           "max_angular_velocity": m.max_angular_velocity},
+        # the exact robot the policy was exported for, so a custom preset can be rebuilt from the file
+        "preset": preset.model_dump(mode="json"),
+    }
+
+
+def export_policy(actor: nn.Module, preset: RobotPreset, out_dir: str | Path, onnx: bool = True) -> dict[str, Path]:
+    """Write ``policy.pt`` (TorchScript), ``policy.onnx`` and ``policy.json`` (the metadata) to ``out_dir``.
+
+    ``actor``: an :class:`Actor` or a :class:`DeterministicActor` (``obs [N, D] -> action [N, 2]``)
+    on any device; a frozen CPU copy is exported. Both files are checked against the eager policy on
+    a probe batch before returning. ``onnx=False`` skips ONNX (needs ``pip install 'flashnav[export]'``).
+
+    Returns ``{"torchscript": path, "onnx": path, "metadata": path}`` (``onnx`` absent when skipped).
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    module = DeployablePolicy(copy.deepcopy(actor).cpu(), preset).cpu().eval()
+    module.requires_grad_(False)
+    meta = policy_metadata(preset)
+    meta_json = json.dumps(meta, indent=1)
+    gen = torch.Generator().manual_seed(0)
+    example = sample_observations(preset, 8, gen)
+
+    paths: dict[str, Path] = {"torchscript": out_dir / "policy.pt", "metadata": out_dir / "policy.json"}
+    # torch.jit.script cannot compile IPAPRec (it reads a module-level float); tracing is exact here
+    # because the forward pass has no value-dependent control flow. The deprecation warnings of
+    # torch.jit / the TorchScript ONNX exporter are expected and would only confuse the user.
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        traced = torch.jit.trace(module, (example,), check_inputs=[(example[:1],), (example[:5],)])
+        torch.jit.save(traced, str(paths["torchscript"]), _extra_files={METADATA_KEY: meta_json})
+        if onnx:
+            paths["onnx"] = out_dir / "policy.onnx"
+            _export_onnx(module, example, paths["onnx"], meta_json)
+    paths["metadata"].write_text(meta_json + "\n", encoding="utf-8")
+
+    probe = sample_observations(preset, 64, gen)
+    with torch.no_grad():
+        expected = module(probe)[0]
+    for kind in ("torchscript", "onnx"):
+        if kind in paths:
+            got = load_policy(paths[kind])[0](probe)
+            err = float((got - expected).abs().max())
+            if not err <= EXPORT_CHECK_TOL:
+                raise RuntimeError(f"{paths[kind]}: exported policy differs from the eager one by {err:.3g}")
+    return paths
+
+
+def _export_onnx(module: nn.Module, example: torch.Tensor, path: Path, meta_json: str) -> None:
+    """ONNX through the TorchScript-based exporter (``dynamo=False``): the torch.export-based
+    default needs onnxscript, which FlashNav does not depend on. The batch axis is dynamic."""
+    try:
+        import onnx
+    except ImportError:
+        raise ImportError("ONNX export needs the onnx package: pip install 'flashnav[export]'") from None
+    batch = {0: "batch"}
+    torch.onnx.export(module, (example,), str(path), dynamo=False, opset_version=ONNX_OPSET,
+                      input_names=["obs"], output_names=["action", "command"],
+                      dynamic_axes={"obs": batch, "action": batch, "command": batch})
+    model = onnx.load(str(path))
+    entry = model.metadata_props.add()
+    entry.key, entry.value = METADATA_KEY, meta_json
+    model.producer_name = f"flashnav {flashnav.__version__}"
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+
+
+def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """``[n, D]`` float32 observations spread over the valid ranges (for export checks and tests).
+
+    LiDAR readings are uniform in [inscribed radius, max range] with about a tenth exactly at each
+    end (the IPAPRec pole side and the no-return reading); goal distance in [0, map diagonal], goal
+    angle in [-pi, pi), velocities inside the command bounds (vy = 0 for a 3-D velocity state).
+    """
+    s, lidar, m = preset.lidar.sectors, preset.lidar, preset.motion
+    r_in, r_max = preset.footprint.inscribed_radius, lidar.max_range
+    u = lambda *shape: torch.rand(*shape, generator=generator)  # noqa: E731
+    ranges = r_in + (r_max - r_in) * u(n, s)
+    pick = u(n, s)
+    ranges = torch.where(pick < 0.1, torch.full_like(ranges, r_in), ranges)
+    ranges = torch.where(pick > 0.9, torch.full_like(ranges, r_max), ranges)
+    dist = math.hypot(*preset.map_size) * u(n, 1)
+    angle = math.pi * (2.0 * u(n, 1) - 1.0)
+    v = m.v_bounds[0] + (m.v_bounds[1] - m.v_bounds[0]) * u(n, 1)
+    w = m.w_bounds[0] + (m.w_bounds[1] - m.w_bounds[0]) * u(n, 1)
+    velocity = [v, w] if m.velocity_state_dims == 2 else [v, torch.zeros_like(v), w]
+    return torch.cat([ranges, dist, angle, *velocity], dim=1)
+
+
+# ---- loading -------------------------------------------------------------------------------------
+def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
+                device: torch.device | str = "cpu") -> tuple[Callable[[torch.Tensor], torch.Tensor], dict[str, Any]]:
+    """Load ``policy.pt`` (TorchScript) or ``policy.onnx`` (onnxruntime, CPU).
+
+    Returns ``(policy, metadata)``: ``policy(obs [N, D] float32 tensor) -> action [N, 2]`` float32 in
+    [-1, 1] on ``obs.device``; ``metadata`` is the JSON written by :func:`export_policy` (``robot``,
+    ``obs_dim``, the observation layout, ...). ``robot`` (a preset name, YAML or RobotPreset), when
+    given, must have the policy's observation size.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: a suffix other than .pt/.onnx, a file without FlashNav metadata, or an obs-dim
+            mismatch (with ``robot`` at load time, with the observation at call time).
+    """
+    path = Path(path)
+    if path.suffix not in (".pt", ".onnx"):
+        raise ValueError(f"{path}: unknown policy format {path.suffix!r}; expected policy.pt (TorchScript) or policy.onnx")
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such policy file")
+    run, meta = _load_onnx(path) if path.suffix == ".onnx" else _load_torchscript(path, device)
+    obs_dim = int(meta["obs_dim"])
+    if robot is not None:
+        from flashnav.presets import load_robot
+
+        preset = load_robot(robot)
+        if preset.obs_dim != obs_dim:
+            raise ValueError(f"{path}: the policy expects obs_dim {obs_dim} ({meta.get('robot')}), but robot "
+                             f"{preset.name!r} produces obs_dim {preset.obs_dim}")
+
+    def policy(obs: torch.Tensor) -> torch.Tensor:
+        if obs.ndim != 2 or obs.shape[1] != obs_dim:
+            raise ValueError(f"{path}: expected observations [N, {obs_dim}], got {list(obs.shape)}")
+        return run(obs)
+
+    return policy, meta
+
+
+def _parse_metadata(path: Path, text: str | bytes | None) -> dict[str, Any]:
+    if not text:
+        raise ValueError(f"{path}: no FlashNav metadata ({METADATA_KEY}); export it with flashnav.export.export_policy")
+    meta = json.loads(text)
+    version = meta.get("format_version")
+    if not isinstance(version, int) or version > POLICY_FORMAT_VERSION:
+        raise ValueError(f"{path}: policy format version {version!r} is not supported "
+                         f"(this FlashNav {flashnav.__version__} reads <= {POLICY_FORMAT_VERSION})")
+    return meta
+
+
+def _load_torchscript(path: Path, device: torch.device | str):
+    extra = {METADATA_KEY: ""}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        module = torch.jit.load(str(path), map_location=device, _extra_files=extra)
+    meta = _parse_metadata(path, extra[METADATA_KEY])
+    module.eval()
+    device = torch.device(device)
+
+    @torch.no_grad()
+    def run(obs: torch.Tensor) -> torch.Tensor:
+        return module(obs.to(device, torch.float32))[0].to(obs.device)
+
+    return run, meta
+
+
+def _load_onnx(path: Path):
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        raise ImportError("running policy.onnx needs onnxruntime: pip install 'flashnav[export]'") from None
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    meta = _parse_metadata(path, session.get_modelmeta().custom_metadata_map.get(METADATA_KEY))
+
+    def run(obs: torch.Tensor) -> torch.Tensor:
+        x = obs.detach().to("cpu", torch.float32).contiguous().numpy()
+        action = session.run(["action"], {"obs": x})[0]
+        return torch.from_numpy(action).to(obs.device)
+
+    return run, meta
+
+
+# ---- checkpoints ---------------------------------------------------------------------------------
+def save_checkpoint(path: str | Path, learner_state: dict, config: Any, extra: dict | None = None) -> Path:
+    """Write a training checkpoint: ``{format_version, flashnav_version, learner, config, extra}``.
+
+    ``learner_state``: e.g. ``Learner.state_dict()`` (tensors, state dicts, RNG states as uint8
+    tensors); ``config``: a dict or a pydantic model (dumped to plain data); ``extra``: anything
+    plain (env steps, timings, ...). Everything must be a tensor, dict, list, tuple, str, int,
+    float, bool or None, so the file loads with ``weights_only=True``; anything else is a TypeError
+    here, naming where it sits, rather than an unreadable checkpoint later. The file is written to
+    a temporary name and renamed, so an interrupted save never leaves a truncated checkpoint.
+    """
+    if hasattr(config, "model_dump"):
+        config = config.model_dump(mode="json")
+    payload = {"format_version": CHECKPOINT_FORMAT_VERSION, "flashnav_version": flashnav.__version__,
+               "learner": learner_state, "config": config, "extra": dict(extra or {})}
+    _check_plain(payload, "checkpoint")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def _check_plain(value: Any, where: str) -> None:
+    if isinstance(value, (torch.Tensor, str, int, float, bool, type(None))):
+        return
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, (str, int)):
+                raise TypeError(f"{where}: key {key!r} is a {type(key).__name__}; checkpoint keys must be str or int")
+            _check_plain(item, f"{where}.{key}")
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_plain(item, f"{where}[{i}]")
+    else:
+        raise TypeError(f"{where} is a {type(value).__name__}; a checkpoint holds only tensors, dicts, lists, "
+                        "str, int, float, bool and None (convert it, e.g. model_dump() or state_dict())")
+
+
+def load_checkpoint(path: str | Path, map_location: torch.device | str | None = "cpu") -> dict[str, Any]:
+    """Read a checkpoint written by :func:`save_checkpoint` (``weights_only=True``: no code runs).
+
+    Returns the payload dict (``format_version``, ``flashnav_version``, ``learner``, ``config``, ``extra``).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not a FlashNav checkpoint, a format version this FlashNav does not read (the
+            message names the file, the found and the supported versions), or a missing key.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such checkpoint file")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # pickle errors, zip errors, disallowed globals: all mean "not ours"
+        raise ValueError(f"{path}: not a readable FlashNav checkpoint ({type(exc).__name__}: {exc})") from None
+    if not isinstance(payload, dict) or "format_version" not in payload:
+        raise ValueError(f"{path}: not a FlashNav checkpoint (no format_version)")
+    found, supported = payload["format_version"], SUPPORTED_CHECKPOINT_VERSIONS
+    if isinstance(found, bool) or not isinstance(found, int) or found not in supported:
+        newer = " (written by a newer FlashNav?)" if isinstance(found, int) and found > max(supported) else ""
+        raise ValueError(f"{path}: checkpoint format_version {found!r} is not supported{newer}; "
+                         f"this FlashNav {flashnav.__version__} reads format_version {', '.join(map(str, supported))}")
+    missing = [k for k in CHECKPOINT_KEYS if k not in payload]
+    if missing:
+        raise ValueError(f"{path}: checkpoint (format_version {found}) lacks {', '.join(missing)}")
+    return payload

@@ -1,0 +1,132 @@
+"""``flashnav train``: one training run with a live progress display and its artefacts."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from flashnav.config import dump_yaml
+from flashnav.learn.config import THRESHOLDS, TrainConfig
+
+
+def register_cli(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("train", help="train a navigation policy (FastDSAC on TurtleBot2 by default)",
+                       description="Train a policy; writes config.yaml, metrics.json, checkpoint.pt, "
+                                   "policy.pt (TorchScript) and policy.onnx to --out.")
+    p.add_argument("--robot", help="turtlebot2 (default), go2, or a preset YAML")
+    p.add_argument("--algo", dest="algorithm", choices=["fastdsac", "fastsac", "fasttd3"], help="learner (default fastdsac)")
+    p.add_argument("--recipe", choices=["auto", "paper", "cpu"], help="hyperparameters: paper (GPU), cpu, auto (by device)")
+    p.add_argument("--device", help="auto (default), cpu, cuda, cuda:N")
+    p.add_argument("--map", help="ROS map YAML (default: the preset's bundled map)")
+    p.add_argument("--seed", type=int, help="training seed (default 0)")
+    p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
+    p.add_argument("--config", help="a TrainConfig YAML; flags and overrides apply on top")
+    p.add_argument("--sequential", action="store_true", help="the plain sequential loop (no collector/learner overlap)")
+    p.add_argument("overrides", nargs="*", metavar="key=value",
+                   help="e.g. algo.batch_size=512 budget.max_train_seconds=60 eval.episodes=256 robot.lidar.noise_std=0.01")
+    p.set_defaults(func=run_train)
+
+
+def build_config(args) -> TrainConfig:
+    data: dict[str, Any] = {}
+    if args.config:
+        data = TrainConfig.from_yaml(args.config).model_dump()
+    for name in ("robot", "algorithm", "recipe", "device", "map", "seed"):
+        if getattr(args, name) is not None:
+            data[name] = getattr(args, name)
+    if args.sequential:
+        data["overlap"] = False
+    for item in args.overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"override {item!r} is not key=value")
+        value = yaml.safe_load(raw)
+        if key.startswith(("algo.", "robot.")):
+            data.setdefault("overrides", {})[key] = value
+        else:
+            node = data
+            *parents, leaf = key.split(".")
+            for part in parents:
+                node = node.setdefault(part, {})
+            node[leaf] = value
+    return TrainConfig.model_validate(data)
+
+
+def _status(progress: dict, thresholds: dict) -> Table:
+    t = Table.grid(padding=(0, 2))
+    ev = progress.get("last_eval") or {}
+    rate = f"{ev['success_rate']:.1%}" if ev else "-"
+    reached = ", ".join(f"{int(k * 100)}% @ {v:.1f}s" for k, v in thresholds.items() if v is not None) or "-"
+    t.add_row(f"env steps [bold]{progress.get('env_steps', 0):,}[/]",
+              f"train time [bold]{progress.get('train_seconds', 0.0):.1f} s[/]",
+              f"last success [bold]{rate}[/]", f"reached {reached}")
+    return t
+
+
+def run_train(args) -> int:
+    from flashnav.learn.loop import train
+
+    console = Console()
+    config = build_config(args)
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    robot_name = Path(config.robot).stem
+    out = Path(args.out or f"runs/train/{robot_name}-{config.algorithm}-s{config.seed}-{stamp}")
+    out.mkdir(parents=True, exist_ok=True)
+    console.print(f"[bold]flashnav train[/] {robot_name} / {config.algorithm}, seed {config.seed} -> {out}")
+    thresholds: dict[float, float | None] = {t: None for t in THRESHOLDS}
+    state: dict = {}
+
+    with Live(_status(state, thresholds), console=console, refresh_per_second=4, transient=False) as live:
+        def on_progress(p: dict) -> None:
+            state.update(p)
+            live.update(_status(state, thresholds))
+
+        def on_eval(m: dict) -> None:
+            for t in THRESHOLDS:
+                if thresholds[t] is None and m["success_rate"] >= t - 1e-9:
+                    thresholds[t] = m["train_seconds"]
+            live.console.print(f"eval {m['eval_index']:3d} {m['env_steps']:>9,} steps {m['train_seconds']:6.1f} s  "
+                               f"success {m['success_rate']:6.1%} collision {m['collision_rate']:5.1%} "
+                               f"return {m['mean_return']:6.2f}", soft_wrap=True)
+
+        result = train(config, on_eval=on_eval, on_progress=on_progress)
+
+    _write_artefacts(result, out)
+    _summary(console, result, out)
+    return 0
+
+
+def _write_artefacts(result, out: Path) -> None:
+    from flashnav.config import RobotPreset
+    from flashnav.export import export_policy, save_checkpoint
+
+    dump_yaml(result.config, out / "config.yaml")
+    with open(out / "metrics.json", "w", encoding="utf-8") as f:
+        json.dump(result.to_dict(), f, indent=2)
+    save_checkpoint(out / "checkpoint.pt", result.learner.state_dict(), result.config,
+                    {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"}})
+    preset = RobotPreset.model_validate(result.config["robot_preset"])
+    export_policy(result.learner.policy, preset, out)
+
+
+def _summary(console: Console, result, out: Path) -> None:
+    t = Table(title=f"{result.config['robot_preset']['name']} / {result.config['algorithm']} on {result.device_name}")
+    for col in ("threshold", "train seconds", "env steps"):
+        t.add_column(col, justify="right")
+    for k in THRESHOLDS:
+        s, e = result.time_to_threshold[k], result.env_steps_to_threshold[k]
+        t.add_row(f"{k:.0%}", "not reached" if s is None else f"{s:.1f}", "-" if e is None else f"{e:,}")
+    console.print(t)
+    c = result.cycle
+    console.print(f"cycle: collector {c['collector_ms']:.1f} ms, learner {c['learner_ms']:.1f} ms, "
+                  f"effective {c['effective_ms']:.1f} ms; stopped by {result.stop_reason}; "
+                  f"{result.env_steps:,} env steps in {result.train_seconds:.1f} s of training")
+    console.print(f"artefacts in {out}: config.yaml metrics.json checkpoint.pt policy.pt policy.onnx")

@@ -1,0 +1,249 @@
+"""The training loop: collect -> store -> U updates, evaluated on a fixed set of episodes.
+
+One *cycle* is one vector step of collection (act, env.step, store) plus the U gradient updates of
+that step. With ``overlap`` (the default) the collector runs in a second thread with its own actor
+weight copy (synced every ``env_steps_per_sync`` cycles) while the learner updates on batches sampled
+before the collector's step, so the cycle takes as long as the slower side (the paper's
+producer-consumer pipeline; on a CPU each side gets one core). ``overlap=False`` is the plain
+sequential loop.
+
+The training clock counts cycles only (the device synchronised before it is read): never
+evaluation, logging, progress or the ``on_eval`` callback.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import torch
+
+from flashnav.evaluate import ThresholdTracker, evaluate
+from flashnav.learn.config import THRESHOLDS, TrainConfig, resolve_device, resolve_recipe
+from flashnav.learn.hparams import load_hparams
+from flashnav.learn.learners import Learner, make_learner
+from flashnav.learn.networks import ObsLayout
+from flashnav.learn.replay import Replay
+from flashnav.maps.bundled import resolve_map
+from flashnav.presets import load_robot
+from flashnav.sim.env import NavVecEnv
+
+
+@dataclass
+class TrainResult:
+    """What a run produced. ``to_dict()`` is what ``metrics.json`` holds (see docs/train-api.md)."""
+
+    curve: list[dict[str, float]]
+    time_to_threshold: dict[float, float | None]
+    env_steps_to_threshold: dict[float, int | None]
+    cycle: dict[str, float]
+    train_seconds: float
+    env_steps: int
+    config: dict[str, Any]
+    device_name: str
+    stop_reason: str
+    learner: Learner | None = field(default=None, repr=False)
+
+    @property
+    def policy(self) -> torch.nn.Module | None:
+        return None if self.learner is None else self.learner.policy
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "curve": self.curve,
+            "time_to_threshold": {str(k): v for k, v in self.time_to_threshold.items()},
+            "env_steps_to_threshold": {str(k): v for k, v in self.env_steps_to_threshold.items()},
+            "cycle": self.cycle,
+            "train_seconds": self.train_seconds,
+            "env_steps": self.env_steps,
+            "device_name": self.device_name,
+            "stop_reason": self.stop_reason,
+            "config": self.config,
+        }
+
+
+def device_name(device: str) -> str:
+    """The platform as reports show it: the GPU's name, or the CPU model and thread count."""
+    if device.startswith("cuda"):
+        return torch.cuda.get_device_name(torch.device(device))
+    from flashnav.bench.sim import cpu_model
+
+    return f"{cpu_model()} ({torch.get_num_threads()} threads)"
+
+
+class _Timer:
+    """Accumulates seconds of a side of the cycle (device synchronised at the end of each span)."""
+
+    def __init__(self, device: torch.device):
+        self.device, self.total, self.count = device, 0.0, 0
+
+    def __enter__(self):
+        self._t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        self.total += time.perf_counter() - self._t0
+        self.count += 1
+
+    @property
+    def mean_ms(self) -> float:
+        return 1e3 * self.total / max(self.count, 1)
+
+
+def _resolve(config: TrainConfig) -> tuple[Any, Any, str, str]:
+    device = resolve_device(config.device)
+    recipe = resolve_recipe(config.recipe, device)
+    preset = load_robot(config.robot, **config.robot_overrides())
+    hp = load_hparams(config.algorithm, preset.name, recipe, config.algo_overrides())
+    return preset, hp, device, recipe
+
+
+def resolved_config(config: TrainConfig) -> dict[str, Any]:
+    """The config with every default and the recipe's hyperparameters spelled out (config.yaml)."""
+    preset, hp, device, recipe = _resolve(config)
+    data = config.model_dump(mode="json")
+    data.update(device=device, recipe=recipe, hparams=hp.model_dump(mode="json"), robot_preset=preset.model_dump(mode="json"))
+    return data
+
+
+def train(config: TrainConfig | None = None, *, on_eval: Callable[[dict], bool | None] | None = None,
+          on_progress: Callable[[dict], None] | None = None) -> TrainResult:
+    """Train one policy; see docs/train-api.md. ``on_progress`` (optional, outside the clock) gets a
+    dict with env_steps, train_seconds and the last evaluation after every cycle."""
+    config = config or TrainConfig()
+    preset, hp, device, recipe = _resolve(config)
+    threads_before = torch.get_num_threads()
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    elif config.overlap and device == "cpu":
+        torch.set_num_threads(1)  # one core for the learner, the other for the collector thread
+    try:
+        return _train(config, preset, hp, device, on_eval, on_progress)
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -> TrainResult:
+    dev = torch.device(device)
+    torch.manual_seed(config.seed)
+    grid = resolve_map(config.map, preset.map)
+    env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster)
+    eval_env = NavVecEnv(preset, config.eval.episodes, grid=grid, device=dev, seed=config.eval.seed,
+                         raycaster=config.raycaster)
+    learner = make_learner(config.algorithm, hp, ObsLayout.from_robot(preset), 2, hp.num_envs, dev, config.seed)
+    replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
+
+    max_env_steps = config.budget.max_env_steps or hp.total_env_steps
+    cycles = math.ceil(max_env_steps / hp.num_envs)
+    eval_every = config.eval.every or hp.eval_every
+    overlap = config.overlap
+    collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
+    tracker = ThresholdTracker()
+    curve: list[dict[str, float]] = []
+    obs_box = [env.reset(seed=config.seed)[0]]
+
+    def collect() -> None:
+        if overlap and dev.type == "cpu":
+            _single_threaded_numba()
+        with collect_t:
+            obs = obs_box[0]
+            action = learner.act(obs)
+            next_obs, reward, terminated, truncated, info = env.step(action)
+            replay.add(obs, action, reward, terminated, info["final_obs"])
+            learner.on_episode_end(terminated | truncated)
+            obs_box[0] = next_obs
+
+    def learn(batches) -> None:
+        with learn_t:
+            for i in range(hp.updates_per_step):
+                learner.update(batches.at(i))
+
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="collector") if overlap else None
+    stop_reason, env_steps, last_eval = "budget_env_steps", 0, None
+    try:
+        for cycle in range(1, cycles + 1):
+            with cycle_t:
+                learning = replay.size >= hp.learning_start
+                batches = replay.sample(hp.batch_size, hp.updates_per_step) if learning else None
+                if pool is not None and learning:
+                    pending = pool.submit(collect)  # collector steps while the learner updates
+                    learn(batches)
+                    pending.result()
+                else:
+                    collect()
+                    if learning:
+                        learn(batches)
+                if cycle % hp.env_steps_per_sync == 0:
+                    learner.sync_collector()
+            env_steps = cycle * hp.num_envs
+            if on_progress is not None:
+                on_progress({"env_steps": env_steps, "train_seconds": cycle_t.total, "last_eval": last_eval})
+            if cycle % eval_every and cycle != cycles:
+                if cycle_t.total >= config.budget.max_train_seconds:
+                    stop_reason = "budget_seconds"
+                    break
+                continue
+            last_eval = _evaluate(learner, eval_env, config, env_steps, cycle_t.total, len(curve))
+            curve.append(last_eval)
+            tracker.update(last_eval["success_rate"], cycle_t.total, env_steps)
+            if on_eval is not None and on_eval(dict(last_eval)):
+                stop_reason = "callback"
+                break
+            target = config.budget.stop_at_success
+            if target is not None and last_eval["success_rate"] >= target - 1e-9:
+                stop_reason = "success"
+                break
+            if cycle_t.total >= config.budget.max_train_seconds:
+                stop_reason = "budget_seconds"
+                break
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
+
+    cycle_stats = {
+        "collector_ms": collect_t.mean_ms,
+        "learner_ms": learn_t.mean_ms,
+        "effective_ms": cycle_t.mean_ms,
+        "overlap": float(overlap),
+    }
+    resolved = resolved_config(config)
+    return TrainResult(
+        curve=curve,
+        time_to_threshold=dict(tracker.seconds),
+        env_steps_to_threshold=dict(tracker.env_steps),
+        cycle=cycle_stats,
+        train_seconds=cycle_t.total,
+        env_steps=env_steps,
+        config=resolved,
+        device_name=device_name(device),
+        stop_reason=stop_reason,
+        learner=learner,
+    )
+
+
+def _single_threaded_numba() -> None:
+    """In the collector thread: numba kernels use this thread only (the learner owns the other core)."""
+    try:
+        import numba
+
+        numba.set_num_threads(1)  # thread-local setting
+    except (ImportError, ValueError):
+        pass
+
+
+def _evaluate(learner: Learner, eval_env: NavVecEnv, config: TrainConfig, env_steps: int,
+              train_seconds: float, index: int) -> dict[str, float]:
+    policy = learner.policy
+    was_training = policy.training
+    policy.eval()
+    result = evaluate(policy, eval_env, config.eval.seed)
+    policy.train(was_training)
+    return {"env_steps": env_steps, "train_seconds": train_seconds, "eval_index": index, **result}
+
+
+__all__ = ["train", "TrainResult", "resolved_config", "THRESHOLDS"]

@@ -1,0 +1,214 @@
+"""``flashnav eval`` and ``flashnav render``: run an exported policy (policy.pt / policy.onnx).
+
+Both read the policy file alone (no training code, no checkpoint): what is evaluated here is exactly
+what a robot would run. The robot defaults to the one recorded in the policy's metadata.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+#: frames in the GIF at most (one every few control steps): keeps the file small
+GIF_MAX_FRAMES = 40
+#: longest side of the GIF, pixels
+GIF_SIZE = 320
+GIF_FRAME_MS = 100
+
+
+def register_cli(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="evaluate an exported policy (policy.pt / policy.onnx) on solvable episodes")
+    _common_args(p, episodes=1024)
+    p.add_argument("--device", default="cpu", help="simulator device (cpu, cuda, ...); ONNX always runs on CPU")
+    p.add_argument("--json", default=None, metavar="FILE", help="write the rates to this JSON file")
+    p.set_defaults(func=run_eval)
+
+    p = sub.add_parser("render", help="draw an exported policy's trajectories (PNG, optionally an animated GIF)")
+    _common_args(p, episodes=16)
+    p.add_argument("--out", required=True, help="PNG with the trajectories, coloured by outcome")
+    p.add_argument("--gif", action="store_true", help="also write an animated GIF next to --out")
+    p.set_defaults(func=run_render)
+
+
+def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
+    p.add_argument("policy", metavar="POLICY", help="policy.pt (TorchScript) or policy.onnx")
+    p.add_argument("--robot", default=None,
+                   help="turtlebot2, go2 or a preset YAML (default: the robot recorded in the policy)")
+    p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
+    p.add_argument("--episodes", type=int, default=episodes, help="episodes, run in parallel (one per env)")
+    p.add_argument("--seed", type=int, default=12345, help="start/goal sampling seed")
+
+
+def _setup(args, device: str = "cpu"):
+    """(policy, metadata, env): the policy checked against the robot, one env per episode."""
+    from flashnav.config import RobotPreset
+    from flashnav.export import load_policy
+    from flashnav.sim.env import make_env
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    policy, meta = load_policy(args.policy, robot=args.robot)
+    if args.robot is not None:
+        robot = args.robot
+    elif "preset" in meta:  # the exact preset exported, so custom robots need no YAML at hand
+        robot = RobotPreset.model_validate(meta["preset"])
+    else:
+        robot = meta["robot"]
+    env = make_env(robot, args.episodes, map=args.map, device=device, seed=args.seed)
+    return policy, meta, env
+
+
+def _map_label(args, env) -> str:
+    return str(args.map) if args.map is not None else env.preset.map
+
+
+def run_eval(args) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from flashnav.evaluate import evaluate
+
+    policy, meta, env = _setup(args, args.device)
+    start = time.perf_counter()
+    result = evaluate(policy, env, seed=args.seed)
+    seconds = time.perf_counter() - start
+    report = {
+        "success_rate": result["success_rate"],
+        "collision_rate": result["collision_rate"],
+        "timeout_rate": result["timeout_rate"],
+        "mean_return": result["mean_return"],
+        "mean_steps": result["mean_steps"],
+        "episodes": env.num_envs,
+        "robot": env.preset.name,
+        "map": _map_label(args, env),
+        "policy": str(args.policy),
+        "seed": args.seed,
+        "seconds": seconds,
+    }
+    console = Console()
+    console.print(f"{args.policy} on {report['robot']} / {report['map']}: {report['episodes']} episodes, "
+                  f"seed {args.seed}")
+    table = Table(title="flashnav eval")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for key in ("success_rate", "collision_rate", "timeout_rate"):
+        table.add_row(key.replace("_", " "), f"{100 * report[key]:.1f} %")
+    table.add_row("mean return", f"{report['mean_return']:.2f}")
+    table.add_row("mean steps", f"{report['mean_steps']:.1f}")
+    table.add_row("wall time", f"{seconds:.1f} s")
+    console.print(table)
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        print(f"results: {out}")
+    return 0
+
+
+@torch.no_grad()
+def rollout(policy, env, seed: int) -> dict:
+    """One episode per env slot with the deterministic ``policy``.
+
+    Returns ``poses [T+1, N, 3]`` (x, y m, yaw rad; rows past an episode's end repeat its last pose),
+    ``length [N]`` (valid rows per slot), ``goals [N, 2]`` m and ``outcomes`` (success / collision /
+    timeout). The terminal pose is recomputed with the env's own motion model: the env has already
+    reset a finished slot when ``step`` returns, but the picture should end where the robot did.
+    """
+    from flashnav.sim.motion import action_to_velocity, integrate
+
+    preset = env.preset
+    obs, _ = env.reset(seed=seed)
+    n = env.num_envs
+    goals = env.goal.cpu().numpy().copy()
+    poses = [env.pose.cpu().numpy().copy()]
+    length = np.ones(n, dtype=np.int64)
+    running = np.ones(n, dtype=bool)
+    outcomes = ["timeout"] * n
+    for _ in range(preset.episode.horizon):
+        action = policy(obs)
+        pose = integrate(env.pose, *action_to_velocity(action.to(env.device), preset.motion), preset.episode.dt)
+        obs, _, terminated, truncated, info = env.step(action)
+        pose = np.where(running[:, None], pose.cpu().numpy(), poses[-1])
+        poses.append(pose)
+        length += running
+        done = (terminated | truncated).cpu().numpy()
+        success, collision = info["success"].cpu().numpy(), info["collision"].cpu().numpy()
+        for i in np.nonzero(running & done)[0]:
+            outcomes[i] = "success" if success[i] else "collision" if collision[i] else "timeout"
+        running &= ~done
+        if not running.any():
+            break
+    return {"poses": np.stack(poses), "length": length, "goals": goals, "outcomes": outcomes}
+
+
+def run_render(args) -> int:
+    from flashnav.viz import draw_trajectories
+
+    policy, meta, env = _setup(args)
+    result = rollout(policy, env, args.seed)
+    poses, length, outcomes = result["poses"], result["length"], result["outcomes"]
+    paths = [poses[: length[i], i, :2] for i in range(env.num_envs)]
+    counts = {k: outcomes.count(k) for k in ("success", "collision", "timeout")}
+    title = (f"{env.preset.name} / {_map_label(args, env)}: {Path(args.policy).name}, "
+             f"{counts['success']}/{env.num_envs} reached, {counts['collision']} collided")
+    out = draw_trajectories(env.map, paths, result["goals"], outcomes, args.out, title=title)
+    print(f"{counts} over {env.num_envs} episodes; trajectories: {out}")
+    if args.gif:
+        gif = write_gif(env.map, result, env.preset.footprint.circumscribed_radius, Path(args.out).with_suffix(".gif"))
+        print(f"animation: {gif}")
+    return 0
+
+
+def write_gif(grid, result: dict, radius: float, out: Path) -> Path:
+    """Animated GIF of the rollout: map, paths so far (blue while running, outcome colour after),
+    robots as footprint-sized circles with a heading tick, goals as crosses. Pillow only (matplotlib
+    per frame would be ~50x slower); palette mode and <= GIF_MAX_FRAMES frames keep it small."""
+    from matplotlib.colors import to_rgb
+    from PIL import Image, ImageDraw
+
+    from flashnav.viz import OUTCOME_COLOURS
+
+    rgb = {k: tuple(int(255 * c) for c in to_rgb(v)) for k, v in OUTCOME_COLOURS.items()}
+    occ = np.flipud(grid.occupied)  # row 0 is the lowest y; image row 0 is the top
+    base = Image.fromarray(np.where(occ, 70, 255).astype(np.uint8)).convert("RGB")
+    scale = GIF_SIZE / max(base.size)
+    base = base.resize((max(1, round(base.width * scale)), max(1, round(base.height * scale))), Image.NEAREST)
+    xmin, ymin, xmax, ymax = grid.bounds
+    sx, sy = base.width / (xmax - xmin), base.height / (ymax - ymin)
+
+    def px(x, y):
+        return (x - xmin) * sx, base.height - (y - ymin) * sy
+
+    poses, length, goals, outcomes = result["poses"], result["length"], result["goals"], result["outcomes"]
+    steps = int(length.max())
+    stride = max(1, math.ceil(steps / GIF_MAX_FRAMES))
+    ticks = list(range(0, steps, stride))
+    if ticks[-1] != steps - 1:
+        ticks.append(steps - 1)  # always show the final state
+    r = max(2.0, radius * sx)
+    frames = []
+    for t in ticks:
+        frame = base.copy()
+        draw = ImageDraw.Draw(frame)
+        for i in range(poses.shape[1]):
+            end = min(t, int(length[i]) - 1)
+            colour = rgb[outcomes[i]] if t >= length[i] - 1 else rgb["running"]
+            gx, gy = px(*goals[i])
+            draw.line([(gx - 3, gy - 3), (gx + 3, gy + 3)], fill=colour, width=2)
+            draw.line([(gx - 3, gy + 3), (gx + 3, gy - 3)], fill=colour, width=2)
+            if end > 0:
+                draw.line([px(*p) for p in poses[: end + 1, i, :2]], fill=colour, width=1)
+            x, y, yaw = poses[end, i]
+            cx, cy = px(x, y)
+            draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=colour, width=2)
+            draw.line([(cx, cy), (cx + r * math.cos(yaw), cy - r * math.sin(yaw))], fill=colour, width=2)
+        frames.append(frame.convert("P", palette=Image.ADAPTIVE, colors=32))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    frames[0].save(out, save_all=True, append_images=frames[1:], duration=GIF_FRAME_MS, loop=0, optimize=True)
+    return out

@@ -1,0 +1,237 @@
+"""The batched navigation environment (paper section 2.2).
+
+All N environments share one occupancy map; per-env state lives in tensors [N, ...] on one device.
+One step follows the paper's path::
+
+    action -> motion -> range scan -> collision / goal / reward / flags -> observation -> sparse reset
+
+Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2, 35 for Go2):
+
+    [0, S)      pooled LiDAR: minimum range over each sector's consecutive beams, metres, (0, max_range];
+                sector 0 starts at -fov/2 (the robot's right) and sectors go counter-clockwise
+    S           goal distance, metres
+    S + 1       goal angle in the robot frame, radians, wrapped to [-pi, pi) (positive = to the left)
+    S + 2 ...   velocity state: (v, w) for 2 dims; (vx, vy, w) for 3 dims (vy = 0 for diff-drive);
+                m/s and rad/s, the command executed in the last step (0 after a reset)
+
+Rewards: goal reached (distance < goal_threshold) -> +goal, terminated; else collision -> collision,
+terminated (the goal is checked first, as the paper lists it); else progress * (d_old - d_new).
+Reaching the horizon without a terminal event is a truncation. Finished slots are reset in the same
+step (Gymnasium's SAME_STEP autoreset): ``info["final_obs"]`` holds the observation *before* the
+reset for every slot (equal to ``obs`` where nothing finished) and ``info["_final_obs"]`` marks the
+slots that finished, so ``info["final_obs"]`` is always the correct next observation for replay.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from flashnav.config import RobotPreset
+from flashnav.maps.bundled import resolve_map
+from flashnav.maps.grid import OccupancyMap
+from flashnav.presets import load_robot
+from flashnav.sim.collision import make_collision_checker
+from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
+from flashnav.sim.raycast import make_raycaster
+from flashnav.sim.sampling import EpisodeSampler
+
+DEFAULT_RAYCASTER = "exact"
+
+
+def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
+    """[beams] float32 radians relative to the heading: bin centres across the field of view, from
+    -fov/2 (right) counter-clockwise. For 360 deg the beams are evenly spaced with no duplicate."""
+    fov = math.radians(fov_deg)
+    return torch.tensor([-0.5 * fov + (k + 0.5) * fov / beams for k in range(beams)], dtype=torch.float32)
+
+
+class NavVecEnv(VectorEnv):
+    """Batched 2D-LiDAR navigation; see the module docstring for the layout and semantics."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(
+        self,
+        preset: RobotPreset,
+        num_envs: int,
+        *,
+        grid: OccupancyMap,
+        device: torch.device | str = "cpu",
+        seed: int = 0,
+        raycaster: str | None = None,
+    ):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.preset, self.map, self.num_envs = preset, grid, num_envs
+        self.device = torch.device(device)
+        lidar = preset.lidar
+        self.raycaster_name = raycaster or DEFAULT_RAYCASTER
+        self.beam_angles = beam_angles(lidar.fov_deg, lidar.beams).to(self.device)
+        self._cast = make_raycaster(
+            self.raycaster_name, grid, self.beam_angles, lidar.max_range, self.device, lidar.march_step
+        )
+        self._collides = make_collision_checker(preset.footprint, grid, self.device)
+        self.sampler = EpisodeSampler(grid, preset, self.device)
+        self.obs_dim = preset.obs_dim
+
+        low, high = self._obs_bounds()
+        self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+
+        n, f32 = num_envs, dict(device=self.device, dtype=torch.float32)
+        self.pose = torch.zeros(n, 3, **f32)  # x, y (m), yaw (rad)
+        self.goal = torch.zeros(n, 2, **f32)  # m
+        self.velocity = torch.zeros(n, 2, **f32)  # executed (v m/s, w rad/s)
+        self.steps = torch.zeros(n, dtype=torch.int32, device=self.device)
+        self.goal_distance = torch.zeros(n, **f32)
+        self.episode_return = torch.zeros(n, **f32)
+        self.obs = torch.zeros(n, self.obs_dim, **f32)
+        self._gen = torch.Generator(device=self.device)
+        self._gen.manual_seed(seed)
+        self._seed = seed
+
+    # ---- spaces -----------------------------------------------------------------------------------
+    def _obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        p = self.preset
+        s = p.lidar.sectors
+        (v_lo, v_hi), (w_lo, w_hi) = p.motion.v_bounds, p.motion.w_bounds
+        vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if p.motion.velocity_state_dims == 2 else (
+            [v_lo, 0.0, w_lo], [v_hi, 0.0, w_hi])
+        low = np.array([0.0] * s + [0.0, -math.pi] + vel_lo, dtype=np.float32)
+        diagonal = math.hypot(self.map.width_m, self.map.height_m)  # no goal is farther than this
+        high = np.array([p.lidar.max_range] * s + [diagonal, math.pi] + vel_hi, dtype=np.float32)
+        return low, high
+
+    # ---- observation ------------------------------------------------------------------------------
+    def scan(self) -> torch.Tensor:
+        """Noise-free ranges [N, beams] float32 metres at the current poses (before pooling)."""
+        return self._cast(self.pose)
+
+    def _sensor(self, ranges: torch.Tensor) -> torch.Tensor:
+        """Apply the optional range noise and beam dropout (off by default)."""
+        lidar = self.preset.lidar
+        if lidar.noise_std > 0:
+            noise = torch.randn(ranges.shape, generator=self._gen, device=self.device) * lidar.noise_std
+            ranges = (ranges + noise).clamp(0.0, lidar.max_range)
+        if lidar.dropout > 0:
+            drop = torch.rand(ranges.shape, generator=self._gen, device=self.device) < lidar.dropout
+            ranges = torch.where(drop, torch.full_like(ranges, lidar.max_range), ranges)
+        return ranges
+
+    def _observe(self, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor,
+                 velocity: torch.Tensor) -> torch.Tensor:
+        """Assemble observations [n, obs_dim] from ranges [n, beams] and the state of n slots."""
+        lidar = self.preset.lidar
+        pooled = self._sensor(ranges).view(-1, lidar.sectors, lidar.beams_per_sector).amin(dim=2)
+        delta = goal - pose[:, :2]
+        dist = torch.linalg.vector_norm(delta, dim=1)
+        angle = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2])
+        if self.preset.motion.velocity_state_dims == 3:
+            velocity = torch.stack([velocity[:, 0], torch.zeros_like(velocity[:, 0]), velocity[:, 1]], dim=1)
+        return torch.cat([pooled, dist[:, None], angle[:, None], velocity], dim=1)
+
+    # ---- episode control --------------------------------------------------------------------------
+    def _reset_slots(self, idx: torch.Tensor) -> None:
+        """Start new episodes in slots ``idx`` [k] (long); every other slot is left untouched."""
+        if idx.numel() == 0:
+            return
+        pose, goal = self.sampler.sample(idx.numel(), self._gen)
+        self._place(idx, pose, goal)
+
+    def _place(self, idx: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor) -> None:
+        zeros = torch.zeros(idx.numel(), 2, device=self.device)
+        self.pose[idx] = pose
+        self.goal[idx] = goal
+        self.velocity[idx] = zeros
+        self.steps[idx] = 0
+        self.episode_return[idx] = 0.0
+        self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
+        self.obs[idx] = self._observe(self._cast(pose), pose, goal, zeros)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Reset all slots, or only ``options["reset_mask"]`` ([N] bool). ``seed`` reseeds the
+        environment's generator: the same seed gives the same episodes."""
+        if seed is not None:
+            self._seed = int(seed)
+            self._gen.manual_seed(self._seed)
+        mask = None if options is None else options.get("reset_mask")
+        if mask is None:
+            idx = torch.arange(self.num_envs, device=self.device)
+        else:
+            idx = torch.as_tensor(mask, device=self.device, dtype=torch.bool).nonzero().squeeze(1)
+        self._reset_slots(idx)
+        return self.obs.clone(), {}
+
+    def set_state(self, pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Place every robot at ``pose`` [N, 3] (x, y m, yaw rad) with ``goal`` [N, 2] (m); zero its
+        velocity and step counter; return the recomputed observation [N, obs_dim]."""
+        pose = torch.as_tensor(pose, device=self.device, dtype=torch.float32).reshape(self.num_envs, 3)
+        goal = torch.as_tensor(goal, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
+        self._place(torch.arange(self.num_envs, device=self.device), pose, goal)
+        return self.obs.clone()
+
+    def step(self, actions):
+        """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped)."""
+        p = self.preset
+        actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
+        v, w = action_to_velocity(actions, p.motion)
+        self.pose = integrate(self.pose, v, w, p.episode.dt)
+        self.velocity = torch.stack([v, w], dim=1)
+        self.steps += 1
+
+        ranges = self._cast(self.pose)
+        dist = torch.linalg.vector_norm(self.goal - self.pose[:, :2], dim=1)
+        success = dist < p.episode.goal_threshold
+        collision = self._collides(self.pose) & ~success  # the goal is checked first
+        terminated = success | collision
+        truncated = (self.steps >= p.episode.horizon) & ~terminated
+        progress = p.reward.progress * (self.goal_distance - dist)
+        reward = torch.where(success, p.reward.goal, torch.where(collision, p.reward.collision, progress))
+        self.goal_distance = dist
+        self.episode_return += reward
+        self.obs = self._observe(ranges, self.pose, self.goal, self.velocity)
+
+        done = terminated | truncated
+        info = {
+            "final_obs": self.obs.clone(),
+            "_final_obs": done,
+            "success": success,
+            "collision": collision,
+            # length and return of the episode that ended in this step (meaningful where done)
+            "episode_steps": self.steps.clone(),
+            "episode_return": self.episode_return.clone(),
+        }
+        self._reset_slots(done.nonzero().squeeze(1))
+        return self.obs.clone(), reward, terminated, truncated, info
+
+    def close_extras(self, **kwargs) -> None:  # nothing to release: no processes, no files
+        pass
+
+    def __repr__(self) -> str:
+        return (f"NavVecEnv({self.preset.name}, num_envs={self.num_envs}, map={self.map.name!r}, "
+                f"device={self.device}, raycaster={self.raycaster_name!r})")
+
+
+def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=None,
+             device: torch.device | str = "cpu", seed: int = 0, raycaster: str | None = None) -> NavVecEnv:
+    """The batched environment.
+
+    Args:
+        robot: a preset name ("turtlebot2", "go2"), a preset YAML path, or a RobotPreset.
+        num_envs: N, the number of parallel environments.
+        map: None (the preset's bundled map), an OccupancyMap, a bundled map name, or a ROS YAML path.
+        device: where every tensor lives ("cpu", "cuda", ...).
+        seed: seeds start/goal sampling (and sensor noise when enabled).
+        raycaster: "exact" (default), "exact-torch" or "march" (the paper's fixed-step algorithm).
+    """
+    preset = load_robot(robot)
+    return NavVecEnv(preset, num_envs, grid=resolve_map(map, preset.map), device=device, seed=seed,
+                     raycaster=raycaster)
