@@ -18,9 +18,10 @@ from flashnav.sim.env import NavVecEnv
 _NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
 
-def grid_graph(free: np.ndarray, resolution: float) -> csr_matrix:
-    """8-connected graph over the free cells of ``free`` [H, W] (edge weights in metres); a diagonal
-    move needs both cells beside it free, so paths never cut an obstacle's corner."""
+def grid_graph(free: np.ndarray, resolution: float, cost: np.ndarray | None = None) -> csr_matrix:
+    """8-connected graph over the free cells of ``free`` [H, W] (edge weights in metres, times the
+    optional per-cell ``cost`` [H, W] >= 1 of the cell entered); a diagonal move needs both cells
+    beside it free, so paths never cut an obstacle's corner."""
     h, w = free.shape
     idx = np.arange(h * w).reshape(h, w)
     pad = np.pad(free, 1, constant_values=False)
@@ -36,7 +37,8 @@ def grid_graph(free: np.ndarray, resolution: float) -> csr_matrix:
         s = idx[ok]
         rows.append(s)
         cols.append(s + di * w + dj)
-        weights.append(np.full(s.size, resolution * math.hypot(di, dj)))
+        step = np.full(s.size, resolution * math.hypot(di, dj))
+        weights.append(step if cost is None else step * cost.reshape(-1)[s + di * w + dj])
     r, c, wt = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
     return csr_matrix((wt, (r, c)), shape=(h * w, h * w))
 
@@ -45,12 +47,14 @@ class OracleController:
     """Follows the geodesic to each env's goal: the next waypoint is ``lookahead`` metres down the
     distance field; the heading error sets the turn rate, and forward speed falls off with it."""
 
-    def __init__(self, env: NavVecEnv, lookahead: float = 0.6, margin: float = 0.03):
+    def __init__(self, env: NavVecEnv, lookahead: float = 0.35, margin: float = 0.08, comfort: float = 0.3):
         self.env = env
         grid = env.map
         radius = env.preset.footprint.circumscribed_radius + margin
         self.free = grid.free_space(radius)
-        self.graph = grid_graph(self.free, grid.resolution)
+        # paths keep away from walls where they can: cells within `comfort` of the margin cost more
+        cost = 1.0 + 4.0 * np.clip((radius + comfort - grid.clearance) / comfort, 0.0, 1.0)
+        self.graph = grid_graph(self.free, grid.resolution, cost)
         self.res, self.origin, self.shape = grid.resolution, grid.origin, grid.shape
         self.steps_ahead = max(1, int(round(lookahead / grid.resolution)))
         self.fields: np.ndarray | None = None
