@@ -17,9 +17,10 @@ Method: each footprint's axis-aligned bounding box covers at most B x B cells (B
 circumscribed radius); those cells are gathered from a padded occupancy tensor and tested exactly,
 as [N, B, B] tensors. With ``prefilter`` (the default on CPU) poses whose cell is at least the
 circumscribed radius from every obstacle (:func:`flashnav.sim.raycast.safe_field`) skip the window
-test, and only the occupied cells of the remaining windows are tested (sparse): on the 2-core CPU
-this took the Go2 rectangle check of 1,024 poses from ~12 ms to ~1 ms. Without it (the default on
-CUDA, where data-dependent shapes cost a host sync) the whole windows are tested densely.
+test, and only the occupied cells of the remaining windows are tested (sparse). Measured on the
+2-core CPU, 1,024 poses on a cluttered 10 x 10 m map: disc 0.55 -> 0.10 ms, Go2 rectangle
+2-12 ms -> ~1.5 ms. Without it (the default on CUDA, where data-dependent shapes cost a host sync)
+the whole windows are tested densely.
 """
 
 from __future__ import annotations
@@ -103,9 +104,10 @@ class CollisionChecker:
         occ = self._occ[rows[:, :, None] * self._wp + cols[:, None, :]]  # [n, B(rows), B(cols)]
         if self.prefilter:  # sparse: test only the occupied cells of the windows (few, on CPU)
             k, r, q = torch.nonzero(occ, as_tuple=True)
-            hit = self._touch(x[k], y[k], yaw[k], rows[k, r], cols[k, q])
-            return torch.zeros_like(x, dtype=torch.bool).index_put_((k[hit],), torch.ones_like(k[hit], dtype=torch.bool))
-        touch = self._touch(x[:, None, None], y[:, None, None], yaw[:, None, None], rows[:, :, None], cols[:, None, :])
+            k = k[self._touch(x[k], y[k], yaw[k], rows[k, r], cols[k, q])]
+            return torch.zeros_like(x, dtype=torch.bool).index_fill_(0, k, True)
+        x, y, yaw = x[:, None, None], y[:, None, None], yaw[:, None, None]
+        touch = self._touch(x, y, yaw, rows[:, :, None], cols[:, None, :])
         return (occ & touch).flatten(1).any(1)
 
     def _touch(self, x, y, yaw, rows, cols) -> torch.Tensor:

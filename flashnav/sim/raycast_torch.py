@@ -1,0 +1,222 @@
+"""Torch raycasters (any device): "exact-torch", the exact semantics of :mod:`flashnav.sim.raycast`
+as batched tensor ops, and "march", the paper's fixed-step ray march.
+
+exact-torch works on an active set of rays (compacted every round). After checking the origin (an
+origin touching an occupied closed cell gives 0), each round:
+1. jumps ``jumps_per_round`` times by the directional safe distance of the cell containing p(t) in
+   the ray's sector, minus DELTA, where it is at least ``JUMP_MIN_CELLS`` (the field of
+   :func:`flashnav.sim.raycast_numba.cone_field`); landing points are clear of every obstacle;
+2. checks the point p(t): any occupied closed cell containing it ends the ray at t;
+3. enumerates the next ``chunk_lines`` vertical and horizontal grid-line crossings as [R, M] tensors
+   (no sorting needed): at a crossing of line X the ray enters column X (or X - 1 going left), in the
+   row(s) containing the crossing point - two rows at a vertex; the first crossing into an occupied
+   cell up to T = min(last x-crossing, last y-crossing) ends the ray. Every cell the segment
+   [t, T] touches is touched first at p(t) or at one of these crossings, so this is exact; else t = T.
+Crossing indices beyond the padded grid are clamped onto its (occupied) border: such crossings lie
+past the map boundary, whose own crossing is enumerated first, so they never decide a range.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from flashnav.sim.raycast import PAD, Raycaster
+from flashnav.sim.raycast_numba import AXIS_SNAP, DELTA, EPS, cone_field
+
+#: A round costs a few dozen tensor ops whatever it does, so jump wherever the field allows a cell.
+JUMP_MIN_CELLS = 1.0
+
+
+class TorchExactRaycaster(Raycaster):
+    """Exact ranges with torch ops on ``device``; float64 internally.
+
+    Args:
+        chunk_lines: grid lines per axis enumerated per round (memory ~ rays x chunk_lines).
+        jumps_per_round: free-space jumps before each round's crossings.
+        max_batch_rays: rays processed together (bounds peak memory).
+    """
+
+    name = "exact-torch"
+
+    def __init__(self, grid, beam_angles, max_range, device="cpu", chunk_lines: int = 4,
+                 jumps_per_round: int = 2, max_batch_rays: int = 1 << 18, name: str | None = None) -> None:
+        super().__init__(grid, beam_angles, max_range, device)
+        if name is not None:
+            self.name = name
+        self.chunk_lines = int(chunk_lines)
+        self.jumps_per_round = int(jumps_per_round)
+        self.max_batch_rays = int(max_batch_rays)
+        cone = cone_field(grid, PAD)
+        self._sectors, self._hp, self._wp = cone.shape
+        self._cone = torch.from_numpy(cone.copy()).to(self.device).reshape(-1)
+        self._flat = torch.from_numpy(grid.padded(PAD).copy()).to(self.device).reshape(-1)  # occupied
+        self._jump_byte = 1 + math.ceil(2 * JUMP_MIN_CELLS)
+        a = self.beam_angles.double()
+        self._cos_a, self._sin_a = torch.cos(a), torch.sin(a)
+        self._steps = torch.arange(self.chunk_lines, device=self.device, dtype=torch.float64)
+
+    def __call__(self, pose: torch.Tensor) -> torch.Tensor:
+        self._check(pose)
+        g = self.grid
+        p = pose.to(self.device, torch.float64)
+        inv = 1.0 / g.resolution
+        n, k = p.shape[0], self._cos_a.shape[0]
+        cy, sy = torch.cos(p[:, 2:3]), torch.sin(p[:, 2:3])
+        dx = (cy * self._cos_a - sy * self._sin_a).reshape(-1)
+        dy = (sy * self._cos_a + cy * self._sin_a).reshape(-1)
+        dx = torch.where(dx.abs() < AXIS_SNAP, torch.zeros_like(dx), dx)
+        dy = torch.where(dy.abs() < AXIS_SNAP, torch.zeros_like(dy), dy)
+        u = ((p[:, 0:1] - g.origin[0]) * inv).expand(n, k).reshape(-1)
+        v = ((p[:, 1:2] - g.origin[1]) * inv).expand(n, k).reshape(-1)
+        # the sector plane of each ray's direction, as a flat offset into the field
+        sector = torch.floor((p[:, 2:3] + self.beam_angles.double()) * (self._sectors / (2 * math.pi)))
+        plane = (sector.long().remainder(self._sectors) * (self._hp * self._wp)).reshape(-1)
+        out = torch.empty(n * k, dtype=torch.float64, device=self.device)
+        for s in range(0, n * k, self.max_batch_rays):
+            e = min(s + self.max_batch_rays, n * k)
+            out[s:e] = self._cast(u[s:e], v[s:e], dx[s:e], dy[s:e], plane[s:e], self.max_range * inv)
+        return (out * g.resolution).clamp_(max=self.max_range).to(torch.float32).reshape(n, k)
+
+    # ---- helpers on flat ray batches ---------------------------------------------------------------
+    def _occupied(self, rows: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+        """Occupancy of unpadded cell indices (any shape), clamped onto the occupied pad border."""
+        r = (rows + PAD).clamp_(0, self._hp - 1)
+        c = (cols + PAD).clamp_(0, self._wp - 1)
+        return self._flat[r * self._wp + c]
+
+    @staticmethod
+    def _span(c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Cell indices (lo, hi) of the closed cells containing coordinate c: two on a grid line."""
+        f = torch.floor(c)
+        lo = f.long()
+        hi = lo.clone()
+        lo -= (c - f < EPS).long()
+        hi += (f + 1.0 - c < EPS).long()
+        return lo, hi
+
+    def _touches(self, pu: torch.Tensor, pv: torch.Tensor) -> torch.Tensor:
+        j0, j1 = self._span(pu)
+        i0, i1 = self._span(pv)
+        return self._occupied(i0, j0) | self._occupied(i0, j1) | self._occupied(i1, j0) | self._occupied(i1, j1)
+
+    def _crossings(self, t, d_along, d_other, p_along, p_other, along_is_x):
+        """Crossings of the next M lines across one axis from p(t) (``along`` = that axis):
+        (crossing times [R, M], entered cell occupied [R, M])."""
+        inf = torch.full_like(t, math.inf)
+        pos = d_along > 0
+        first = torch.where(pos, torch.floor(p_along + EPS) + 1.0, torch.ceil(p_along - EPS) - 1.0)
+        sgn = torch.where(pos, 1.0, -1.0)
+        lines = first[:, None] + sgn[:, None] * self._steps  # [R, M] line coordinates
+        safe_d = torch.where(d_along == 0, torch.ones_like(d_along), d_along)
+        tc = t[:, None] + (lines - p_along[:, None]) / safe_d[:, None]
+        tc = torch.where((d_along == 0)[:, None], inf[:, None], tc)
+        other = p_other[:, None] + (tc - t[:, None]) * d_other[:, None]
+        other = torch.where(torch.isfinite(tc), other, p_other[:, None])
+        into = (lines - (~pos).double()[:, None]).long()  # the column/row entered
+        lo, hi = self._span(other)
+        if along_is_x:
+            hit = self._occupied(lo, into) | self._occupied(hi, into)
+        else:
+            hit = self._occupied(into, lo) | self._occupied(into, hi)
+        return tc, hit
+
+    def _jump(self, u, v, dx, dy, plane, t):
+        """t advanced by the directional safe distance of the cell containing p(t) (any closed cell
+        containing the point bounds it), where that is at least JUMP_MIN_CELLS."""
+        pu, pv = u + t * dx, v + t * dy
+        b = self._cone[plane + ((torch.floor(pv).long() + PAD).clamp_(0, self._hp - 1)) * self._wp
+                       + (torch.floor(pu).long() + PAD).clamp_(0, self._wp - 1)].long()
+        return torch.where(b >= self._jump_byte, t + (b - 1) * 0.5 - DELTA, t)
+
+    def _cast(self, u, v, dx, dy, plane, maxc) -> torch.Tensor:
+        """Ranges in cells for flat [R] rays (grid-unit origins, unit directions)."""
+        res = torch.full_like(u, maxc)
+        inside = (u > 0) & (u < self.grid.shape[1]) & (v > 0) & (v < self.grid.shape[0])
+        res[~inside] = 0.0
+        ids = torch.nonzero(inside).squeeze(1)
+        u, v, dx, dy, plane = u[ids], v[ids], dx[ids], dy[ids], plane[ids]
+        t = torch.zeros_like(u)
+        # an origin touching an occupied cell ends the ray before any jump could skip past it
+        start = self._touches(u, v)
+        res[ids[start]] = 0.0
+        ids, u, v, dx, dy, plane, t = (a[~start] for a in (ids, u, v, dx, dy, plane, t))
+        while ids.numel() > 0:
+            for _ in range(self.jumps_per_round):  # cheap [R] ops: skip free space first
+                t = self._jump(u, v, dx, dy, plane, t)
+            pu, pv = u + t * dx, v + t * dy
+            hit_t = torch.where(self._touches(pu, pv), t, math.inf)
+            tx, hx = self._crossings(t, dx, dy, pu, pv, True)
+            ty, hy = self._crossings(t, dy, dx, pv, pu, False)
+            end = torch.minimum(tx[:, -1], ty[:, -1])
+            cand = torch.minimum(torch.where(hx & (tx <= end[:, None]), tx, math.inf).amin(1),
+                                 torch.where(hy & (ty <= end[:, None]), ty, math.inf).amin(1))
+            hit_t = torch.minimum(hit_t, cand)
+            t = end
+            hit = torch.isfinite(hit_t)
+            done = hit | (t >= maxc)
+            res[ids[done]] = torch.where(hit[done], hit_t[done].clamp(max=maxc), maxc)
+            keep = ~done
+            ids, u, v, dx, dy, plane, t = (a[keep] for a in (ids, u, v, dx, dy, plane, t))
+        return res
+
+
+class MarchRaycaster(Raycaster):
+    """The paper's ray march: samples at t = step, 2 step, ... (metres); the first sample whose cell
+    (``floor``) is occupied or off the map gives the range; none up to ``max_range`` gives
+    ``max_range``. float32, processed ``chunk_steps`` samples at a time over the still-active rays.
+    """
+
+    name = "march"
+
+    def __init__(self, grid, beam_angles, max_range, device="cpu", step: float = 0.03,
+                 chunk_steps: int = 32, max_batch_rays: int = 1 << 18) -> None:
+        super().__init__(grid, beam_angles, max_range, device)
+        if not step > 0:
+            raise ValueError(f"march step must be > 0 metres, got {step}")
+        self.step = float(step)
+        self.chunk_steps = int(chunk_steps)
+        self.max_batch_rays = int(max_batch_rays)
+        self._n_steps = math.ceil(self.max_range / self.step - 1e-9)
+        occ = torch.from_numpy(grid.padded(1).copy()).to(self.device)
+        self._hp, self._wp = occ.shape
+        self._flat = occ.reshape(-1)
+
+    def __call__(self, pose: torch.Tensor) -> torch.Tensor:
+        self._check(pose)
+        p = pose.to(self.device, torch.float32)
+        n, k = p.shape[0], self.beam_angles.numel()
+        ang = p[:, 2:3] + self.beam_angles
+        c, s = torch.cos(ang).reshape(-1), torch.sin(ang).reshape(-1)
+        x = p[:, 0:1].expand(n, k).reshape(-1)
+        y = p[:, 1:2].expand(n, k).reshape(-1)
+        out = torch.empty(n * k, dtype=torch.float32, device=self.device)
+        for b in range(0, n * k, self.max_batch_rays):
+            e = min(b + self.max_batch_rays, n * k)
+            out[b:e] = self._march(x[b:e], y[b:e], c[b:e], s[b:e])
+        return out.reshape(n, k)
+
+    def _march(self, x, y, c, s) -> torch.Tensor:
+        g = self.grid
+        inv = 1.0 / g.resolution
+        out = torch.full_like(x, self.max_range)
+        ids = torch.arange(x.numel(), device=self.device)
+        ar = torch.arange(1, self.chunk_steps + 1, device=self.device)
+        for k0 in range(0, self._n_steps, self.chunk_steps):
+            if ids.numel() == 0:
+                break
+            kk = (k0 + ar[: min(self.chunk_steps, self._n_steps - k0)]).float()
+            t = kk * self.step  # [C] metres
+            col = torch.floor((x[:, None] + t * c[:, None] - g.origin[0]) * inv)
+            row = torch.floor((y[:, None] + t * s[:, None] - g.origin[1]) * inv)
+            # indices off the map clamp onto the occupied border of the 1-cell padding
+            col = (col + 1).clamp_(0, self._wp - 1).long()
+            row = (row + 1).clamp_(0, self._hp - 1).long()
+            hit = self._flat[row * self._wp + col]  # [R, C] bool
+            any_hit = hit.any(1)
+            first = hit.to(torch.uint8).argmax(1)
+            out[ids[any_hit]] = torch.clamp(t[first[any_hit]], max=self.max_range)
+            keep = ~any_hit
+            ids, x, y, c, s = ids[keep], x[keep], y[keep], c[keep], s[keep]
+        return out
