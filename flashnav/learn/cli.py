@@ -114,7 +114,7 @@ def _write_artefacts(result, out: Path) -> None:
     save_checkpoint(out / "checkpoint.pt", result.learner.state_dict(), result.config,
                     {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"}})
     preset = RobotPreset.model_validate(result.config["robot_preset"])
-    export_policy(result.learner.policy, preset, out)
+    export_policy(result.policy, preset, out)  # the best evaluated policy
 
 
 def _summary(console: Console, result, out: Path) -> None:
@@ -129,4 +129,6 @@ def _summary(console: Console, result, out: Path) -> None:
     console.print(f"cycle: collector {c['collector_ms']:.1f} ms, learner {c['learner_ms']:.1f} ms, "
                   f"effective {c['effective_ms']:.1f} ms; stopped by {result.stop_reason}; "
                   f"{result.env_steps:,} env steps in {result.train_seconds:.1f} s of training")
+    console.print(f"exported policy: the best evaluation ({result.best_success_rate:.1%} success); "
+                  f"checkpoint.pt holds the final learner state")
     console.print(f"artefacts in {out}: config.yaml metrics.json checkpoint.pt policy.pt policy.onnx")

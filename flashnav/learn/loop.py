@@ -13,6 +13,7 @@ evaluation, logging, progress or the ``on_eval`` callback.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -45,10 +46,15 @@ class TrainResult:
     config: dict[str, Any]
     device_name: str
     stop_reason: str
+    best_success_rate: float = 0.0
     learner: Learner | None = field(default=None, repr=False)
+    best_policy: torch.nn.Module | None = field(default=None, repr=False)
 
     @property
     def policy(self) -> torch.nn.Module | None:
+        """The deterministic policy of the best evaluation (ties: the earliest), else the final one."""
+        if self.best_policy is not None:
+            return self.best_policy
         return None if self.learner is None else self.learner.policy
 
     def to_dict(self) -> dict[str, Any]:
@@ -61,6 +67,7 @@ class TrainResult:
             "env_steps": self.env_steps,
             "device_name": self.device_name,
             "stop_reason": self.stop_reason,
+            "best_success_rate": self.best_success_rate,
             "config": self.config,
         }
 
@@ -165,6 +172,7 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -
 
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="collector") if overlap else None
     stop_reason, env_steps, last_eval = "budget_env_steps", 0, None
+    best_rate, best_policy = 0.0, None
     try:
         for cycle in range(1, cycles + 1):
             with cycle_t:
@@ -183,14 +191,14 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -
             env_steps = cycle * hp.num_envs
             if on_progress is not None:
                 on_progress({"env_steps": env_steps, "train_seconds": cycle_t.total, "last_eval": last_eval})
-            if cycle % eval_every and cycle != cycles:
-                if cycle_t.total >= config.budget.max_train_seconds:
-                    stop_reason = "budget_seconds"
-                    break
-                continue
+            out_of_time = cycle_t.total >= config.budget.max_train_seconds
+            if cycle % eval_every and cycle != cycles and not out_of_time:
+                continue  # every run ends with an evaluation, whichever budget ends it
             last_eval = _evaluate(learner, eval_env, config, env_steps, cycle_t.total, len(curve))
             curve.append(last_eval)
             tracker.update(last_eval["success_rate"], cycle_t.total, env_steps)
+            if best_policy is None or last_eval["success_rate"] > best_rate:
+                best_rate, best_policy = last_eval["success_rate"], copy.deepcopy(learner.policy)
             if on_eval is not None and on_eval(dict(last_eval)):
                 stop_reason = "callback"
                 break
@@ -198,7 +206,7 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -
             if target is not None and last_eval["success_rate"] >= target - 1e-9:
                 stop_reason = "success"
                 break
-            if cycle_t.total >= config.budget.max_train_seconds:
+            if out_of_time:
                 stop_reason = "budget_seconds"
                 break
     finally:
@@ -222,7 +230,9 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -
         config=resolved,
         device_name=device_name(device),
         stop_reason=stop_reason,
+        best_success_rate=best_rate,
         learner=learner,
+        best_policy=best_policy,
     )
 
 

@@ -1,0 +1,85 @@
+"""Which device a Tune trial trains on, and how the platform is named in tables.
+
+Since Ray 2.5x a trial that asked for ``gpu: 0`` no longer gets ``CUDA_VISIBLE_DEVICES=""``: it sees every
+GPU of its node, and ``device="auto"`` would silently put it on a GPU that another trial was given. The
+device is therefore chosen from the resources Ray *assigned* (``ray.get_gpu_ids()``), never probed.
+Nothing here initialises CUDA in the driver: only :func:`device_name` touches ``torch.cuda`` and only
+trials call it.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import socket
+from functools import lru_cache
+
+
+def trial_device() -> str:
+    """``"cuda"`` when Ray assigned this trial at least one GPU, else ``"cpu"``.
+
+    Ray restricts CUDA_VISIBLE_DEVICES of a GPU trial to its assigned GPUs, so ``cuda`` (= ``cuda:0``)
+    is the trial's own GPU. Must be called inside a Ray worker.
+    """
+    import ray
+
+    return "cuda" if ray.get_gpu_ids() else "cpu"
+
+
+def device_kind(device: str) -> str:
+    """``cuda`` or ``cpu`` (the ``device_kind`` tag) from a torch device string."""
+    return "cuda" if str(device).startswith("cuda") else "cpu"
+
+
+@lru_cache(maxsize=1)
+def cpu_model() -> str:
+    """The CPU's marketing name (``AMD EPYC 7B13``), from /proc/cpuinfo where present."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
+
+
+def cpu_threads() -> int:
+    """Threads this process may use: torch's setting where torch is loaded, else the affinity mask."""
+    import sys
+
+    if "torch" in sys.modules:
+        return int(sys.modules["torch"].get_num_threads())
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def device_name(device: str) -> str:
+    """``NVIDIA H100 80GB HBM3`` or ``AMD EPYC 7B13 (2 threads)``: the fallback when training gave none."""
+    if device_kind(device) == "cuda":
+        import torch
+
+        index = int(str(device).split(":")[1]) if ":" in str(device) else 0
+        return torch.cuda.get_device_name(index)
+    return f"{cpu_model()} ({cpu_threads()} threads)"
+
+
+def host_name() -> str:
+    return socket.gethostname()
+
+
+def check_cluster_fits(cpu: float, gpu: float) -> None:
+    """Raise ValueError when no node of the connected Ray cluster can ever run one trial.
+
+    Tune would otherwise leave the trials PENDING forever (e.g. a ``gpu: 1`` sweep on a CPU machine).
+    """
+    import ray
+
+    nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
+    if any(n.get("CPU", 0) >= cpu and n.get("GPU", 0) >= gpu for n in nodes):
+        return
+    have = ", ".join(f"{n.get('CPU', 0):g} CPU / {n.get('GPU', 0):g} GPU" for n in nodes) or "no nodes"
+    hint = " (--set resources.gpu=0 trains on CPU)" if gpu > 0 else ""
+    raise ValueError(f"a trial asks for {cpu:g} CPU / {gpu:g} GPU but the cluster's nodes have {have}{hint}")

@@ -1,0 +1,420 @@
+"""Run a sweep: sweep YAML -> Ray Tune (seed grid, or one Optuna study per robot x algorithm) -> MLflow.
+
+    flashnav sweep run SWEEP.yaml [--address ADDR] [--resume] [--dry-run] [--set KEY=VALUE ...]
+    flashnav sweep submit SWEEP.yaml [--address http://HEAD:8265] [--no-wait] [--resume] [--set ...]
+    python -m services.sweep run|submit ...            (where the console script is missing)
+    ray job submit --address http://HEAD:8265 --working-dir . -- flashnav sweep run sweeps/tb2_10seed.yaml
+
+``run`` is the driver: in-process Ray on this machine by default, the cluster named by ``--address`` /
+RAY_ADDRESS otherwise (inside ``ray job submit`` Ray sets RAY_ADDRESS). Where things go, all resolved
+to absolute paths here before anything is shipped to a worker:
+
+    <runs>/sweeps/<name>/<stamp>/   sweep_state.json (what --resume needs), sweep.yaml, Optuna outputs
+    <storage>/<name>/<stamp>/<target>/   the Ray Tune experiment of one target (default storage <runs>/ray)
+    MLflow: one parent run per invocation, a child per trial (services.tracking, the only writer)
+
+``<runs>`` is $FLASHNAV_RUNS_DIR, else ``<project>/runs`` (services.sweep_schema.runs_dir).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from services import optuna_search
+from services.sweep_schema import (Sweep, SweepError, load_sweep, project_dir, resolve_db_url, resolve_storage,
+                                   resolve_tracking_uri, runs_dir, sweep_to_yaml)
+
+STATE_FILE = "sweep_state.json"
+
+
+@dataclass
+class Target:
+    """One Tuner: ``grid`` (every robot x algorithm x seed) or one Optuna study per (robot, algorithm)."""
+
+    name: str
+    robot: str | None = None
+    algorithm: str | None = None
+    study: str | None = None
+
+
+@dataclass
+class Plan:
+    sweep: Sweep
+    source: str
+    stamp: str
+    tracking_uri: str
+    ray_storage: str
+    out_dir: Path
+    optuna_url: str | None
+    targets: list[Target]
+    git_commit: str
+    state: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_trials(self) -> int:
+        s = self.sweep
+        per = s.search.n_trials if s.search else len(s.seed_list)
+        return len(s.robots) * len(s.algorithms) * per
+
+    def save_state(self) -> None:
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        (self.out_dir / STATE_FILE).write_text(json.dumps(self.state, indent=1))
+
+
+def git_commit(where: Path) -> str:
+    """$FLASHNAV_GIT_COMMIT (set by ``sweep submit``: a job's working dir has no .git), else git's HEAD."""
+    if os.environ.get("FLASHNAV_GIT_COMMIT"):
+        return os.environ["FLASHNAV_GIT_COMMIT"]
+    for repo in (where, Path(__file__).resolve().parents[1]):  # the project, else this checkout
+        try:
+            head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True,
+                                  timeout=10, check=True).stdout.strip()
+            dirty = subprocess.run(["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
+                                   capture_output=True, text=True, timeout=10).stdout.strip()
+            return head + ("-dirty" if dirty else "")
+        except (OSError, subprocess.SubprocessError):
+            continue
+    return "unknown"
+
+
+def _latest_state(sweep: Sweep) -> dict[str, Any]:
+    root = runs_dir() / "sweeps" / sweep.name
+    states = sorted(root.glob(f"*/{STATE_FILE}")) if root.exists() else []
+    if not states:
+        raise SweepError(f"nothing to resume: no {STATE_FILE} under {root}")
+    return json.loads(states[-1].read_text())
+
+
+def make_plan(sweep: Sweep, source: str, resume: bool = False) -> Plan:
+    """Resolve every location of one invocation (a new one, or the latest one when resuming)."""
+    state = _latest_state(sweep) if resume else {}
+    stamp = state.get("stamp") or time.strftime("%Y%m%d-%H%M%S")
+    tracking_uri = state.get("tracking_uri") or resolve_tracking_uri(sweep.tracking.tracking_uri)
+    ray_storage = state.get("ray_storage") or f"{resolve_storage(sweep.storage).rstrip('/')}/{sweep.name}/{stamp}"
+    optuna_url = None
+    targets = [Target("grid")]
+    if sweep.search:
+        optuna_url = state.get("optuna_url") or resolve_db_url(sweep.search.storage, "optuna.db")
+        pairs = [(r, a) for r in sweep.robots for a in sweep.algorithms]
+        studies = state.get("studies", {})
+        targets = []
+        for robot, algorithm in pairs:
+            name = f"{Path(robot).stem}-{algorithm}"
+            study = studies.get(name) or optuna_search.study_name(sweep, robot, algorithm, stamp, len(pairs))
+            targets.append(Target(name, robot, algorithm, study))
+    state = state or {"sweep": sweep.name, "stamp": stamp, "tracking_uri": tracking_uri, "ray_storage": ray_storage,
+                      "optuna_url": optuna_url, "studies": {t.name: t.study for t in targets if t.study},
+                      "experiment": sweep.experiment, "done_targets": [], "parent_run_id": None}
+    return Plan(sweep, source, stamp, tracking_uri, ray_storage, runs_dir() / "sweeps" / sweep.name / stamp,
+                optuna_url, targets, git_commit(project_dir()), state)
+
+
+def validate_train_configs(plan: Plan) -> None:
+    """Build every (robot, algorithm) TrainConfig in the driver so a bad key fails before Ray starts."""
+    try:
+        from flashnav.learn.config import TrainConfig
+    except ImportError:  # the library does not ship TrainConfig yet: the sweep schema is all we check
+        return
+    from pydantic import ValidationError
+
+    sweep = plan.sweep
+    for robot in sweep.robots:
+        for algorithm in sweep.algorithms:
+            extra = ({p: optuna_search.first_value(d) for p, d in sweep.search.space_for(algorithm).items()}
+                     if sweep.search else {})
+            data = sweep.train_config(robot, algorithm, sweep.seed_list[0], "cpu", extra)
+            try:
+                config = TrainConfig.model_validate(data)
+                _check_hyperparameters(config, sweep.resources.gpu)
+            except (ValidationError, ValueError, KeyError) as exc:
+                raise SweepError(f"{plan.source}: {robot}/{algorithm}: not a valid TrainConfig:\n{exc}") from None
+
+
+def _check_hyperparameters(config, gpu: float) -> None:
+    """Resolve the ``algo.*`` overrides against the recipe's hyperparameters, where the library exposes
+    them: a misspelt searched parameter would otherwise fail every trial, one by one, on the cluster."""
+    try:
+        from flashnav.learn.hparams import load_hparams
+    except ImportError:
+        return
+    recipe = config.recipe if config.recipe != "auto" else ("paper" if gpu > 0 else "cpu")
+    load_hparams(config.algorithm, config.robot, recipe, config.algo_overrides())
+
+
+def describe(plan: Plan) -> str:
+    s = plan.sweep
+    lines = [f"sweep {s.name}: {plan.n_trials} trials ({len(s.robots)} robot(s) x {len(s.algorithms)} algorithm(s) x "
+             + (f"{s.search.n_trials} Optuna trials of {s.search.seeds_per_trial} seed(s))" if s.search
+                else f"{len(s.seed_list)} seeds)"),
+             f"  per trial: {s.resources.cpu:g} CPU, {s.resources.gpu:g} GPU; recipe {s.base.recipe}; "
+             f"budget {s.budget.max_train_seconds:g} s; max_failures {s.retry.max_failures}",
+             f"  MLflow: {plan.tracking_uri} (experiment {s.experiment})",
+             f"  Ray storage: {plan.ray_storage}", f"  outputs: {plan.out_dir}"]
+    if plan.optuna_url:
+        lines.append(f"  Optuna: {plan.optuna_url}, objective {s.search.objective} ({s.search.mode}), studies: "
+                     + ", ".join(t.study for t in plan.targets))
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------- the driver
+
+
+def connect(address: str | None) -> bool:
+    """Initialise Ray unless already up; returns True when this call started it (and must shut it down)."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    address = address or os.environ.get("RAY_ADDRESS")
+    if address and address.startswith(("http://", "https://")):
+        raise SweepError(f"{address} is a dashboard/jobs address: use `flashnav sweep submit --address {address}`; "
+                         "`sweep run --address` takes the cluster address (HOST:6379 or auto)")
+    ray.init(address=address or "local", include_dashboard=False if not address else None)
+    return True
+
+
+def _trainable(plan: Plan, train_fn: Callable | None):
+    from ray import tune
+
+    from services.trainable import train_trial
+
+    resources = {"cpu": plan.sweep.resources.cpu, "gpu": plan.sweep.resources.gpu}
+    bound = tune.with_parameters(train_trial, sweep=plan.sweep.model_dump(mode="json"),
+                                 git_commit=plan.git_commit, train_fn=train_fn)
+    return tune.with_resources(bound, resources)
+
+
+def _tuner(plan: Plan, target: Target, trainable, callback, verbose: int):
+    from ray import tune
+
+    sweep = plan.sweep
+    run_config = tune.RunConfig(
+        name=target.name, storage_path=plan.ray_storage, callbacks=[callback], verbose=verbose,
+        failure_config=tune.FailureConfig(max_failures=sweep.retry.max_failures),
+        # num_to_keep makes Tune snapshot the experiment state at every trial checkpoint (one per finished
+        # seed, each holding every seed done so far), so --resume after a kill re-trains no finished seed.
+        checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
+    )
+    if sweep.search is None:
+        space = {"robot": tune.grid_search(sweep.robots), "algorithm": tune.grid_search(sweep.algorithms),
+                 "seed": tune.grid_search(sweep.seed_list)}
+        config = tune.TuneConfig(max_concurrent_trials=sweep.max_concurrent_trials, reuse_actors=False)
+    else:
+        space = {"robot": target.robot, "algorithm": target.algorithm,
+                 "seeds": sweep.seed_list[: sweep.search.seeds_per_trial],
+                 optuna_search.PARAMS_KEY: optuna_search.search_space(sweep, target.algorithm)}
+        config = tune.TuneConfig(search_alg=optuna_search.make_searcher(sweep, plan.optuna_url, target.study),
+                                 num_samples=sweep.search.n_trials, metric="objective", mode=sweep.search.mode,
+                                 reuse_actors=False)
+    return tune.Tuner(trainable, param_space=space, tune_config=config, run_config=run_config)
+
+
+def _fit_target(plan: Plan, target: Target, tracker, resume: bool, train_fn, verbose: int) -> int:
+    """Run (or restore and finish) one target; returns the number of trials that ended in error."""
+    from ray import tune
+
+    trainable = _trainable(plan, train_fn)
+    path = f"{plan.ray_storage}/{target.name}"
+    if resume and tune.Tuner.can_restore(path):
+        # The pickled MLflow callback comes back with the experiment (same parent run); finished trials
+        # stay finished, errored ones restart from their last checkpoint.
+        tuner = tune.Tuner.restore(path, trainable=trainable, resume_errored=True)
+    else:
+        tags = {"recipe": plan.sweep.base.recipe, "git_commit": plan.git_commit, "invocation": plan.stamp}
+        tuner = _tuner(plan, target, trainable, tracker.callback(plan.sweep.name, tags), verbose)
+    results = tuner.fit()
+    return sum(1 for result in results if result.error is not None)
+
+
+def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, dry_run: bool = False,
+              sets: list[str] | None = None, train_fn: Callable | None = None, verbose: int = 1,
+              echo: Callable[[str], Any] = print) -> int:
+    """Run a sweep file to completion; 0 when every trial finished, 1 when some errored after retries.
+
+    ``train_fn`` replaces ``flashnav.train`` in every trial (tests use a fake to exercise the plumbing).
+    """
+    sweep = load_sweep(path, sets)
+    plan = make_plan(sweep, str(path), resume)
+    validate_train_configs(plan)
+    for target in plan.targets if not resume else []:
+        if target.study:
+            optuna_search.check_fresh(plan.optuna_url, target.study)
+    echo(describe(plan))
+    if dry_run:
+        return 0
+
+    from services import device, tracking
+
+    # Those forced snapshots are cheap (a few kB); Tune would warn about each of them.
+    os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
+    started = connect(address)
+    tracker = None
+    try:
+        try:
+            device.check_cluster_fits(sweep.resources.cpu, sweep.resources.gpu)
+        except ValueError as exc:
+            raise SweepError(f"{path}: {exc}") from None
+        tracker = tracking.SweepRun(plan.tracking_uri, plan.state["experiment"])
+        if plan.state.get("parent_run_id"):
+            tracker.resume(plan.state["parent_run_id"])
+        else:
+            tags = {"invocation": plan.stamp, "sweep_file": str(path), "ray_storage": plan.ray_storage,
+                    "git_commit": plan.git_commit, "n_trials": str(plan.n_trials)}
+            plan.state["parent_run_id"] = tracker.start(sweep.name, f"{sweep.name}-{plan.stamp}", tags,
+                                                        sweep.model_dump(mode="json"))
+            plan.save_state()
+            (plan.out_dir / "sweep.yaml").write_text(sweep_to_yaml(sweep), encoding="utf-8")
+            tracker.log_artifact(plan.out_dir / "sweep.yaml")
+        errors = 0
+        for target in plan.targets:
+            if target.name in plan.state["done_targets"]:
+                continue
+            errors += _fit_target(plan, target, tracker, resume, train_fn, verbose)
+            if target.study:
+                optuna_search.fail_orphans(plan.optuna_url, target.study)
+            plan.state["done_targets"].append(target.name)
+            plan.save_state()
+        if sweep.search:
+            summaries = [optuna_search.summarize(plan.optuna_url, t.study, sweep, t.robot, t.algorithm)
+                         for t in plan.targets]
+            for written in optuna_search.write_outputs(plan.out_dir, summaries, sweep):
+                tracker.log_artifact(written)
+                echo(f"wrote {written}")
+        tracker.set_tags({"errored_trials": errors})
+        tracker.finish("FINISHED" if errors == 0 else "FAILED")
+        echo(f"sweep {sweep.name}: {plan.n_trials - errors}/{plan.n_trials} trials finished; MLflow "
+             f"{plan.tracking_uri}, parent run {plan.state['parent_run_id']}")
+        return 0 if errors == 0 else 1
+    except KeyboardInterrupt:
+        if tracker and tracker.run_id:
+            tracker.finish("KILLED")  # `--resume` reopens it
+        raise
+    except Exception:
+        if tracker and tracker.run_id:
+            tracker.finish("FAILED")
+        raise
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
+
+
+# ---------------------------------------------------------------- submit (Ray Jobs API)
+
+
+def submit_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, sets: list[str] | None = None,
+                 env: list[str] | None = None, wait: bool = True, module: bool = False,
+                 echo: Callable[[str], Any] = print) -> int:
+    """Submit ``flashnav sweep run PATH`` as a Ray job (working_dir ".") and follow its logs."""
+    import asyncio
+
+    from ray.job_submission import JobStatus, JobSubmissionClient
+
+    from services import stack
+
+    load_sweep(path, sets)  # fail here, not on the cluster
+    try:
+        relative = Path(path).resolve().relative_to(Path.cwd().resolve())
+    except ValueError:
+        raise SweepError(f"{path} is outside the working dir {Path.cwd()}: only that is uploaded") from None
+    address = address or os.environ.get("RAY_API_SERVER_ADDRESS") or stack.jobs_address()
+    stack.align_client_auth()
+    command = (["python", "-m", "services.sweep"] if module else ["flashnav", "sweep"]) + ["run", relative.as_posix()]
+    command += ["--resume"] if resume else []
+    for assignment in sets or []:
+        command += ["--set", assignment]
+    env_vars = {"FLASHNAV_GIT_COMMIT": git_commit(Path.cwd())}
+    for item in env or []:
+        key, _, value = item.partition("=")
+        env_vars[key] = value
+    client = JobSubmissionClient(address)
+    job_id = client.submit_job(entrypoint=shlex.join(command), runtime_env={"working_dir": ".", "env_vars": env_vars})
+    echo(f"submitted job {job_id} to {address}: {shlex.join(command)}")
+    if not wait:
+        return 0
+
+    async def follow() -> None:
+        async for lines in client.tail_job_logs(job_id):
+            print(lines, end="", flush=True)
+
+    try:
+        asyncio.run(follow())
+    except KeyboardInterrupt:
+        echo(f"\nstopped following; the job keeps running (ray job stop --address {address} {job_id})")
+        return 130
+    status = client.get_job_status(job_id)
+    echo(f"job {job_id}: {status}")
+    return 0 if status == JobStatus.SUCCEEDED else 1
+
+
+# ---------------------------------------------------------------- CLI
+
+
+def _add_commands(sub) -> None:
+    run = sub.add_parser("run", help="run a sweep (in-process Ray here, or the cluster at --address / RAY_ADDRESS)")
+    run.add_argument("sweep", help="sweep YAML (see sweeps/)")
+    run.add_argument("--address", help="Ray cluster address (HOST:6379, auto); default $RAY_ADDRESS, else in-process")
+    run.add_argument("--resume", action="store_true", help="continue the latest interrupted invocation of this sweep")
+    run.add_argument("--dry-run", action="store_true", help="validate and print the plan; run nothing")
+    run.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a sweep key, e.g. --set budget.max_train_seconds=5 (repeatable)")
+    run.set_defaults(func=_cmd_run)
+    submit = sub.add_parser("submit", help="submit `flashnav sweep run` as a Ray job and follow its logs")
+    submit.add_argument("sweep", help="sweep YAML inside the current directory (uploaded as working_dir)")
+    submit.add_argument("--address", help="jobs API, e.g. http://HEAD:8265; default $RAY_API_SERVER_ADDRESS, "
+                                          "else the local stack's")
+    submit.add_argument("--resume", action="store_true")
+    submit.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
+    submit.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
+                        help="environment variable for the job driver (e.g. MLFLOW_TRACKING_URI=http://HEAD:5000)")
+    submit.add_argument("--no-wait", action="store_true", help="return once submitted")
+    submit.add_argument("--module", action="store_true", help="entrypoint `python -m services.sweep` (no console script)")
+    submit.set_defaults(func=_cmd_submit)
+
+
+def _guard(fn: Callable[[], int]) -> int:
+    try:
+        return fn()
+    except SweepError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    return _guard(lambda: run_sweep(args.sweep, address=args.address, resume=args.resume,
+                                    dry_run=args.dry_run, sets=args.sets))
+
+
+def _cmd_submit(args: argparse.Namespace) -> int:
+    return _guard(lambda: submit_sweep(args.sweep, address=args.address, resume=args.resume, sets=args.sets,
+                                       env=args.env, wait=not args.no_wait, module=args.module))
+
+
+def register_cli(subparsers) -> None:
+    """Entry point ``flashnav.commands: sweep``: adds ``flashnav sweep run|submit``."""
+    parser = subparsers.add_parser("sweep", help="Ray Tune sweeps (seed grids, Optuna) tracked in MLflow")
+    _add_commands(parser.add_subparsers(dest="sweep_command", metavar="{run,submit}", required=True))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m services.sweep", description=__doc__.split("\n\n")[0])
+    _add_commands(parser.add_subparsers(dest="sweep_command", metavar="{run,submit}", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    # Re-enter through the package module so that nothing Ray pickles refers to `__main__`.
+    from services.sweep import main as _main
+
+    sys.exit(_main())

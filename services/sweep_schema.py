@@ -1,0 +1,439 @@
+"""The sweep YAML: a strict pydantic schema, ``--set`` overrides, and absolute path resolution.
+
+A sweep names robots x algorithms x seeds, the TrainConfig fields every trial shares (``base``,
+``overrides``, ``budget``), the Ray resources of one trial, and optionally an Optuna ``search``.
+Unknown keys are errors whose message names the key's full path and the allowed names, so that a
+misspelt ``budjet`` fails at load time, not after an hour of sweeping.
+
+Paths (MLflow tracking store, Optuna storage, Ray storage) are resolved here, in the driver, to
+absolute locations: the driver of a Ray job runs in a temporary copy of the working dir and each trial
+in its own directory, so a relative path would silently land in a folder that is thrown away.
+"""
+
+from __future__ import annotations
+
+import builtins
+import os
+import re
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic_core import PydanticCustomError
+
+ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
+ROBOTS = ("turtlebot2", "go2")
+# Objective name -> Optuna direction. Time/steps are censored (the run's total where not reached).
+OBJECTIVES = {
+    "time_to_90": "min", "time_to_95": "min", "time_to_100": "min",
+    "env_steps_to_90": "min", "env_steps_to_95": "min", "env_steps_to_100": "min",
+    "final_success_rate": "max", "best_success_rate": "max",
+}
+DISTRIBUTIONS = ("choice", "int", "logint", "loguniform", "uniform")
+# Maps whose keys are themselves dotted config paths: `--set` treats the rest of a path as one key.
+_DOTTED_MAPS = ("overrides", "parameters")
+_PER_ALGORITHM_MAPS = ("algorithm_overrides", "algorithm_parameters")
+
+
+class SweepError(ValueError):
+    """A sweep file that cannot be used; the message lists every problem with its key path."""
+
+
+class Strict(BaseModel):
+    """Base: unknown keys are errors that name the allowed keys."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        # Checked here rather than by extra="forbid" alone so the message can list the allowed names.
+        if isinstance(data, dict):
+            allowed = sorted(cls.model_fields)
+            for key in data:
+                if key not in cls.model_fields:
+                    raise PydanticCustomError(
+                        "unknown_key", "unknown key; allowed: {allowed}", {"key": str(key), "allowed": ", ".join(allowed)}
+                    )
+        return data
+
+
+class Budget(Strict):
+    """TrainConfig.budget: when a training run stops."""
+
+    max_train_seconds: float = Field(600.0, gt=0, description="training-clock budget, seconds")
+    max_env_steps: int | None = Field(None, gt=0, description="None = the recipe's total env steps")
+    stop_at_success: float | None = Field(1.0, gt=0, le=1, description="stop once an evaluation reaches it")
+
+
+class EvalSpec(Strict):
+    """TrainConfig.eval; fields left out keep TrainConfig's defaults (``every`` is the recipe's)."""
+
+    episodes: int | None = Field(None, gt=0)
+    every: int | None = Field(None, gt=0)
+    seed: int | None = None
+
+
+# TrainConfig fields a sweep sets elsewhere, and where.
+_SET_BY_SWEEP = {"robot": "robots", "algorithm": "algorithms", "seed": "seeds", "device": "resources.gpu",
+                 "budget": "budget (top level)", "overrides": "overrides (top level)"}
+_DOCUMENTED_BASE = ("eval", "map", "overlap", "raycaster", "recipe", "threads")
+
+
+def _base_fields() -> list[str]:
+    """TrainConfig's fields that ``base`` may set: the library's own list where it is importable."""
+    try:
+        from flashnav.learn.config import TrainConfig
+    except ImportError:
+        return list(_DOCUMENTED_BASE)
+    return sorted(set(TrainConfig.model_fields) - set(_SET_BY_SWEEP))
+
+
+class BaseConfig(BaseModel):
+    """TrainConfig fields shared by every trial; robot, algorithm, seed and device come from the sweep.
+
+    Fields not typed here (``raycaster``, ``threads``, ``overlap``, ...) pass through to TrainConfig,
+    which the driver validates before anything runs.
+    """
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    recipe: Literal["paper", "cpu", "auto"] = "auto"
+    map: str | None = None
+    eval: EvalSpec = EvalSpec()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            allowed = _base_fields()
+            for key in data:
+                if key in _SET_BY_SWEEP:
+                    raise PydanticCustomError("unknown_key", "set by the sweep's {where}, not in base",
+                                              {"key": str(key), "where": _SET_BY_SWEEP[key]})
+                if key not in allowed:
+                    raise PydanticCustomError("unknown_key", "unknown key; allowed: {allowed}",
+                                              {"key": str(key), "allowed": ", ".join(allowed)})
+        return data
+
+
+class Distribution(Strict):
+    """One search distribution, written ``{int: [2, 16]}`` (bounds inclusive), ``{choice: [...]}``, ..."""
+
+    # builtins.int: a field named `int` shadows the builtin inside the class body.
+    choice: list[Any] | None = None
+    int: tuple[builtins.int, builtins.int] | None = None
+    logint: tuple[builtins.int, builtins.int] | None = None
+    uniform: tuple[float, float] | None = None
+    loguniform: tuple[float, float] | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> "Distribution":
+        given = [name for name in DISTRIBUTIONS if getattr(self, name) is not None]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one distribution; allowed: {', '.join(DISTRIBUTIONS)}")
+        kind = given[0]
+        value = getattr(self, kind)
+        if kind == "choice" and not value:
+            raise ValueError("choice needs at least one value")
+        if kind != "choice" and not value[0] < value[1]:
+            raise ValueError(f"{kind} bounds must be [low, high] with low < high, got {list(value)}")
+        if kind.startswith("log") and value[0] <= 0:
+            raise ValueError(f"{kind} bounds must be > 0, got {list(value)}")
+        return self
+
+    @property
+    def kind(self) -> str:
+        return next(name for name in DISTRIBUTIONS if getattr(self, name) is not None)
+
+    @property
+    def args(self) -> Any:
+        return getattr(self, self.kind)
+
+
+class Search(Strict):
+    """Optuna search: one study per (robot, algorithm); each trial runs ``seeds_per_trial`` seeds."""
+
+    n_trials: int = Field(gt=0, description="trials per (robot, algorithm) study")
+    objective: str = Field("time_to_90", description="per-seed metric averaged over the trial's seeds")
+    seeds_per_trial: int = Field(1, gt=0, description="the first k of the sweep's seeds, the same for every trial")
+    unreached_penalty: float = Field(0.0, ge=0, description="added to a censored objective where not reached")
+    study_name: str | None = Field(None, description="default: <sweep>-<robot>-<algorithm>-<invocation stamp>")
+    storage: str | None = Field(None, description="Optuna RDB URL; default sqlite:///<runs>/optuna.db")
+    sampler_seed: int | None = None
+    best_seeds: int = Field(10, gt=0, description="seeds of the best-config sweep YAML written at the end")
+    parameters: dict[str, Distribution] = Field(default_factory=dict, description="config path -> distribution")
+    algorithm_parameters: dict[str, dict[str, Distribution]] = Field(default_factory=dict)
+
+    @field_validator("objective")
+    @classmethod
+    def _objective(cls, value: str) -> str:
+        if value not in OBJECTIVES:
+            raise ValueError(f"unknown objective {value!r}; allowed: {', '.join(OBJECTIVES)}")
+        return value
+
+    @field_validator("algorithm_parameters")
+    @classmethod
+    def _algorithms(cls, value: dict) -> dict:
+        for name in value:
+            if name not in ALGORITHMS:
+                raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
+        return value
+
+    @property
+    def mode(self) -> str:
+        return OBJECTIVES[self.objective]
+
+    def space_for(self, algorithm: str) -> dict[str, Distribution]:
+        """The distributions that apply to ``algorithm`` (shared ones plus its own)."""
+        return {**self.parameters, **self.algorithm_parameters.get(algorithm, {})}
+
+
+class Resources(Strict):
+    cpu: float = Field(1.0, gt=0, description="CPUs per trial")
+    gpu: float = Field(0.0, ge=0, description="GPUs per trial; 0 = the trial trains on CPU even on a GPU host")
+
+
+class Tracking(Strict):
+    experiment: str | None = Field(None, description="MLflow experiment; default: the sweep's name")
+    tracking_uri: str | None = Field(None, description="default: $MLFLOW_TRACKING_URI, else sqlite:///<runs>/mlflow.db")
+
+
+class Retry(Strict):
+    max_failures: int = Field(1, ge=0, description="retries of a trial that raised (Tune FailureConfig)")
+
+
+class Sweep(Strict):
+    """A sweep file (see sweeps/*.yaml)."""
+
+    name: str = Field(description="letters, digits, '.', '_', '-'")
+    description: str = ""
+    robots: list[str] = Field(min_length=1)
+    algorithms: list[str] = Field(min_length=1)
+    seeds: int | list[int] = Field(description="n (= seeds 0..n-1) or an explicit list")
+    base: BaseConfig = BaseConfig()
+    overrides: dict[str, Any] = Field(default_factory=dict, description="TrainConfig.overrides for every trial")
+    algorithm_overrides: dict[str, dict[str, Any]] = Field(default_factory=dict)
+    budget: Budget = Budget()
+    search: Search | None = None
+    resources: Resources = Resources()
+    max_concurrent_trials: int | None = Field(None, gt=0)
+    tracking: Tracking = Tracking()
+    storage: str | None = Field(None, description="Ray storage path; default <runs>/ray")
+    retry: Retry = Retry()
+    export_policy: bool = Field(True, description="write each run's policy.pt (TorchScript) as an MLflow artifact")
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, value: str) -> str:
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", value):
+            raise ValueError(f"{value!r} must be letters, digits, '.', '_', '-' (it names folders and studies)")
+        return value
+
+    @field_validator("robots")
+    @classmethod
+    def _robots(cls, value: list[str]) -> list[str]:
+        for name in value:
+            if name not in ROBOTS and not name.endswith((".yaml", ".yml")):
+                raise ValueError(f"unknown robot {name!r}; allowed: {', '.join(ROBOTS)} or a preset YAML path")
+        return value
+
+    @field_validator("algorithms")
+    @classmethod
+    def _algorithms(cls, value: list[str]) -> list[str]:
+        for name in value:
+            if name not in ALGORITHMS:
+                raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
+        return value
+
+    @field_validator("algorithm_overrides")
+    @classmethod
+    def _override_algorithms(cls, value: dict) -> dict:
+        for name in value:
+            if name not in ALGORITHMS:
+                raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
+        return value
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, value: int | list[int]) -> list[int]:
+        seeds = list(range(value)) if isinstance(value, int) else list(value)
+        if not seeds:
+            raise ValueError("need at least one seed")
+        if len(set(seeds)) != len(seeds):
+            raise ValueError(f"seeds repeat: {seeds}")
+        return seeds
+
+    @model_validator(mode="after")
+    def _search_fits(self) -> "Sweep":
+        if self.search is None:
+            return self
+        if self.search.seeds_per_trial > len(self.seed_list):
+            raise ValueError(f"search.seeds_per_trial ({self.search.seeds_per_trial}) exceeds the {len(self.seed_list)} seeds")
+        for algorithm in self.algorithms:
+            space = self.search.space_for(algorithm)
+            if not space:
+                raise ValueError(f"search has no parameters for algorithm {algorithm!r}")
+            clash = sorted(set(space) & set(self.overrides_for(algorithm)))
+            if clash:
+                raise ValueError(f"{', '.join(clash)}: both searched and fixed in overrides; remove one")
+        return self
+
+    @property
+    def seed_list(self) -> list[int]:
+        return list(self.seeds)  # normalised to a list by the validator
+
+    @property
+    def experiment(self) -> str:
+        return self.tracking.experiment or self.name
+
+    def overrides_for(self, algorithm: str) -> dict[str, Any]:
+        """TrainConfig.overrides of ``algorithm``'s trials before any searched value."""
+        return {**self.overrides, **self.algorithm_overrides.get(algorithm, {})}
+
+    def train_config(self, robot: str, algorithm: str, seed: int, device: str, extra: dict | None = None) -> dict:
+        """The TrainConfig of one training run, as the plain dict ``TrainConfig.model_validate`` takes."""
+        return {
+            "robot": robot,
+            "algorithm": algorithm,
+            "seed": int(seed),
+            "device": device,
+            "recipe": self.base.recipe,
+            "map": self.base.map,
+            **(self.base.model_extra or {}),
+            "overrides": {**self.overrides_for(algorithm), **(extra or {})},
+            "budget": self.budget.model_dump(),
+            "eval": self.base.eval.model_dump(exclude_none=True),
+        }
+
+
+# ---------------------------------------------------------------- loading
+
+
+def format_errors(error: ValidationError, source: str) -> str:
+    """One line per problem: ``<file>: <key.path>: <message>``."""
+    lines = [f"{source}: invalid sweep ({error.error_count()} problem{'s' * (error.error_count() > 1)})"]
+    for item in error.errors():
+        loc = [str(part) for part in item["loc"]]
+        ctx = item.get("ctx") or {}
+        if item["type"] == "unknown_key":
+            loc.append(ctx["key"])
+        message = item["msg"].removeprefix("Value error, ")
+        # A dotted config key (``algo.batch_size``) is bracketed so the path stays unambiguous.
+        path = "".join(f"[{part}]" if "." in part else f".{part}" for part in loc).lstrip(".")
+        lines.append(f"  {path or '<top>'}: {message}")
+    return "\n".join(lines)
+
+
+def apply_sets(data: dict, assignments: list[str]) -> dict:
+    """Apply ``KEY.PATH=VALUE`` overrides (VALUE parsed as YAML) to raw sweep data, in place.
+
+    Under ``overrides`` / ``search.parameters`` (and their per-algorithm maps) the rest of the path is
+    one dotted config key: ``overrides.algo.batch_size=512`` sets the key ``algo.batch_size``.
+    """
+    for assignment in assignments:
+        if "=" not in assignment:
+            raise SweepError(f"--set {assignment!r}: expected KEY.PATH=VALUE")
+        path, raw = assignment.split("=", 1)
+        value = yaml.safe_load(raw)
+        parts = path.strip().split(".")
+        node = data
+        i = 0
+        while i < len(parts) - 1:
+            part = parts[i]
+            if part in _DOTTED_MAPS or (i > 0 and parts[i - 1] in _PER_ALGORITHM_MAPS):
+                node = node.setdefault(part, {})
+                parts = parts[: i + 1] + [".".join(parts[i + 1 :])]
+                i += 1
+                break
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise SweepError(f"--set {assignment!r}: {'.'.join(parts[: i + 1])} is not a section")
+            i += 1
+        node[parts[i]] = value
+    return data
+
+
+def load_sweep(path: str | Path, sets: list[str] | None = None) -> Sweep:
+    """Read, override and validate a sweep file; raises :class:`SweepError` with every problem."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SweepError(f"{path}: no such sweep file") from None
+    except yaml.YAMLError as exc:
+        raise SweepError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise SweepError(f"{path}: a sweep is a mapping of keys, got {type(data).__name__}")
+    apply_sets(data, sets or [])
+    return parse_sweep(data, str(path))
+
+
+def parse_sweep(data: dict, source: str = "<sweep>") -> Sweep:
+    try:
+        return Sweep.model_validate(data)
+    except ValidationError as exc:
+        raise SweepError(format_errors(exc, source)) from None
+
+
+def sweep_to_yaml(sweep: Sweep) -> str:
+    """The sweep as YAML that :func:`load_sweep` reads back (defaults left out)."""
+    data = sweep.model_dump(mode="json", exclude_defaults=True)
+    data["seeds"] = sweep.seed_list
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+# ---------------------------------------------------------------- paths
+
+
+def project_dir() -> Path:
+    """Where relative paths of a sweep are anchored: $FLASHNAV_PROJECT_DIR, else the working directory."""
+    return Path(os.environ.get("FLASHNAV_PROJECT_DIR") or os.getcwd()).resolve()
+
+
+def in_ray_job() -> bool:
+    """True in the driver of a ``ray job submit`` entrypoint (its cwd is a temporary copy)."""
+    return "RAY_JOB_CONFIG_JSON_ENV_VAR" in os.environ
+
+
+def runs_dir() -> Path:
+    """The project's run directory (absolute): $FLASHNAV_RUNS_DIR, else <project>/runs.
+
+    In a Ray job with neither variable set, the cwd is a temporary unpacked working dir that Ray deletes;
+    fall back to ~/flashnav-runs on the head node (``flashnav services up`` sets FLASHNAV_RUNS_DIR).
+    """
+    if os.environ.get("FLASHNAV_RUNS_DIR"):
+        return Path(os.environ["FLASHNAV_RUNS_DIR"]).expanduser().resolve()
+    if in_ray_job() and not os.environ.get("FLASHNAV_PROJECT_DIR"):
+        return (Path.home() / "flashnav-runs").resolve()
+    return project_dir() / "runs"
+
+
+def _absolute(path: str) -> str:
+    p = Path(path).expanduser()
+    return str(p if p.is_absolute() else (project_dir() / p).resolve())
+
+
+def resolve_db_url(url: str | None, default_file: str) -> str:
+    """An SQLAlchemy/MLflow URL with any relative sqlite path made absolute; None -> <runs>/<default_file>."""
+    if url is None:
+        return f"sqlite:///{runs_dir() / default_file}"
+    if url.startswith("sqlite:///"):
+        rest = url[len("sqlite:///") :]
+        return url if rest.startswith("/") or rest == ":memory:" else f"sqlite:///{_absolute(rest)}"
+    return url  # http(s)://, postgresql://, databricks...: location independent already
+
+
+def resolve_tracking_uri(explicit: str | None) -> str:
+    """The sweep's tracking.tracking_uri, else $MLFLOW_TRACKING_URI, else sqlite:///<runs>/mlflow.db."""
+    return resolve_db_url(explicit or os.environ.get("MLFLOW_TRACKING_URI") or None, "mlflow.db")
+
+
+def resolve_storage(path: str | None) -> str:
+    """Ray storage path: URIs (s3://, gs://, ...) as given, local paths absolute; None -> <runs>/ray."""
+    if path is None:
+        return str(runs_dir() / "ray")
+    if "://" in path:
+        return path
+    return _absolute(path)

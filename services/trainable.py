@@ -1,0 +1,276 @@
+"""The Ray Tune function trainable: one trial = ``flashnav.train`` on one or more seeds.
+
+What a trial reports (the metric names of docs/run-schema.md):
+
+* at every evaluation (``on_eval``, outside flashnav's training clock by contract): ``success_rate``,
+  ``mean_return``, ``train_seconds``, ``env_steps`` (+ collision/timeout rates), ``seed``, ``final=0``;
+* once per seed, with a checkpoint: the final metrics (``time_to_90`` ... censored, never NaN/None),
+  ``seed``, ``final=1`` and the strings the MLflow writer in the driver needs (``device_name``, ...).
+  The checkpoint carries the resolved config, the curve CSV and an exported policy if training wrote
+  one, so that the driver can log them even when the trial ran on another node; it also lists the
+  seeds already done so that a retried or restored trial does not train them again.
+
+Search sweeps add ``objective`` to every report: the mean over the trial's seeds of the (censored)
+objective metric, provisional until the last seed ends.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+
+from services import device as devices
+from services.sweep_schema import Search, Sweep
+
+THRESHOLDS = ((0.9, "90"), (0.95, "95"), (1.0, "100"))
+CURVE_KEYS = ("success_rate", "mean_return", "train_seconds", "env_steps", "collision_rate", "timeout_rate")
+MANIFEST = "manifest.json"
+logger = logging.getLogger(__name__)
+
+
+# ---------------------------------------------------------------- metrics (pure)
+
+
+def _at_threshold(table: dict | None, threshold: float) -> float | None:
+    """``table[threshold]`` whether keyed by float (TrainResult) or by string (its to_dict()); NaN -> None."""
+    if not table:
+        return None
+    for key, value in table.items():
+        if math.isclose(float(key), threshold):
+            if value is None or (isinstance(value, float) and math.isnan(value)):
+                return None
+            return float(value)
+    return None
+
+
+def final_metrics(result: Any) -> dict[str, float]:
+    """The run-schema final metrics of a TrainResult; censored (the run's totals) where not reached."""
+    curve = list(result.curve or [])
+    total_seconds = float(result.train_seconds if result.train_seconds is not None else
+                          (curve[-1]["train_seconds"] if curve else 0.0))
+    total_steps = float(result.env_steps if result.env_steps is not None else (curve[-1]["env_steps"] if curve else 0))
+    out: dict[str, float] = {}
+    for threshold, tag in THRESHOLDS:
+        seconds = _at_threshold(result.time_to_threshold, threshold)
+        steps = _at_threshold(result.env_steps_to_threshold, threshold)
+        reached = seconds is not None
+        out[f"time_to_{tag}"] = seconds if reached else total_seconds
+        out[f"env_steps_to_{tag}"] = steps if (reached and steps is not None) else total_steps
+        out[f"reached_{tag}"] = 1.0 if reached else 0.0
+    success = [float(point["success_rate"]) for point in curve]
+    out["final_success_rate"] = success[-1] if success else 0.0
+    out["best_success_rate"] = max(success) if success else 0.0
+    out["train_seconds_total"] = total_seconds
+    out["env_steps_total"] = total_steps
+    cycle = result.cycle or {}
+    for side in ("collector", "learner", "effective"):
+        value = cycle.get(f"{side}_ms")
+        out[f"cycle_{side}_ms"] = float(value) if value is not None and not math.isnan(float(value)) else 0.0
+    return out
+
+
+class Objective:
+    """The search objective of one trial: a per-seed metric averaged over the trial's seeds.
+
+    Time/steps objectives are censored (the run's total where not reached) plus ``unreached_penalty``.
+    While a seed trains, its provisional value is what the curve so far implies: the time it reached
+    the threshold, else the time spent so far (a lower bound of the censored value).
+    """
+
+    def __init__(self, search: Search):
+        self.name = search.objective
+        self.penalty = search.unreached_penalty
+        self.threshold_tag = self.name.rsplit("_", 1)[1] if self.name.startswith(("time_to_", "env_steps_to_")) else None
+
+    def of_final(self, final: dict[str, float]) -> float:
+        value = float(final[self.name])
+        if self.threshold_tag and final[f"reached_{self.threshold_tag}"] < 1.0:
+            value += self.penalty
+        return value
+
+    def of_curve(self, curve: list[dict[str, float]]) -> float:
+        if not curve:
+            return 0.0
+        if self.threshold_tag is None:
+            rates = [p["success_rate"] for p in curve]
+            return rates[-1] if self.name == "final_success_rate" else max(rates)
+        key = "train_seconds" if self.name.startswith("time_to_") else "env_steps"
+        threshold = int(self.threshold_tag) / 100.0
+        hit = next((p for p in curve if p["success_rate"] >= threshold - 1e-9), None)
+        return float((hit or curve[-1])[key])
+
+    def mean(self, finished: list[float], running: float | None = None) -> float:
+        values = finished + ([running] if running is not None else [])
+        return float(sum(values) / len(values)) if values else 0.0
+
+
+# ---------------------------------------------------------------- files
+
+
+def write_curve_csv(curve: list[dict], path: Path) -> None:
+    """The evaluation curve, one row per evaluation; the schema's columns first, then any others."""
+    extra = sorted({key for point in curve for key in point} - set(CURVE_KEYS))
+    columns = [key for key in CURVE_KEYS if any(key in p for p in curve)] + extra
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=columns or list(CURVE_KEYS))
+        writer.writeheader()
+        for point in curve:
+            writer.writerow({key: point.get(key, "") for key in columns})
+
+
+def load_manifest(directory: str | Path) -> dict:
+    """``{"done": {seed: final metrics}, "latest": seed | None}`` of a trial checkpoint directory."""
+    path = Path(directory) / MANIFEST
+    if not path.exists():
+        return {"done": {}, "latest": None}
+    data = json.loads(path.read_text())
+    data["done"] = {int(seed): final for seed, final in data.get("done", {}).items()}
+    return data
+
+
+def _write_seed(stage: Path, seed: int, result: Any, final: dict, done: dict, export: bool = False) -> None:
+    """Add ``seed_<seed>/`` (config, curve, result, policy) to the staging folder and rewrite the manifest."""
+    seed_dir = stage / f"seed_{seed}"
+    shutil.rmtree(seed_dir, ignore_errors=True)
+    seed_dir.mkdir()
+    with open(seed_dir / "config.yaml", "w", encoding="utf-8") as f:
+        yaml.safe_dump(_plain(result.config), f, sort_keys=False)
+    write_curve_csv(list(result.curve or []), seed_dir / "curve.csv")
+    with open(seed_dir / "result.json", "w", encoding="utf-8") as f:
+        json.dump(_plain(result.to_dict()) if hasattr(result, "to_dict") else final, f, indent=1)
+    policy = getattr(result, "policy_path", None)  # an exported policy, where training wrote one
+    if policy and Path(policy).is_file():
+        shutil.copy2(policy, seed_dir / f"policy{Path(policy).suffix}")
+    elif export:
+        _export_policy(result, seed_dir)
+    manifest = {"done": {str(s): f for s, f in done.items()}, "latest": seed}
+    (stage / MANIFEST).write_text(json.dumps(manifest, indent=1))
+
+
+def _export_policy(result: Any, out_dir: Path) -> None:
+    """``policy.pt`` (TorchScript) + ``policy.json`` through flashnav.export; a failure costs the artifact only."""
+    learner = getattr(result, "learner", None)
+    if learner is None:
+        return
+    try:
+        from flashnav.config import RobotPreset
+        from flashnav.export import export_policy
+
+        preset = RobotPreset.model_validate(result.config["robot_preset"])
+        export_policy(learner.policy, preset, out_dir, onnx=False)  # ONNX: `flashnav` can convert later
+    except Exception as exc:  # noqa: BLE001 - the run's metrics matter more than its artifact
+        logger.warning("policy export failed: %s", exc)
+
+
+def _plain(value: Any) -> Any:
+    """JSON/YAML-safe copy (tuples -> lists, numpy/torch scalars -> Python numbers, paths -> str)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    if hasattr(value, "item"):
+        return value.item()
+    return str(value)
+
+
+# ---------------------------------------------------------------- the trainable
+
+
+def _make_train_config(data: dict) -> Any:
+    """A TrainConfig, or the plain dict where the library does not ship TrainConfig yet (test fakes only)."""
+    try:
+        from flashnav.learn.config import TrainConfig
+    except ImportError:
+        return data
+    return TrainConfig.model_validate(data)
+
+
+def _localise(path: str | None) -> str | None:
+    """A relative preset/map path in the sweep is relative to the working dir Ray shipped to this node."""
+    if path is None or not str(path).endswith((".yaml", ".yml")) or os.path.isabs(path):
+        return path
+    return str(Path(os.environ.get("TUNE_ORIG_WORKING_DIR", os.getcwd())) / path)
+
+
+def _provenance() -> dict[str, str]:
+    import flashnav
+
+    try:
+        import torch
+
+        torch_version = torch.__version__
+    except ImportError:
+        torch_version = "none"
+    return {"flashnav_version": flashnav.__version__, "torch_version": torch_version, "host": devices.host_name()}
+
+
+def train_trial(config: dict, *, sweep: dict, git_commit: str = "unknown",
+                train_fn: Callable | None = None) -> None:
+    """Tune function trainable (bind the keyword arguments with ``tune.with_parameters``).
+
+    ``config`` (the Tune trial config): ``robot``, ``algorithm``, and ``seed`` (grid) or ``seeds``
+    (search, several seeds per trial), plus ``params`` ({config path: value}) sampled by the search.
+    ``train_fn`` replaces ``flashnav.train`` (same signature); None = the library's.
+    """
+    from ray import tune
+
+    if train_fn is None:
+        from flashnav import train as train_fn
+    spec = Sweep.model_validate(sweep)
+    robot, algorithm = config["robot"], config["algorithm"]
+    seeds = [int(s) for s in config.get("seeds") or [config["seed"]]]
+    params = dict(config.get("params") or {})
+    objective = Objective(spec.search) if spec.search else None
+    device = devices.trial_device()
+    info = {"robot": robot, "algorithm": algorithm, "recipe": spec.base.recipe, "device": device,
+            "device_kind": devices.device_kind(device), "git_commit": git_commit, **_provenance()}
+
+    # The staging folder holds every finished seed; each per-seed report checkpoints all of it (Ray
+    # copies it to storage inside tune.report), so the latest checkpoint alone says what is done.
+    stage = Path(tempfile.mkdtemp(prefix="flashnav-trial-"))
+    checkpoint = tune.get_checkpoint()
+    if checkpoint:
+        checkpoint.to_directory(str(stage))
+    done = load_manifest(stage)["done"]
+    finished = [objective.of_final(done[s]) for s in seeds if s in done] if objective else []
+    try:
+        for seed in seeds:
+            if seed in done:  # trained before a retry/restore: its run is already in MLflow
+                continue
+            data = spec.train_config(robot, algorithm, seed, device, extra=params)
+            data["robot"], data["map"] = _localise(data["robot"]), _localise(data["map"])
+            curve: list[dict[str, float]] = []
+
+            def on_eval(metrics: dict[str, float], seed: int = seed, curve: list = curve) -> None:
+                point = {key: float(metrics[key]) for key in CURVE_KEYS if key in metrics}
+                curve.append(point)
+                report = {**point, "seed": seed, "final": 0.0}
+                if objective:
+                    report["objective"] = objective.mean(finished, objective.of_curve(curve))
+                tune.report(report)  # blocks until the driver takes it; flashnav's clock is paused here
+
+            result = train_fn(_make_train_config(data), on_eval=on_eval)
+            final = final_metrics(result)
+            done[seed] = final
+            if objective:
+                finished.append(objective.of_final(final))
+            report = {**final, **info, "seed": seed, "final": 1.0,
+                      "device_name": str(getattr(result, "device_name", "") or devices.device_name(device))}
+            if objective:
+                report["objective"] = objective.mean(finished)
+            _write_seed(stage, seed, result, final, done, export=spec.export_policy)
+            tune.report(report, checkpoint=tune.Checkpoint.from_directory(str(stage)))
+        # A trial restored with every seed done reports nothing: its last result (restored with it) stands.
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)

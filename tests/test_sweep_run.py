@@ -1,0 +1,258 @@
+"""Whole sweeps in-process: Ray Tune + MLflow + Optuna, retry and --resume.
+
+Plumbing tests train with FAKE functions (named fake_*: they only shape a TrainResult); the test marked
+skipif at the end runs the real flashnav.train once it exists.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+import types
+from pathlib import Path
+
+import pytest
+import yaml
+
+from services.sweep import run_sweep
+from services.sweep_schema import SweepError, load_sweep
+from services.tracking import FINAL_METRICS, client_for
+
+ROOT = Path(__file__).resolve().parents[1]
+SCHEMA_TAGS = {"sweep", "role", "trial_id", "robot", "algorithm", "seed", "recipe", "device_name", "device_kind",
+               "host", "flashnav_version", "git_commit", "torch_version"}
+
+
+def _train_available() -> bool:
+    try:
+        import flashnav.learn.loop  # noqa: F401
+        from flashnav.learn.config import TrainConfig  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def fake_train(config, on_eval=None, *, marks: str | None = None, fail_once: bool = False, evals: int = 3):
+    """FAKE flashnav.train: a rising success curve; optionally raises once per seed (marker files)."""
+    data = config if isinstance(config, dict) else config.model_dump()
+    seed, params = data["seed"], data.get("overrides", {})
+    slope = 0.2 + 0.02 * int(params.get("algo.updates_per_step", 0))
+    curve, times, steps = [], {0.9: None, 0.95: None, 1.0: None}, {0.9: None, 0.95: None, 1.0: None}
+    if marks:
+        Path(marks, f"start_{seed}_{time.time_ns()}").touch()
+    for i in range(evals):
+        point = {"env_steps": 100.0 * (i + 1), "train_seconds": 0.5 * (i + 1),
+                 "success_rate": min(1.0, slope * (i + 1)), "mean_return": float(i)}
+        curve.append(point)
+        for threshold in times:
+            if times[threshold] is None and point["success_rate"] >= threshold:
+                times[threshold], steps[threshold] = point["train_seconds"], point["env_steps"]
+        if on_eval:
+            on_eval(dict(point))
+        if fail_once and marks and not Path(marks, f"raised_{seed}").exists():
+            Path(marks, f"raised_{seed}").touch()
+            raise RuntimeError("fake training failure")
+    result = types.SimpleNamespace(curve=curve, time_to_threshold=times, env_steps_to_threshold=steps,
+                                   cycle={"collector_ms": 1.0, "learner_ms": 2.0, "effective_ms": 2.0},
+                                   train_seconds=curve[-1]["train_seconds"], env_steps=curve[-1]["env_steps"],
+                                   config=data, device_name="Fake CPU (1 threads)")
+    result.to_dict = lambda: {"curve": curve}
+    return result
+
+
+@pytest.fixture(scope="session")
+def ray_session():
+    import ray
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import test modules
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address="local", num_cpus=2, include_dashboard=False)
+    yield ray
+    if started:
+        ray.shutdown()
+
+
+@pytest.fixture
+def runs(tmp_path, monkeypatch):
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    return tmp_path / "runs"
+
+
+def write_sweep(path: Path, **extra) -> Path:
+    data = {"name": "unit", "robots": ["turtlebot2"], "algorithms": ["fastdsac"], "seeds": 2,
+            "base": {"recipe": "cpu", "eval": {"episodes": 8}}, "budget": {"max_train_seconds": 5},
+            "resources": {"cpu": 1, "gpu": 0}, **extra}
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def runs_of(runs_dir: Path, experiment: str):
+    client = client_for(f"sqlite:///{runs_dir}/mlflow.db")
+    exp = client.get_experiment_by_name(experiment)
+    all_runs = client.search_runs([exp.experiment_id], max_results=1000)
+    parents = [r for r in all_runs if r.data.tags.get("role") == "sweep"]
+    return client, parents, [r for r in all_runs if r.data.tags.get("role") == "trial"]
+
+
+def test_seed_sweep_logs_one_parent_and_a_child_per_seed(tmp_path, runs, ray_session):
+    sweep = write_sweep(tmp_path / "unit.yaml")
+    assert run_sweep(sweep, train_fn=fake_train, verbose=0) == 0
+    client, parents, children = runs_of(runs, "unit")
+    (parent,) = parents
+    assert parent.info.status == "FINISHED" and parent.data.tags["sweep"] == "unit"
+    assert len(children) == 2 and {c.data.tags["seed"] for c in children} == {"0", "1"}
+    for child in children:
+        assert child.info.status == "FINISHED"
+        assert child.data.tags["mlflow.parentRunId"] == parent.info.run_id
+        assert SCHEMA_TAGS <= set(child.data.tags) and child.data.tags["device_kind"] == "cpu"
+        assert set(FINAL_METRICS) <= set(child.data.metrics)
+        assert child.data.params["device"] == "cpu" and child.data.params["budget.max_train_seconds"] == "5.0"
+        assert len(client.get_metric_history(child.info.run_id, "success_rate")) == 3
+        artifacts = {a.path for a in client.list_artifacts(child.info.run_id)}
+        assert {"config.yaml", "curve.csv"} <= artifacts
+    assert len({c.data.tags["trial_id"] for c in children}) == 2
+    state = json.loads(next((runs / "sweeps" / "unit").glob("*/sweep_state.json")).read_text())
+    assert state["done_targets"] == ["grid"] and state["parent_run_id"] == parent.info.run_id
+    if "torch" in sys.modules:  # the driver never initialises CUDA (trials choose their own device)
+        assert not sys.modules["torch"].cuda.is_initialized()
+
+
+def test_gpu_sweep_on_a_cpu_cluster_is_refused_before_anything_runs(tmp_path, runs, ray_session):
+    if ray_session.cluster_resources().get("GPU", 0) > 0:
+        pytest.skip("this machine has a GPU")
+    sweep = write_sweep(tmp_path / "unit.yaml", resources={"cpu": 1, "gpu": 1})
+    with pytest.raises(SweepError, match=r"asks for 1 CPU / 1 GPU .*--set resources.gpu=0"):
+        run_sweep(sweep, train_fn=fake_train, verbose=0)
+    assert not (runs / "mlflow.db").exists()
+
+
+def test_trial_that_raises_once_is_retried(tmp_path, runs, ray_session):
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    sweep = write_sweep(tmp_path / "unit.yaml", retry={"max_failures": 1})
+    train = functools.partial(fake_train, marks=str(marks), fail_once=True)
+    assert run_sweep(sweep, train_fn=train, verbose=0) == 0
+    _, parents, children = runs_of(runs, "unit")
+    assert parents[0].info.status == "FINISHED"
+    finished = [c for c in children if c.info.status == "FINISHED"]
+    assert sorted(c.data.tags["seed"] for c in finished) == ["0", "1"]  # one FINISHED run per trial
+    assert len([c for c in children if c.info.status == "FAILED"]) == 2  # each first attempt
+    assert len(list(marks.glob("start_*"))) == 4
+
+
+def test_trial_that_keeps_failing_fails_the_sweep(tmp_path, runs, ray_session):
+    def always_fails(config, on_eval=None):  # FAKE
+        raise RuntimeError("broken")
+
+    sweep = write_sweep(tmp_path / "unit.yaml", seeds=1, retry={"max_failures": 0})
+    assert run_sweep(sweep, train_fn=always_fails, verbose=0) == 1
+    _, parents, _ = runs_of(runs, "unit")
+    assert parents[0].info.status == "FAILED" and parents[0].data.tags["errored_trials"] == "1"
+
+
+def test_optuna_sweep_persists_study_and_writes_best_config(tmp_path, runs, ray_session):
+    import optuna
+
+    search = {"n_trials": 3, "seeds_per_trial": 2, "study_name": "unit-study", "sampler_seed": 0,
+              "parameters": {"algo.updates_per_step": {"int": [2, 16]}, "algo.batch_size": {"choice": [256, 512]}}}
+    sweep = write_sweep(tmp_path / "unit.yaml", search=search)
+    assert run_sweep(sweep, train_fn=fake_train, verbose=0) == 0
+    study = optuna.load_study(study_name="unit-study", storage=f"sqlite:///{runs}/optuna.db")
+    assert [t.state.name for t in study.trials] == ["COMPLETE"] * 3
+    (out_dir,) = (runs / "sweeps" / "unit").iterdir()
+    best = load_sweep(out_dir / "best_turtlebot2_fastdsac.yaml")
+    assert best.search is None and best.seed_list == list(range(10))
+    assert best.overrides == {k.removeprefix("params/"): v for k, v in study.best_params.items()}
+    summary = json.loads((out_dir / "optuna_summary.json").read_text())[0]
+    assert summary["trials"] == {"COMPLETE": 3} and summary["best"]["value"] == pytest.approx(study.best_value)
+    assert "importances" in summary
+    client, parents, children = runs_of(runs, "unit")
+    assert len(children) == 6 and all(c.info.status == "FINISHED" for c in children)  # 3 trials x 2 seeds
+    assert len({c.data.tags["trial_id"] for c in children}) == 6
+    artifacts = {a.path for a in client.list_artifacts(parents[0].info.run_id)}
+    assert {"best_turtlebot2_fastdsac.yaml", "optuna_summary.json", "sweep.yaml"} <= artifacts
+    # The same named study again without --resume would silently append: refused.
+    with pytest.raises(SweepError, match="'unit-study' .* already has 3 trials"):
+        run_sweep(sweep, train_fn=fake_train, verbose=0)
+    assert len(runs_of(runs, "unit")[1]) == 1  # refused before anything was logged
+
+
+DRIVER = textwrap.dedent('''
+    """Sweep driver for the resume test; its FAKE training is slow enough to be killed mid-sweep."""
+    import sys, time, types
+    from pathlib import Path
+    from services.sweep import run_sweep
+
+    MARKS = Path(sys.argv[2])
+
+    def fake_slow_train(config, on_eval=None):
+        data = config if isinstance(config, dict) else config.model_dump()
+        (MARKS / f"start_{data['seed']}_{time.time_ns()}").touch()
+        curve = []
+        for i in range(4):
+            time.sleep(0.4)
+            point = {"env_steps": 100.0 * (i + 1), "train_seconds": 0.4 * (i + 1), "success_rate": 0.25 * (i + 1),
+                     "mean_return": 0.0}
+            curve.append(point)
+            on_eval(dict(point))
+        result = types.SimpleNamespace(curve=curve, time_to_threshold={1.0: 1.6}, env_steps_to_threshold={1.0: 400.0},
+                                       cycle={}, train_seconds=1.6, env_steps=400, config=data, device_name="Fake")
+        result.to_dict = lambda: {}
+        return result
+
+    sys.exit(run_sweep(sys.argv[1], resume="--resume" in sys.argv, train_fn=fake_slow_train, verbose=0))
+''')
+
+
+def test_resume_after_kill_reruns_nothing_finished(tmp_path, runs):
+    sweep = write_sweep(tmp_path / "unit.yaml", seeds=3, max_concurrent_trials=1, retry={"max_failures": 0})
+    (tmp_path / "driver.py").write_text(DRIVER)
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "RAY_AUTH_MODE": "disabled"}
+    command = [sys.executable, str(tmp_path / "driver.py"), str(sweep), str(marks)]
+    first = subprocess.Popen(command, env=env, cwd=tmp_path, start_new_session=True,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(marks.glob("start_1_*")):  # seed 0 is done (one trial at a time)
+            assert time.monotonic() < deadline and first.poll() is None, "the first driver never reached seed 1"
+            time.sleep(0.2)
+        time.sleep(0.6)
+    finally:
+        os.killpg(first.pid, signal.SIGKILL)  # the driver and its in-process Ray die mid-trial
+        first.wait()
+    resumed = subprocess.run(command + ["--resume"], env=env, cwd=tmp_path, capture_output=True, text=True,
+                             timeout=240)
+    assert resumed.returncode == 0, resumed.stdout[-3000:] + resumed.stderr[-3000:]
+    starts = {seed: len(list(marks.glob(f"start_{seed}_*"))) for seed in range(3)}
+    assert starts[0] == 1  # finished before the kill: not trained again
+    assert starts[1] == 2 and starts[2] == 1  # killed mid-training: trained again; never started: once
+    _, parents, children = runs_of(runs, "unit")
+    assert len(parents) == 1 and parents[0].info.status == "FINISHED"  # the same parent run, reopened
+    finished = [c for c in children if c.info.status == "FINISHED"]
+    assert sorted(c.data.tags["seed"] for c in finished) == ["0", "1", "2"]  # nothing lost, no duplicate
+    assert all(c.info.status in ("FINISHED", "FAILED") for c in children)  # the killed attempt: FAILED
+
+
+@pytest.mark.skipif(not _train_available(), reason="flashnav.train not implemented yet")
+def test_quickstart_with_real_train(runs, ray_session):
+    sets = ["budget.max_train_seconds=3", "base.eval.episodes=16", "base.eval.every=10"]
+    assert run_sweep(ROOT / "sweeps/quickstart.yaml", sets=sets, verbose=0) == 0
+    client, parents, children = runs_of(runs, "quickstart")
+    assert len(parents) == 1 and len(children) == 2
+    for child in children:
+        assert child.info.status == "FINISHED" and SCHEMA_TAGS <= set(child.data.tags)
+        assert set(FINAL_METRICS) <= set(child.data.metrics)
+        assert child.data.params["recipe"] == "cpu" and child.data.params["seed"] == child.data.tags["seed"]
+        assert client.get_metric_history(child.info.run_id, "success_rate")
+        artifacts = {a.path for a in client.list_artifacts(child.info.run_id)}
+        assert {"config.yaml", "curve.csv", "policy.pt"} <= artifacts

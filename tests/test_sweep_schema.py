@@ -1,0 +1,240 @@
+"""The sweep YAML schema: validation messages, --set, path resolution, shipped sweeps (no Ray, no MLflow)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from services import optuna_search
+from services.sweep import main as sweep_main
+from services.sweep import make_plan
+from services.sweep_schema import (SweepError, apply_sets, load_sweep, parse_sweep, resolve_db_url, resolve_storage,
+                                   resolve_tracking_uri, runs_dir, sweep_to_yaml)
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = sorted((ROOT / "sweeps").glob("*.yaml"))
+
+
+def minimal(**extra) -> dict:
+    return {"name": "t", "robots": ["turtlebot2"], "algorithms": ["fastdsac"], "seeds": 2, **extra}
+
+
+def error_of(data: dict) -> str:
+    with pytest.raises(SweepError) as info:
+        parse_sweep(data, "s.yaml")
+    return str(info.value)
+
+
+def test_minimal_sweep_defaults():
+    sweep = parse_sweep(minimal())
+    assert sweep.seed_list == [0, 1]
+    assert sweep.experiment == "t"
+    assert sweep.retry.max_failures == 1 and sweep.resources.gpu == 0
+    config = sweep.train_config("turtlebot2", "fastdsac", 1, "cpu", {"algo.batch_size": 256})
+    assert config["seed"] == 1 and config["device"] == "cpu" and config["overrides"] == {"algo.batch_size": 256}
+    assert config["budget"]["max_train_seconds"] == 600.0
+
+
+def test_unknown_top_level_key_names_path_and_allowed():
+    message = error_of(minimal(budjet={"max_train_seconds": 5}))
+    assert "s.yaml" in message
+    assert "budjet: unknown key; allowed: " in message
+    assert "budget" in message and "resources" in message
+
+
+def test_nested_unknown_keys_all_reported_with_paths():
+    message = error_of(minimal(budget={"max_train_second": 5}, resources={"gpus": 1}, tracking={"uri": "x"}))
+    assert "3 problems" in message
+    assert "budget.max_train_second: unknown key; allowed: max_env_steps, max_train_seconds, stop_at_success" in message
+    assert "resources.gpus: unknown key; allowed: cpu, gpu" in message
+    assert "tracking.uri: unknown key; allowed: experiment, tracking_uri" in message
+
+
+def test_base_rejects_fields_the_sweep_sets():
+    assert "base.seed: set by the sweep's seeds" in error_of(minimal(base={"seed": 3}))
+    assert "base.device: set by the sweep's resources.gpu" in error_of(minimal(base={"device": "cuda"}))
+    message = error_of(minimal(base={"recipee": "cpu"}))
+    assert "base.recipee: unknown key; allowed:" in message and "recipe" in message
+
+
+def test_names_of_robots_algorithms_objective():
+    assert "unknown robot 'turtlebot3'; allowed: turtlebot2, go2" in error_of(minimal(robots=["turtlebot3"]))
+    assert "unknown algorithm 'sac'; allowed: fastdsac, fastsac, fasttd3" in error_of(minimal(algorithms=["sac"]))
+    search = {"n_trials": 2, "objective": "time_to_80", "parameters": {"algo.batch_size": {"choice": [1]}}}
+    assert "search.objective: unknown objective 'time_to_80'; allowed: time_to_90" in error_of(minimal(search=search))
+
+
+def test_distribution_messages_bracket_dotted_keys():
+    search = {"n_trials": 2, "parameters": {"algo.batch_size": {"choise": [256]}, "algo.updates_per_step": {"int": [16, 2]},
+                                            "algo.temperature": {"loguniform": [0, 4]}}}
+    message = error_of(minimal(search=search))
+    assert "search.parameters[algo.batch_size].choise: unknown key; allowed: choice, int, logint, loguniform, uniform" in message
+    assert "search.parameters[algo.updates_per_step]: int bounds must be [low, high] with low < high" in message
+    assert "search.parameters[algo.temperature]: loguniform bounds must be > 0" in message
+    two = {"n_trials": 2, "parameters": {"algo.x": {"int": [1, 2], "uniform": [0, 1]}}}
+    assert "give exactly one distribution" in error_of(minimal(search=two))
+
+
+def test_search_consistency_checks():
+    space = {"algo.batch_size": {"choice": [256, 512]}}
+    assert "exceeds the 2 seeds" in error_of(minimal(search={"n_trials": 2, "seeds_per_trial": 3, "parameters": space}))
+    assert "no parameters for algorithm 'fastdsac'" in error_of(minimal(search={"n_trials": 2}))
+    clash = minimal(overrides={"algo.batch_size": 256}, search={"n_trials": 2, "parameters": space})
+    assert "algo.batch_size: both searched and fixed" in error_of(clash)
+    per_algo = {"n_trials": 2, "algorithm_parameters": {"ppo": space}}
+    assert "search.algorithm_parameters: unknown algorithm 'ppo'" in error_of(minimal(search=per_algo))
+
+
+def test_seeds_forms():
+    assert parse_sweep(minimal(seeds=[3, 5])).seed_list == [3, 5]
+    assert "seeds repeat" in error_of(minimal(seeds=[1, 1]))
+    assert "need at least one seed" in error_of(minimal(seeds=0))
+
+
+def test_apply_sets_dotted_override_keys():
+    data = minimal()
+    apply_sets(data, ["budget.max_train_seconds=5", "overrides.algo.batch_size=512", "seeds=[0, 1, 2]",
+                      "search.algorithm_parameters.fastsac.algo.alpha_init={loguniform: [0.001, 0.1]}"])
+    assert data["budget"] == {"max_train_seconds": 5}
+    assert data["overrides"] == {"algo.batch_size": 512}
+    assert data["seeds"] == [0, 1, 2]
+    assert data["search"]["algorithm_parameters"]["fastsac"] == {"algo.alpha_init": {"loguniform": [0.001, 0.1]}}
+    with pytest.raises(SweepError, match="expected KEY.PATH=VALUE"):
+        apply_sets({}, ["budget.max_train_seconds"])
+
+
+def test_load_sweep_file_errors(tmp_path):
+    with pytest.raises(SweepError, match="no such sweep file"):
+        load_sweep(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: [unclosed\n")
+    with pytest.raises(SweepError, match="not valid YAML"):
+        load_sweep(bad)
+    bad.write_text("- a list\n")
+    with pytest.raises(SweepError, match="a mapping of keys"):
+        load_sweep(bad)
+
+
+def test_yaml_round_trip():
+    sweep = parse_sweep(minimal(budget={"max_train_seconds": 5}, overrides={"algo.batch_size": 512},
+                                search={"n_trials": 3, "parameters": {"algo.updates_per_step": {"int": [2, 16]}}}))
+    again = parse_sweep(yaml.safe_load(sweep_to_yaml(sweep)))
+    assert again == sweep
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+def test_shipped_sweeps_validate(path):
+    sweep = load_sweep(path)
+    assert sweep.name == path.stem
+    assert sweep.base.recipe in ("paper", "cpu")
+
+
+def test_shipped_sweeps_content():
+    names = {p.stem for p in SHIPPED}
+    assert {"tb2_10seed", "go2_10seed", "tb2_optuna", "quickstart"} <= names
+    tb2 = load_sweep(ROOT / "sweeps/tb2_10seed.yaml")
+    assert tb2.algorithms == ["fastdsac", "fastsac", "fasttd3"] and len(tb2.seed_list) == 10
+    assert tb2.base.recipe == "paper" and tb2.resources.gpu == 1
+    quick = load_sweep(ROOT / "sweeps/quickstart.yaml")
+    assert quick.algorithms == ["fastdsac"] and len(quick.seed_list) == 2 and quick.base.recipe == "cpu"
+    assert quick.budget.max_train_seconds <= 30 and quick.base.eval.episodes <= 64 and quick.resources.gpu == 0
+    optuna = load_sweep(ROOT / "sweeps/tb2_optuna.yaml")
+    assert set(optuna.search.space_for("fastdsac")) == {"algo.updates_per_step", "algo.batch_size", "algo.temperature"}
+    assert set(optuna.search.space_for("fastsac")) == {"algo.updates_per_step", "algo.batch_size", "algo.alpha_init"}
+
+
+def test_paths_resolve_absolute(tmp_path, monkeypatch):
+    monkeypatch.delenv("FLASHNAV_RUNS_DIR", raising=False)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    monkeypatch.delenv("RAY_JOB_CONFIG_JSON_ENV_VAR", raising=False)
+    monkeypatch.setenv("FLASHNAV_PROJECT_DIR", str(tmp_path))
+    assert runs_dir() == tmp_path / "runs"
+    assert resolve_tracking_uri(None) == f"sqlite:///{tmp_path}/runs/mlflow.db"
+    assert resolve_tracking_uri("sqlite:///store/m.db") == f"sqlite:///{tmp_path}/store/m.db"
+    assert resolve_tracking_uri("sqlite:////abs/m.db") == "sqlite:////abs/m.db"
+    assert resolve_db_url(None, "optuna.db") == f"sqlite:///{tmp_path}/runs/optuna.db"
+    assert resolve_storage(None) == f"{tmp_path}/runs/ray"
+    assert resolve_storage("rel/ray") == f"{tmp_path}/rel/ray"
+    assert resolve_storage("s3://bucket/ray") == "s3://bucket/ray"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://127.0.0.1:5000")
+    assert resolve_tracking_uri(None) == "http://127.0.0.1:5000"  # the env beats the embedded default
+    assert resolve_tracking_uri("sqlite:////x.db") == "sqlite:////x.db"  # an explicit sweep value beats the env
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "elsewhere"))
+    assert runs_dir() == tmp_path / "elsewhere"
+
+
+def test_ray_job_without_runs_dir_never_uses_its_temporary_cwd(tmp_path, monkeypatch):
+    monkeypatch.delenv("FLASHNAV_RUNS_DIR", raising=False)
+    monkeypatch.delenv("FLASHNAV_PROJECT_DIR", raising=False)
+    monkeypatch.setenv("RAY_JOB_CONFIG_JSON_ENV_VAR", "{}")
+    monkeypatch.chdir(tmp_path)
+    assert runs_dir() == Path.home().resolve() / "flashnav-runs"
+
+
+def test_plan_paths_and_study_names(tmp_path, monkeypatch):
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path))
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    sweep = load_sweep(ROOT / "sweeps/tb2_optuna.yaml")
+    plan = make_plan(sweep, "tb2_optuna.yaml")
+    assert plan.tracking_uri == f"sqlite:///{tmp_path}/mlflow.db"
+    assert plan.optuna_url == f"sqlite:///{tmp_path}/optuna.db"
+    assert plan.ray_storage == f"{tmp_path}/ray/tb2_optuna/{plan.stamp}"
+    assert [t.name for t in plan.targets] == ["turtlebot2-fastdsac", "turtlebot2-fastsac"]
+    studies = [t.study for t in plan.targets]
+    assert len(set(studies)) == 2 and all(plan.stamp in s for s in studies)  # unique per invocation
+    assert plan.n_trials == 60
+    with pytest.raises(SweepError, match="nothing to resume"):
+        make_plan(sweep, "tb2_optuna.yaml", resume=True)
+
+
+def test_search_space_to_tune_domains():
+    sweep = load_sweep(ROOT / "sweeps/tb2_optuna.yaml")
+    space = optuna_search.search_space(sweep, "fastdsac")
+    ups = space["algo.updates_per_step"]
+    assert (ups.lower, ups.upper) == (2, 17)  # inclusive [2, 16] in the sweep, exclusive upper in Tune
+    assert space["algo.batch_size"].categories == [256, 512, 1024]
+    assert space["algo.temperature"].lower == 0.5
+
+
+def test_best_sweep_is_a_ten_seed_grid():
+    sweep = load_sweep(ROOT / "sweeps/tb2_optuna.yaml")
+    best = optuna_search.best_sweep(sweep, "turtlebot2", "fastdsac",
+                                    {"algo.updates_per_step": 8, "algo.batch_size": 512, "algo.temperature": 1.5})
+    assert best.search is None and best.seed_list == list(range(10)) and best.algorithms == ["fastdsac"]
+    assert best.overrides == {"algo.updates_per_step": 8, "algo.batch_size": 512, "algo.temperature": 1.5}
+    assert best.budget.stop_at_success == 1.0
+    assert parse_sweep(yaml.safe_load(sweep_to_yaml(best))) == best
+
+
+def test_cli_dry_run_prints_plan_and_touches_nothing(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
+    rc = sweep_main(["run", str(ROOT / "sweeps/quickstart.yaml"), "--dry-run", "--set", "budget.max_train_seconds=3"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "sweep quickstart: 2 trials" in out and "budget 3 s" in out and str(tmp_path / "runs") in out
+    assert not (tmp_path / "runs").exists()
+
+
+def test_cli_reports_schema_errors(capsys):
+    rc = sweep_main(["run", str(ROOT / "sweeps/quickstart.yaml"), "--dry-run", "--set", "budget.max_train_second=3"])
+    assert rc == 2
+    assert "budget.max_train_second: unknown key" in capsys.readouterr().err
+
+
+def test_misspelt_hyperparameter_is_refused_before_anything_runs(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("flashnav.learn.hparams")
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
+    rc = sweep_main(["run", str(ROOT / "sweeps/tb2_optuna.yaml"), "--dry-run",
+                     "--set", "search.algorithm_parameters.fastsac={algo.temprature: {loguniform: [0.5, 4]}}"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "turtlebot2/fastsac" in err and "temprature" in err
+    assert not (tmp_path / "runs").exists()
+
+
+def test_optuna_dry_run_creates_no_database(tmp_path, monkeypatch):
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
+    assert sweep_main(["run", str(ROOT / "sweeps/tb2_optuna.yaml"), "--dry-run"]) == 0
+    assert not (tmp_path / "runs").exists()
