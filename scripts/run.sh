@@ -1,11 +1,13 @@
 #!/usr/bin/env bash
-# The main job on the embedded defaults: set everything up, then run `flashnav` with the given
-# arguments (default: the simulator demo and the simulator benchmark).
+# The main job on the embedded defaults: set everything up, train a TurtleBot2 policy with FastDSAC
+# (the recipe for this machine: `cpu` without a GPU, the paper's with one), then score the exported
+# policy on 1,024 fresh solvable episodes. With arguments, runs `flashnav ARGS...` instead.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
 if [ "$#" -gt 0 ]; then
   exec .venv/bin/flashnav "$@"
 fi
-.venv/bin/flashnav demo
-exec .venv/bin/flashnav bench sim --robots turtlebot2 --num-envs 64,1024
+out=runs/main
+.venv/bin/flashnav train --out "$out"
+exec .venv/bin/flashnav eval "$out/policy.pt" --episodes 1024 --seed 2026 --json "$out/eval.json"

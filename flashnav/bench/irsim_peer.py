@@ -55,6 +55,7 @@ def irsim_steps(robot: str, seconds: float, seed: int = 0) -> dict:
     from flashnav.sim.env import make_env
 
     env = make_env(robot, 64, seed=seed)
+    env.reset(seed=seed)  # 64 solvable start poses from our sampler
     poses = env.pose.numpy().astype(float)
     with tempfile.TemporaryDirectory() as tmp:
         png = Path(tmp) / "map.png"
