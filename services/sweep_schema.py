@@ -36,6 +36,14 @@ _DOTTED_MAPS = ("overrides", "parameters")
 _PER_ALGORITHM_MAPS = ("algorithm_overrides", "algorithm_parameters")
 
 
+
+def _known_algorithms(names):
+    """``names`` (a list, or a dict keyed by algorithm) unchanged, or a clear error."""
+    for name in names:
+        if name not in ALGORITHMS:
+            raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
+    return names
+
 class SweepError(ValueError):
     """A sweep file that cannot be used; the message lists every problem with its key path."""
 
@@ -176,10 +184,7 @@ class Search(Strict):
     @field_validator("algorithm_parameters")
     @classmethod
     def _algorithms(cls, value: dict) -> dict:
-        for name in value:
-            if name not in ALGORITHMS:
-                raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
-        return value
+        return _known_algorithms(value)
 
     @property
     def mode(self) -> str:
@@ -242,18 +247,12 @@ class Sweep(Strict):
     @field_validator("algorithms")
     @classmethod
     def _algorithms(cls, value: list[str]) -> list[str]:
-        for name in value:
-            if name not in ALGORITHMS:
-                raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
-        return value
+        return _known_algorithms(value)
 
     @field_validator("algorithm_overrides")
     @classmethod
     def _override_algorithms(cls, value: dict) -> dict:
-        for name in value:
-            if name not in ALGORITHMS:
-                raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
-        return value
+        return _known_algorithms(value)
 
     @field_validator("seeds")
     @classmethod
