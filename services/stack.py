@@ -36,6 +36,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 from typing import Any
@@ -174,9 +175,12 @@ def _reap(pids: list[int]) -> None:
 
 
 def http_ok(url: str, timeout: float = 2.0) -> bool:
+    """The server answers: a 2xx, or 401 (a head in token-auth mode answers unauthenticated probes so)."""
     try:
         with urllib.request.urlopen(url, timeout=timeout) as response:
             return 200 <= response.status < 300
+    except urllib.error.HTTPError as exc:
+        return exc.code == 401
     except OSError:
         return False
 

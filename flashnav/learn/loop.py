@@ -82,7 +82,8 @@ def device_name(device: str) -> str:
 
 
 class _Timer:
-    """Accumulates seconds of a side of the cycle (device synchronised at the end of each span)."""
+    """Accumulates seconds of a side of the cycle (its CUDA stream synchronised at the end of each span:
+    one host sync per side per cycle, the price of an honest clock; see the README's notes on GPUs)."""
 
     def __init__(self, device: torch.device):
         self.device, self.total, self.count = device, 0.0, 0
@@ -92,8 +93,8 @@ class _Timer:
         return self
 
     def __exit__(self, *exc):
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
+        if self.device.type == "cuda":  # this side's stream only: the other side keeps running
+            torch.cuda.current_stream(self.device).synchronize()
         self.total += time.perf_counter() - self._t0
         self.count += 1
 
@@ -150,13 +151,25 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -
     eval_every = config.eval.every or hp.eval_every
     overlap = config.overlap
     collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
+    learning_cycles = _Timer(dev)  # cycles with updates: the paper's cycle (warm-up excluded)
     tracker = ThresholdTracker()
     curve: list[dict[str, float]] = []
     obs_box = [env.reset(seed=config.seed)[0]]
 
+    # On a GPU the collector thread issues its kernels on a stream of its own, so they can run
+    # beside the learner's (the default stream waits for it before the next sample).
+    collector_stream = torch.cuda.Stream(dev) if overlap and dev.type == "cuda" else None
+
     def collect() -> None:
         if overlap and dev.type == "cpu":
             _single_threaded_numba()
+        if collector_stream is not None:
+            with torch.cuda.stream(collector_stream):
+                _collect()
+        else:
+            _collect()
+
+    def _collect() -> None:
         with collect_t:
             obs = obs_box[0]
             action = learner.act(obs)
@@ -175,19 +188,25 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -
     best_rate, best_policy = 0.0, None
     try:
         for cycle in range(1, cycles + 1):
+            learning = replay.size >= hp.learning_start
+            t0 = time.perf_counter()
             with cycle_t:
-                learning = replay.size >= hp.learning_start
                 batches = replay.sample(hp.batch_size, hp.updates_per_step) if learning else None
                 if pool is not None and learning:
                     pending = pool.submit(collect)  # collector steps while the learner updates
                     learn(batches)
                     pending.result()
+                    if collector_stream is not None:
+                        torch.cuda.current_stream(dev).wait_stream(collector_stream)
                 else:
                     collect()
                     if learning:
                         learn(batches)
                 if cycle % hp.env_steps_per_sync == 0:
                     learner.sync_collector()
+            if learning:
+                learning_cycles.total += time.perf_counter() - t0
+                learning_cycles.count += 1
             env_steps = cycle * hp.num_envs
             if on_progress is not None:
                 on_progress({"env_steps": env_steps, "train_seconds": cycle_t.total, "last_eval": last_eval})
@@ -216,7 +235,7 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -
     cycle_stats = {
         "collector_ms": collect_t.mean_ms,
         "learner_ms": learn_t.mean_ms,
-        "effective_ms": cycle_t.mean_ms,
+        "effective_ms": learning_cycles.mean_ms if learning_cycles.count else cycle_t.mean_ms,
         "overlap": float(overlap),
     }
     resolved = resolved_config(config)
