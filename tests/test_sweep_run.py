@@ -18,6 +18,8 @@ import types
 from pathlib import Path
 
 import pytest
+
+from conftest import start_local_ray, stop_local_ray
 import yaml
 
 from services.sweep import run_sweep
@@ -72,11 +74,10 @@ def ray_session():
 
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import test modules
     started = not ray.is_initialized()
-    if started:
-        ray.init(address="local", num_cpus=2, include_dashboard=False)
+    temp_dir = start_local_ray(ray) if started else None
     yield ray
     if started:
-        ray.shutdown()
+        stop_local_ray(ray, temp_dir)
 
 
 @pytest.fixture

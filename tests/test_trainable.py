@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import start_local_ray, stop_local_ray
+
 from services import device as devices
 from services.sweep_schema import parse_sweep
 from services.trainable import Objective, _write_seed, final_metrics, load_manifest, write_curve_csv
@@ -145,11 +147,10 @@ def ray_session():
     # Workers cannot import test modules (tests/ is not a package on their path): ship the fakes by value.
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     started = not ray.is_initialized()
-    if started:
-        ray.init(address="local", num_cpus=2, include_dashboard=False)
+    temp_dir = start_local_ray(ray) if started else None
     yield ray
     if started:
-        ray.shutdown()
+        stop_local_ray(ray, temp_dir)
 
 
 def run_trials(tmp_path, sweep_data: dict, param_space: dict, train_fn):
