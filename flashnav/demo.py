@@ -6,7 +6,6 @@ import argparse
 import time
 
 import numpy as np
-import torch
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
