@@ -51,7 +51,10 @@ def test_status_and_down_with_nothing_started(tmp_path, monkeypatch, capsys):
 
 def test_align_client_auth_follows_the_head(tmp_path, monkeypatch):
     monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path))
-    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    # setenv first so that monkeypatch records the variable and removes what align_client_auth sets:
+    # a RAY_AUTH_MODE=token left behind would start later tests' Ray clusters in token mode
+    monkeypatch.setenv("RAY_AUTH_MODE", "unset")
+    monkeypatch.delenv("RAY_AUTH_MODE")
     (tmp_path / "services").mkdir()
     (tmp_path / "services" / "state.json").write_text('{"ray": {"auth_mode": "token", "jobs_address": "http://h:1"}}')
     stack.align_client_auth()

@@ -18,8 +18,8 @@ import types
 from pathlib import Path
 
 import pytest
+from conftest import ship_by_value
 
-from conftest import start_local_ray, stop_local_ray
 import yaml
 
 from services.sweep import run_sweep
@@ -68,16 +68,11 @@ def fake_train(config, on_eval=None, *, marks: str | None = None, fail_once: boo
     return result
 
 
-@pytest.fixture(scope="session")
-def ray_session():
-    import ray
 
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import test modules
-    started = not ray.is_initialized()
-    temp_dir = start_local_ray(ray) if started else None
-    yield ray
-    if started:
-        stop_local_ray(ray, temp_dir)
+
+@pytest.fixture(scope="module", autouse=True)
+def _workers_can_run_this_module():
+    ship_by_value(__name__)
 
 
 @pytest.fixture

@@ -11,8 +11,8 @@ import types
 from pathlib import Path
 
 import pytest
+from conftest import ship_by_value
 
-from conftest import start_local_ray, stop_local_ray
 
 from services import device as devices
 from services.sweep_schema import parse_sweep
@@ -140,17 +140,11 @@ def test_device_from_assigned_gpus(monkeypatch):
 # ---------------------------------------------------------------- inside Ray Tune
 
 
-@pytest.fixture(scope="session")
-def ray_session():
-    import ray
 
-    # Workers cannot import test modules (tests/ is not a package on their path): ship the fakes by value.
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    started = not ray.is_initialized()
-    temp_dir = start_local_ray(ray) if started else None
-    yield ray
-    if started:
-        stop_local_ray(ray, temp_dir)
+
+@pytest.fixture(scope="module", autouse=True)
+def _workers_can_run_this_module():
+    ship_by_value(__name__)
 
 
 def run_trials(tmp_path, sweep_data: dict, param_space: dict, train_fn):
