@@ -180,37 +180,57 @@ class NavVecEnv(VectorEnv):
 
     def step(self, actions):
         """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped)."""
-        p = self.preset
         actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
-        v, w = action_to_velocity(actions, p.motion)
-        self.pose = integrate(self.pose, v, w, p.episode.dt)
-        self.velocity = torch.stack([v, w], dim=1)
-        self.steps += 1
-
-        ranges = self._cast(self.pose)
-        dist = torch.linalg.vector_norm(self.goal - self.pose[:, :2], dim=1)
-        success = dist < p.episode.goal_threshold
-        collision = self._collides(self.pose) & ~success  # the goal is checked first
-        terminated = success | collision
-        truncated = (self.steps >= p.episode.horizon) & ~terminated
-        progress = p.reward.progress * (self.goal_distance - dist)
-        reward = torch.where(success, p.reward.goal, torch.where(collision, p.reward.collision, progress))
-        self.goal_distance = dist
-        self.episode_return += reward
-        self.obs = self._observe(ranges, self.pose, self.goal, self.velocity)
-
-        done = terminated | truncated
+        t = self._advance(slice(None), actions)
+        done = t["terminated"] | t["truncated"]
         info = {
-            "final_obs": self.obs.clone(),
+            "final_obs": t["obs"],  # a tensor of its own: the reset below writes into self.obs
             "_final_obs": done,
-            "success": success,
-            "collision": collision,
+            "success": t["success"],
+            "collision": t["collision"],
             # length and return of the episode that ended in this step (meaningful where done)
-            "episode_steps": self.steps.clone(),
-            "episode_return": self.episode_return.clone(),
+            "episode_steps": t["episode_steps"],
+            "episode_return": t["episode_return"],
         }
         self._reset_slots(done.nonzero().squeeze(1))
-        return self.obs.clone(), reward, terminated, truncated, info
+        return self.obs.clone(), t["reward"], t["terminated"], t["truncated"], info
+
+    def step_slots(self, idx: torch.Tensor, actions) -> dict[str, torch.Tensor]:
+        """Advance only slots ``idx`` [k] (long) by one step, with no autoreset: a slot whose episode
+        ends stays as it ended until it is reset. ``actions`` [k, 2]. For evaluation, where only each
+        slot's first episode counts and finished slots need not be simulated any further.
+
+        Returns [k] tensors for those slots: obs [k, obs_dim], reward, terminated, truncated, success,
+        collision, episode_steps, episode_return (the same semantics as :meth:`step`)."""
+        actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32).reshape(-1, 2)
+        return self._advance(idx, actions)
+
+    def _advance(self, sel, actions: torch.Tensor) -> dict[str, torch.Tensor]:
+        """One transition of the slots ``sel`` (``slice(None)`` for all, else [k] long indices):
+        motion, scan, goal / collision / reward / flags, observation; writes their state back."""
+        p = self.preset
+        v, w = action_to_velocity(actions, p.motion)
+        pose = integrate(self.pose[sel], v, w, p.episode.dt)
+        velocity = torch.stack([v, w], dim=1)
+        steps = self.steps[sel] + 1
+        goal = self.goal[sel]
+
+        ranges = self._cast(pose)
+        dist = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
+        success = dist < p.episode.goal_threshold
+        collision = self._collides(pose) & ~success  # the goal is checked first
+        terminated = success | collision
+        truncated = (steps >= p.episode.horizon) & ~terminated
+        progress = p.reward.progress * (self.goal_distance[sel] - dist)
+        reward = torch.where(success, p.reward.goal, torch.where(collision, p.reward.collision, progress))
+        episode_return = self.episode_return[sel] + reward
+        obs = self._observe(ranges, pose, goal, velocity)
+
+        self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
+        self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs
+        return {"obs": obs, "reward": reward, "terminated": terminated, "truncated": truncated,
+                "success": success, "collision": collision, "episode_steps": steps,
+                "episode_return": episode_return}
 
     def close_extras(self, **kwargs) -> None:  # nothing to release: no processes, no files
         pass

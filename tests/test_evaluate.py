@@ -1,0 +1,91 @@
+"""Evaluation: ``env.step_slots`` semantics, and ``evaluate`` against a dense, obviously-correct reference."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from flashnav.evaluate import evaluate
+from flashnav.sim.env import make_env
+
+
+def heading_controller(obs: torch.Tensor) -> torch.Tensor:
+    """A deterministic, row-wise policy (so batch size cannot change its output): turn towards the goal,
+    drive when roughly facing it, slow down when the front sector is close. Reaches some goals, hits
+    some walls, times out on others: every outcome occurs on the bundled map."""
+    angle = obs[:, 31]
+    front = obs[:, 14:16].amin(dim=1)
+    turn = (2.0 * angle / math.pi).clamp(-1.0, 1.0)
+    drive = torch.where((angle.abs() < 0.6) & (front > 0.3), 1.0, -1.0)
+    return torch.stack([drive, turn], dim=1)
+
+
+def dense_reference(policy, env, seed: int) -> dict[str, float]:
+    """Every slot stepped every step (autoreset and all); each slot's first episode counts."""
+    obs, _ = env.reset(seed=seed)
+    n = env.num_envs
+    finished = torch.zeros(n, dtype=torch.bool)
+    success, collision = torch.zeros(n, dtype=torch.bool), torch.zeros(n, dtype=torch.bool)
+    returns, steps = torch.zeros(n), torch.zeros(n)
+    for _ in range(env.preset.episode.horizon):
+        obs, _, terminated, truncated, info = env.step(policy(obs))
+        first = (terminated | truncated) & ~finished
+        success |= first & info["success"]
+        collision |= first & info["collision"]
+        returns = torch.where(first, info["episode_return"], returns)
+        steps = torch.where(first, info["episode_steps"].float(), steps)
+        finished |= first
+    assert finished.all()
+    return {"success_rate": success.float().mean().item(), "collision_rate": collision.float().mean().item(),
+            "timeout_rate": (~success & ~collision).float().mean().item(),
+            "mean_return": returns.mean().item(), "mean_steps": steps.mean().item()}
+
+
+@pytest.mark.parametrize("robot", ["turtlebot2", "go2"])
+def test_evaluate_equals_the_dense_reference(robot):
+    env = make_env(robot, 96, seed=0)
+    fast = evaluate(heading_controller, env, seed=7)
+    slow = dense_reference(heading_controller, env, seed=7)
+    assert fast["success_rate"] == slow["success_rate"]
+    assert fast["collision_rate"] == slow["collision_rate"]
+    assert fast["timeout_rate"] == slow["timeout_rate"]
+    assert fast["mean_return"] == pytest.approx(slow["mean_return"], abs=1e-5)
+    assert fast["mean_steps"] == pytest.approx(slow["mean_steps"])
+    assert 0 < fast["success_rate"] < 1 and fast["collision_rate"] > 0  # the comparison covers both outcomes
+
+
+def test_step_slots_equals_step_on_those_slots_and_leaves_the_others():
+    a, b = make_env("turtlebot2", 16, seed=1), make_env("turtlebot2", 16, seed=1)
+    a.reset(seed=1)
+    b.reset(seed=1)
+    idx = torch.tensor([1, 4, 5, 11])
+    others = torch.tensor([i for i in range(16) if i not in idx.tolist()])
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        actions = torch.rand(16, 2, generator=gen) * 2 - 1
+        before = {k: getattr(a, k)[others].clone() for k in ("pose", "velocity", "steps", "obs", "episode_return")}
+        t = a.step_slots(idx, actions[idx])
+        obs, reward, terminated, truncated, info = b.step(actions)
+        assert torch.equal(t["obs"], info["final_obs"][idx]) and torch.equal(t["reward"], reward[idx])
+        assert torch.equal(t["terminated"], terminated[idx]) and torch.equal(t["truncated"], truncated[idx])
+        assert torch.equal(t["success"], info["success"][idx]) and torch.equal(t["collision"], info["collision"][idx])
+        assert torch.equal(t["episode_steps"], info["episode_steps"][idx])
+        for k, v in before.items():
+            assert torch.equal(getattr(a, k)[others], v), k
+        b.pose[others], b.velocity[others], b.steps[others] = a.pose[others], a.velocity[others], a.steps[others]
+        b.obs[others], b.episode_return[others] = a.obs[others], a.episode_return[others]
+        b.goal_distance[others] = a.goal_distance[others]
+        if bool((terminated | truncated)[idx].any()):
+            break
+
+
+def test_step_slots_does_not_reset_a_finished_slot():
+    env = make_env("turtlebot2", 2, seed=0)
+    env.reset(seed=0)
+    env.set_state(torch.tensor([[5.0, 5.0, 0.0], [5.0, 5.0, 0.0]]), torch.tensor([[5.05, 5.0], [8.0, 5.0]]))
+    t = env.step_slots(torch.tensor([0]), torch.tensor([[1.0, 0.0]]))
+    assert t["terminated"].tolist() == [True] and t["success"].tolist() == [True]
+    assert env.steps[0].item() == 1 and env.pose[0, 0].item() > 5.0  # where it ended, not a new episode
+    assert env.steps[1].item() == 0 and env.pose[1].tolist() == [5.0, 5.0, 0.0]
