@@ -65,13 +65,18 @@ def run_bench_train(args) -> int:
                 t90 = r["time_to_threshold"]["0.9"]
                 console.print(f"  {robot} {algo} seed {seed}: 90% at {'-' if t90 is None else f'{t90:.1f} s'}, "
                               f"final success {r['curve'][-1]['success_rate']:.1%} ({r['stop_reason']})")
+                _save(args.json, when, groups, results + runs)  # after every run: an interrupted bench keeps its runs
             results += runs
             groups.append((robot, algo, runs[0]["recipe"], runs[0]["device_name"], summarise(runs)))
+            _save(args.json, when, groups, results)
     _print(console, groups, args.seeds, when)
-    if args.json:
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"date": when, "groups": [g[:4] + (g[4],) for g in groups], "runs": results}, f, indent=2)
     return 0
+
+
+def _save(path: str | None, when: str, groups, runs: list[dict]) -> None:
+    if path:
+        with open(path, "w", encoding="utf-8") as f:
+            json.dump({"date": when, "groups": [g[:4] + (g[4],) for g in groups], "runs": runs}, f, indent=2)
 
 
 def _print(console: Console, groups, seeds: int, when: str) -> None:

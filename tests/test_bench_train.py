@@ -1,0 +1,41 @@
+"""``flashnav bench train``: statistics over seeds (fixed data) and the command on a tiny budget."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from flashnav.bench.train import summarise
+from flashnav.cli import main as cli_main
+
+
+def _run(t90, t95, t100, s90=None, cycle=(10.0, 20.0, 21.0)):
+    return {"time_to_threshold": {"0.9": t90, "0.95": t95, "1.0": t100},
+            "env_steps_to_threshold": {"0.9": s90, "0.95": None, "1.0": None},
+            "cycle": dict(zip(("collector_ms", "learner_ms", "effective_ms"), cycle))}
+
+
+def test_summarise_counts_only_seeds_that_reached():
+    runs = [_run(10.0, 20.0, None, 1000), _run(30.0, None, None, 3000, cycle=(12.0, 22.0, 23.0)),
+            _run(None, None, None)]
+    s = summarise(runs)
+    assert s["runs"] == 3
+    assert s["0.9"] == {"reached": 2, "best_s": 10.0, "mean_s": 20.0, "mean_env_steps": 2000.0}
+    assert s["0.95"] == {"reached": 1, "best_s": 20.0, "mean_s": 20.0, "mean_env_steps": None}
+    assert s["1.0"] == {"reached": 0, "best_s": None, "mean_s": None, "mean_env_steps": None}
+    assert s["collector_ms"] == pytest.approx(34.0 / 3) and s["effective_ms"] == pytest.approx(65.0 / 3)
+
+
+def test_bench_train_command_writes_every_run(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    code = cli_main(["bench", "train", "--seeds", "2", "--recipe", "cpu", "--device", "cpu", "--budget-seconds", "1",
+                     "--json", str(out), "algo.num_envs=32", "algo.learning_start=64", "algo.updates_per_step=2",
+                     "algo.batch_size=64", "algo.eval_every=2", "eval.episodes=8", "budget.max_env_steps=256"])
+    assert code == 0
+    data = json.loads(out.read_text())
+    assert [r["seed"] for r in data["runs"]] == [0, 1]
+    assert all(r["robot"] == "turtlebot2" and r["algorithm"] == "fastdsac" and r["recipe"] == "cpu" for r in data["runs"])
+    (robot, algo, recipe, device, summary), = data["groups"]
+    assert (robot, algo, recipe) == ("turtlebot2", "fastdsac", "cpu") and summary["runs"] == 2
+    assert "seconds of training to success thresholds" in capsys.readouterr().out
