@@ -16,14 +16,19 @@ from flashnav.sim.env import NavVecEnv
 
 
 @torch.no_grad()
-def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, seed: int) -> dict[str, float]:
+def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, seed: int, *,
+             dense: bool = False) -> dict[str, float]:
     """Run one episode per slot of ``env`` with the deterministic ``policy`` (obs [k, D] -> action [k, 2]).
 
     Only the slots whose episode is still running are simulated (``env.step_slots``, no autoreset):
     an evaluation costs the sum of its episodes' lengths, not slots x the longest episode, and the
-    finished slots are never re-sampled. Returns success_rate, collision_rate, timeout_rate (fractions
-    of the N episodes), mean_return (undiscounted) and mean_steps.
+    finished slots are never re-sampled. ``dense=True`` is the plain way, kept as the benchmark
+    baseline (``flashnav bench eval``) and the tests' reference: every slot steps (and autoresets)
+    until each has finished once. Returns success_rate, collision_rate, timeout_rate (fractions of the
+    N episodes), mean_return (undiscounted) and mean_steps.
     """
+    if dense:
+        return _evaluate_dense(policy, env, seed)
     obs, _ = env.reset(seed=seed)
     n, dev = env.num_envs, env.device
     success = torch.zeros(n, dtype=torch.bool, device=dev)
@@ -43,6 +48,27 @@ def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, see
         active, obs = active[running], t["obs"][running]
         if active.numel() == 0:  # a host sync per step: evaluation is outside the training clock
             break
+    return _rates(success, collision, returns, steps)
+
+
+def _evaluate_dense(policy, env: NavVecEnv, seed: int) -> dict[str, float]:
+    obs, _ = env.reset(seed=seed)
+    n, dev = env.num_envs, env.device
+    finished = torch.zeros(n, dtype=torch.bool, device=dev)
+    success, collision = torch.zeros_like(finished), torch.zeros_like(finished)
+    returns, steps = torch.zeros(n, device=dev), torch.zeros(n, device=dev)
+    for _ in range(env.preset.episode.horizon):
+        obs, _, terminated, truncated, info = env.step(policy(obs))
+        first = (terminated | truncated) & ~finished
+        success |= first & info["success"]
+        collision |= first & info["collision"]
+        returns = torch.where(first, info["episode_return"], returns)
+        steps = torch.where(first, info["episode_steps"].float(), steps)
+        finished |= first
+    return _rates(success, collision, returns, steps)
+
+
+def _rates(success, collision, returns, steps) -> dict[str, float]:
     return {
         "success_rate": success.float().mean().item(),
         "collision_rate": collision.float().mean().item(),

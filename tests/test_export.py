@@ -220,6 +220,15 @@ def test_eval_command(exported, tmp_path, kind, capsys):
     assert "success rate" in capsys.readouterr().out
 
 
+def test_bench_eval_compares_both_ways_on_an_exported_policy(exported, capsys):
+    _, paths = exported
+    from flashnav.cli import main as flashnav_main
+
+    assert flashnav_main(["bench", "eval", str(paths["torchscript"]), "--episodes", "12", "--repeats", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "dense" in out and "compact" in out and "same rates both ways" in out
+
+
 def test_eval_refuses_a_robot_of_another_size(exported):
     _, paths = exported
     with pytest.raises(ValueError, match="obs_dim"):

@@ -12,7 +12,7 @@ from rich.table import Table
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
-    bench = sub.add_parser("bench", help="benchmarks (simulator, training)")
+    bench = sub.add_parser("bench", help="benchmarks (simulator, evaluation, training)")
     bsub = bench.add_subparsers(dest="bench_command", metavar="BENCH")
     p = bsub.add_parser("sim", help="simulator env-steps/s per raycaster x num_envs x robot, vs the paper's march and ir-sim")
     p.add_argument("--robots", default="turtlebot2,go2", help="comma-separated presets")
@@ -26,6 +26,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true", help="a fast smoke run: turtlebot2, 64 envs, 0.5 s rows")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
+    from flashnav.bench import evaluation as bench_eval
+
+    bench_eval.register_cli(bsub)
     try:
         from flashnav.bench import train as bench_train
     except ImportError:
