@@ -26,7 +26,7 @@ AUTH = "RAY_AUTH_MODE"
 
 
 @pytest.fixture(scope="session")
-def ray_session(request):
+def ray_session():
     """The private Ray cluster (started on first use, shut down at the end of the session).
 
     Test modules whose functions run inside Ray workers call ``ship_by_value(__name__)``: workers

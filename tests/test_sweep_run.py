@@ -18,9 +18,8 @@ import types
 from pathlib import Path
 
 import pytest
-from conftest import ship_by_value
-
 import yaml
+from conftest import ship_by_value
 
 from services.sweep import run_sweep
 from services.sweep_schema import SweepError, load_sweep
@@ -66,8 +65,6 @@ def fake_train(config, on_eval=None, *, marks: str | None = None, fail_once: boo
                                    config=data, device_name="Fake CPU (1 threads)")
     result.to_dict = lambda: {"curve": curve}
     return result
-
-
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -6,13 +6,11 @@ from __future__ import annotations
 import functools
 import json
 import math
-import sys
 import types
 from pathlib import Path
 
 import pytest
 from conftest import ship_by_value
-
 
 from services import device as devices
 from services.sweep_schema import parse_sweep
@@ -138,8 +136,6 @@ def test_device_from_assigned_gpus(monkeypatch):
 
 
 # ---------------------------------------------------------------- inside Ray Tune
-
-
 
 
 @pytest.fixture(scope="module", autouse=True)
