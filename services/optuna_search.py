@@ -91,13 +91,26 @@ class FinalOnlyOptunaSearch(OptunaSearch):
         return None
 
 
-def make_searcher(sweep: Sweep, url: str, name: str):
-    """ConcurrencyLimiter(OptunaSearch) for one (robot, algorithm) study; metric/mode come from TuneConfig."""
+def start_points(sweep: Sweep, algorithm: str) -> list[dict[str, Any]]:
+    """The sweep's start points as Optuna names them, restricted to ``algorithm``'s search space."""
+    space = sweep.search.space_for(algorithm)
+    points = [{f"{PARAMS_KEY}/{path}": value for path, value in point.items() if path in space}
+              for point in sweep.search.start_points]
+    return [point for point in points if point]
+
+
+def make_searcher(sweep: Sweep, url: str, name: str, algorithm: str):
+    """ConcurrencyLimiter(OptunaSearch) for one (robot, algorithm) study; metric/mode come from TuneConfig.
+
+    The sweep's ``start_points`` are enqueued in the study (a fresh one: a resumed sweep restores its
+    searcher instead and enqueues nothing again).
+    """
     import optuna
     from ray.tune.search import ConcurrencyLimiter
 
     sampler = optuna.samplers.TPESampler(seed=sweep.search.sampler_seed)
-    searcher = FinalOnlyOptunaSearch(sampler=sampler, study_name=name, storage=storage(url))
+    searcher = FinalOnlyOptunaSearch(sampler=sampler, study_name=name, storage=storage(url),
+                                     points_to_evaluate=start_points(sweep, algorithm) or None)
     return ConcurrencyLimiter(searcher, max_concurrent=sweep.max_concurrent_trials or 4)
 
 

@@ -212,7 +212,8 @@ def _tuner(plan: Plan, target: Target, trainable, callback, verbose: int):
         space = {"robot": target.robot, "algorithm": target.algorithm,
                  "seeds": sweep.seed_list[: sweep.search.seeds_per_trial],
                  optuna_search.PARAMS_KEY: optuna_search.search_space(sweep, target.algorithm)}
-        config = tune.TuneConfig(search_alg=optuna_search.make_searcher(sweep, plan.optuna_url, target.study),
+        searcher = optuna_search.make_searcher(sweep, plan.optuna_url, target.study, target.algorithm)
+        config = tune.TuneConfig(search_alg=searcher,
                                  num_samples=sweep.search.n_trials, metric="objective", mode=sweep.search.mode,
                                  reuse_actors=False)
     return tune.Tuner(trainable, param_space=space, tune_config=config, run_config=run_config)

@@ -155,6 +155,17 @@ class Distribution(Strict):
     def kind(self) -> str:
         return next(name for name in DISTRIBUTIONS if getattr(self, name) is not None)
 
+    def contains(self, value: Any) -> bool:
+        """Whether ``value`` is a possible sample (bounds inclusive)."""
+        if self.kind == "choice":
+            return value in self.choice
+        if self.kind in ("int", "logint") and (isinstance(value, bool) or not isinstance(value, builtins.int)):
+            return False
+        if isinstance(value, bool) or not isinstance(value, (builtins.int, float)):
+            return False
+        low, high = self.args
+        return low <= value <= high
+
     @property
     def args(self) -> Any:
         return getattr(self, self.kind)
@@ -173,6 +184,9 @@ class Search(Strict):
     best_seeds: int = Field(10, gt=0, description="seeds of the best-config sweep YAML written at the end")
     parameters: dict[str, Distribution] = Field(default_factory=dict, description="config path -> distribution")
     algorithm_parameters: dict[str, dict[str, Distribution]] = Field(default_factory=dict)
+    start_points: list[dict[str, Any]] = Field(
+        default_factory=list, description="trials run first, in order (e.g. the current recipe, a baseline "
+        "inside the study): config path -> value, each inside its distribution; unnamed paths are sampled")
 
     @field_validator("objective")
     @classmethod
@@ -185,6 +199,21 @@ class Search(Strict):
     @classmethod
     def _algorithms(cls, value: dict) -> dict:
         return _known_algorithms(value)
+
+    @model_validator(mode="after")
+    def _start_points_in_space(self) -> "Search":
+        known = dict(self.parameters)
+        for space in self.algorithm_parameters.values():
+            known.update(space)
+        for i, point in enumerate(self.start_points):
+            for path, value in point.items():
+                if path not in known:
+                    raise ValueError(f"start_points[{i}]: {path!r} is not a searched parameter; "
+                                     f"searched: {', '.join(known) or 'none'}")
+                if not known[path].contains(value):
+                    raise ValueError(f"start_points[{i}]: {path}={value!r} lies outside its distribution "
+                                     f"{{{known[path].kind}: {list(known[path].args)}}}")
+        return self
 
     @property
     def mode(self) -> str:

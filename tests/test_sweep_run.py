@@ -155,11 +155,14 @@ def test_optuna_sweep_persists_study_and_writes_best_config(tmp_path, runs, ray_
     import optuna
 
     search = {"n_trials": 3, "seeds_per_trial": 2, "study_name": "unit-study", "sampler_seed": 0,
-              "parameters": {"algo.updates_per_step": {"int": [2, 16]}, "algo.batch_size": {"choice": [256, 512]}}}
+              "parameters": {"algo.updates_per_step": {"int": [2, 16]}, "algo.batch_size": {"choice": [256, 512]}},
+              "start_points": [{"algo.updates_per_step": 7, "algo.batch_size": 512}]}
     sweep = write_sweep(tmp_path / "unit.yaml", search=search)
     assert run_sweep(sweep, train_fn=fake_train, verbose=0) == 0
     study = optuna.load_study(study_name="unit-study", storage=f"sqlite:///{runs}/optuna.db")
     assert [t.state.name for t in study.trials] == ["COMPLETE"] * 3
+    # The start point is the study's first trial, exactly as written.
+    assert study.trials[0].params == {"params/algo.updates_per_step": 7, "params/algo.batch_size": 512}
     (out_dir,) = (runs / "sweeps" / "unit").iterdir()
     best = load_sweep(out_dir / "best_turtlebot2_fastdsac.yaml")
     assert best.search is None and best.seed_list == list(range(10))

@@ -87,6 +87,28 @@ def test_search_consistency_checks():
     assert "search.algorithm_parameters: unknown algorithm 'ppo'" in error_of(minimal(search=per_algo))
 
 
+def test_start_points_must_lie_in_the_search_space():
+    space = {"algo.batch_size": {"choice": [256, 512]}, "algo.updates_per_step": {"int": [2, 16]},
+             "algo.temperature": {"loguniform": [0.5, 4.0]}}
+
+    def search(*points):
+        return minimal(search={"n_trials": 2, "parameters": space, "start_points": list(points)})
+
+    ok = parse_sweep(search({"algo.batch_size": 256, "algo.updates_per_step": 16, "algo.temperature": 0.5}))
+    assert ok.search.start_points[0]["algo.updates_per_step"] == 16  # bounds inclusive
+    assert "start_points[0]: 'algo.lr' is not a searched parameter" in error_of(search({"algo.lr": 1e-3}))
+    assert "start_points[1]: algo.batch_size=1024 lies outside its distribution {choice: [256, 512]}" in error_of(
+        search({"algo.batch_size": 256}, {"algo.batch_size": 1024}))
+    assert "algo.updates_per_step=2.5 lies outside" in error_of(search({"algo.updates_per_step": 2.5}))
+    assert "algo.temperature=8.0 lies outside" in error_of(search({"algo.temperature": 8.0}))
+
+
+def test_start_points_are_named_as_optuna_names_them():
+    sweep = load_sweep(ROOT / "sweeps/tb2_cpu_optuna.yaml")
+    (point,) = optuna_search.start_points(sweep, "fastdsac")
+    assert set(point) == {f"params/{path}" for path in sweep.search.parameters}
+
+
 def test_seeds_forms():
     assert parse_sweep(minimal(seeds=[3, 5])).seed_list == [3, 5]
     assert "seeds repeat" in error_of(minimal(seeds=[1, 1]))
