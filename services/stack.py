@@ -41,7 +41,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-from services.sweep_schema import project_dir, runs_dir
+from services.paths import project_dir, runs_dir
 
 HOST = "127.0.0.1"
 

@@ -1,19 +1,18 @@
-"""The sweep YAML: a strict pydantic schema, ``--set`` overrides, and absolute path resolution.
+"""The sweep YAML: a strict pydantic schema and ``--set`` overrides.
 
 A sweep names robots x algorithms x seeds, the TrainConfig fields every trial shares (``base``,
 ``overrides``, ``budget``), the Ray resources of one trial, and optionally an Optuna ``search``.
 Unknown keys are errors whose message names the key's full path and the allowed names, so that a
 misspelt ``budjet`` fails at load time, not after an hour of sweeping.
 
-Paths (MLflow tracking store, Optuna storage, Ray storage) are resolved here, in the driver, to
-absolute locations: the driver of a Ray job runs in a temporary copy of the working dir and each trial
-in its own directory, so a relative path would silently land in a folder that is thrown away.
+Paths in a sweep (MLflow tracking store, Optuna storage, Ray storage) are made absolute by
+services.paths, in the driver: the driver of a Ray job runs in a temporary copy of the working dir and
+each trial in its own directory, so a relative path would silently land in a folder that is thrown away.
 """
 
 from __future__ import annotations
 
 import builtins
-import os
 import re
 from pathlib import Path
 from typing import Any, Literal
@@ -36,13 +35,13 @@ _DOTTED_MAPS = ("overrides", "parameters")
 _PER_ALGORITHM_MAPS = ("algorithm_overrides", "algorithm_parameters")
 
 
-
 def _known_algorithms(names):
     """``names`` (a list, or a dict keyed by algorithm) unchanged, or a clear error."""
     for name in names:
         if name not in ALGORITHMS:
             raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
     return names
+
 
 class SweepError(ValueError):
     """A sweep file that cannot be used; the message lists every problem with its key path."""
@@ -410,58 +409,3 @@ def sweep_to_yaml(sweep: Sweep) -> str:
     data = sweep.model_dump(mode="json", exclude_defaults=True)
     data["seeds"] = sweep.seed_list
     return yaml.safe_dump(data, sort_keys=False)
-
-
-# ---------------------------------------------------------------- paths
-
-
-def project_dir() -> Path:
-    """Where relative paths of a sweep are anchored: $FLASHNAV_PROJECT_DIR, else the working directory."""
-    return Path(os.environ.get("FLASHNAV_PROJECT_DIR") or os.getcwd()).resolve()
-
-
-def in_ray_job() -> bool:
-    """True in the driver of a ``ray job submit`` entrypoint (its cwd is a temporary copy)."""
-    return "RAY_JOB_CONFIG_JSON_ENV_VAR" in os.environ
-
-
-def runs_dir() -> Path:
-    """The project's run directory (absolute): $FLASHNAV_RUNS_DIR, else <project>/runs.
-
-    In a Ray job with neither variable set, the cwd is a temporary unpacked working dir that Ray deletes;
-    fall back to ~/flashnav-runs on the head node (``flashnav services up`` sets FLASHNAV_RUNS_DIR).
-    """
-    if os.environ.get("FLASHNAV_RUNS_DIR"):
-        return Path(os.environ["FLASHNAV_RUNS_DIR"]).expanduser().resolve()
-    if in_ray_job() and not os.environ.get("FLASHNAV_PROJECT_DIR"):
-        return (Path.home() / "flashnav-runs").resolve()
-    return project_dir() / "runs"
-
-
-def _absolute(path: str) -> str:
-    p = Path(path).expanduser()
-    return str(p if p.is_absolute() else (project_dir() / p).resolve())
-
-
-def resolve_db_url(url: str | None, default_file: str) -> str:
-    """An SQLAlchemy/MLflow URL with any relative sqlite path made absolute; None -> <runs>/<default_file>."""
-    if url is None:
-        return f"sqlite:///{runs_dir() / default_file}"
-    if url.startswith("sqlite:///"):
-        rest = url[len("sqlite:///") :]
-        return url if rest.startswith("/") or rest == ":memory:" else f"sqlite:///{_absolute(rest)}"
-    return url  # http(s)://, postgresql://, databricks...: location independent already
-
-
-def resolve_tracking_uri(explicit: str | None) -> str:
-    """The sweep's tracking.tracking_uri, else $MLFLOW_TRACKING_URI, else sqlite:///<runs>/mlflow.db."""
-    return resolve_db_url(explicit or os.environ.get("MLFLOW_TRACKING_URI") or None, "mlflow.db")
-
-
-def resolve_storage(path: str | None) -> str:
-    """Ray storage path: URIs (s3://, gs://, ...) as given, local paths absolute; None -> <runs>/ray."""
-    if path is None:
-        return str(runs_dir() / "ray")
-    if "://" in path:
-        return path
-    return _absolute(path)

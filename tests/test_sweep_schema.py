@@ -8,10 +8,10 @@ import pytest
 import yaml
 
 from services import optuna_search
-from services.sweep import main as sweep_main
+from services.sweep_cli import main as sweep_main
 from services.sweep import make_plan
-from services.sweep_schema import (SweepError, apply_sets, load_sweep, parse_sweep, resolve_db_url, resolve_storage,
-                                   resolve_tracking_uri, runs_dir, sweep_to_yaml)
+from services.paths import resolve_db_url, resolve_storage, resolve_tracking_uri, runs_dir
+from services.sweep_schema import SweepError, apply_sets, load_sweep, parse_sweep, sweep_to_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = sorted((ROOT / "sweeps").glob("*.yaml"))

@@ -1,0 +1,62 @@
+"""Where a sweep's things go: the project and run directories, and sweep paths made absolute.
+
+Everything here is resolved in the driver before anything is shipped to a Ray worker (a worker's
+working directory is a temporary copy that Ray deletes), so nothing lands in Ray's temporary dirs.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def project_dir() -> Path:
+    """Where relative paths of a sweep are anchored: $FLASHNAV_PROJECT_DIR, else the working directory."""
+    return Path(os.environ.get("FLASHNAV_PROJECT_DIR") or os.getcwd()).resolve()
+
+
+def in_ray_job() -> bool:
+    """True in the driver of a ``ray job submit`` entrypoint (its cwd is a temporary copy)."""
+    return "RAY_JOB_CONFIG_JSON_ENV_VAR" in os.environ
+
+
+def runs_dir() -> Path:
+    """The project's run directory (absolute): $FLASHNAV_RUNS_DIR, else <project>/runs.
+
+    In a Ray job with neither variable set, the cwd is a temporary unpacked working dir that Ray deletes;
+    fall back to ~/flashnav-runs on the head node (``flashnav services up`` sets FLASHNAV_RUNS_DIR).
+    """
+    if os.environ.get("FLASHNAV_RUNS_DIR"):
+        return Path(os.environ["FLASHNAV_RUNS_DIR"]).expanduser().resolve()
+    if in_ray_job() and not os.environ.get("FLASHNAV_PROJECT_DIR"):
+        return (Path.home() / "flashnav-runs").resolve()
+    return project_dir() / "runs"
+
+
+def _absolute(path: str) -> str:
+    p = Path(path).expanduser()
+    return str(p if p.is_absolute() else (project_dir() / p).resolve())
+
+
+def resolve_db_url(url: str | None, default_file: str) -> str:
+    """An SQLAlchemy/MLflow URL with any relative sqlite path made absolute; None -> <runs>/<default_file>."""
+    if url is None:
+        return f"sqlite:///{runs_dir() / default_file}"
+    if url.startswith("sqlite:///"):
+        rest = url[len("sqlite:///") :]
+        return url if rest.startswith("/") or rest == ":memory:" else f"sqlite:///{_absolute(rest)}"
+    return url  # http(s)://, postgresql://, databricks...: location independent already
+
+
+def resolve_tracking_uri(explicit: str | None) -> str:
+    """The sweep's tracking.tracking_uri, else $MLFLOW_TRACKING_URI, else sqlite:///<runs>/mlflow.db."""
+    return resolve_db_url(explicit or os.environ.get("MLFLOW_TRACKING_URI") or None, "mlflow.db")
+
+
+def resolve_storage(path: str | None) -> str:
+    """Ray storage path: URIs (s3://, gs://, ...) as given, local paths absolute; None -> <runs>/ray."""
+    if path is None:
+        return str(runs_dir() / "ray")
+    if "://" in path:
+        return path
+    return _absolute(path)
