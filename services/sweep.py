@@ -228,7 +228,13 @@ def _fit_target(plan: Plan, target: Target, tracker, resume: bool, train_fn, ver
         tags = {"recipe": plan.sweep.base.recipe, "git_commit": plan.git_commit, "invocation": plan.stamp}
         tuner = _tuner(plan, target, trainable, tracker.callback(plan.sweep.name, tags), verbose)
     results = tuner.fit()
-    return sum(1 for result in results if result.error is not None)
+    expected = plan.sweep.search.n_trials if target.study else plan.n_trials
+    if results.num_terminated + results.num_errors < expected:
+        # Tune catches Ctrl-C (SIGINT), saves its state and returns early with trials still pending:
+        # that target is not done, and the sweep must say so rather than finish.
+        raise KeyboardInterrupt(f"{target.name}: {results.num_terminated + results.num_errors}/{expected} "
+                                "trials ended before the interrupt")
+    return results.num_errors
 
 
 def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, dry_run: bool = False,

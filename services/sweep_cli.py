@@ -95,17 +95,23 @@ def _add_commands(sub) -> None:
     submit.set_defaults(func=_cmd_submit)
 
 
-def _guard(fn: Callable[[], int]) -> int:
+def _guard(fn: Callable[[], int], resume_hint: str | None = None) -> int:
     try:
         return fn()
     except SweepError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        hint = f"; continue it with: {resume_hint}" if resume_hint else ""
+        print(f"interrupted: finished trials are kept{hint}", file=sys.stderr)
+        return 130
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    sets = "".join(f" --set {shlex.quote(item)}" for item in args.sets)
+    hint = f"flashnav sweep run {shlex.quote(args.sweep)} --resume{sets}"
     return _guard(lambda: run_sweep(args.sweep, address=args.address, resume=args.resume,
-                                    dry_run=args.dry_run, sets=args.sets))
+                                    dry_run=args.dry_run, sets=args.sets), hint)
 
 
 def _cmd_submit(args: argparse.Namespace) -> int:

@@ -6,6 +6,7 @@ skipif at the end runs the real flashnav.train once it exists.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
@@ -208,7 +209,10 @@ DRIVER = textwrap.dedent('''
 ''')
 
 
-def test_resume_after_kill_reruns_nothing_finished(tmp_path, runs):
+@pytest.mark.parametrize("stop", ["kill", "ctrl-c"])
+def test_resume_after_kill_reruns_nothing_finished(tmp_path, runs, stop):
+    """``kill``: the driver and its Ray die at once. ``ctrl-c``: Tune catches SIGINT, saves its state and
+    returns early; the sweep must then stop as interrupted (parent KILLED, target not done), not finish."""
     sweep = write_sweep(tmp_path / "unit.yaml", seeds=3, max_concurrent_trials=1, retry={"max_failures": 0})
     (tmp_path / "driver.py").write_text(DRIVER)
     marks = tmp_path / "marks"
@@ -223,8 +227,16 @@ def test_resume_after_kill_reruns_nothing_finished(tmp_path, runs):
             assert time.monotonic() < deadline and first.poll() is None, "the first driver never reached seed 1"
             time.sleep(0.2)
         time.sleep(0.6)
+        if stop == "ctrl-c":
+            os.kill(first.pid, signal.SIGINT)
+            assert first.wait(timeout=120) != 0
+            _, parents, _ = runs_of(runs, "unit")
+            assert [p.info.status for p in parents] == ["KILLED"]
+            (state_file,) = (runs / "sweeps" / "unit").glob("*/sweep_state.json")
+            assert json.loads(state_file.read_text())["done_targets"] == []
     finally:
-        os.killpg(first.pid, signal.SIGKILL)  # the driver and its in-process Ray die mid-trial
+        with contextlib.suppress(ProcessLookupError):  # after ctrl-c the group may be gone already
+            os.killpg(first.pid, signal.SIGKILL)  # the driver and its in-process Ray die mid-trial
         first.wait()
     resumed = subprocess.run(command + ["--resume"], env=env, cwd=tmp_path, capture_output=True, text=True,
                              timeout=240)
