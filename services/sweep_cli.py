@@ -21,6 +21,8 @@ from typing import Any, Callable
 from services.sweep import git_commit, run_sweep
 from services.sweep_schema import SweepError, load_sweep
 
+HELP = "Ray Tune sweeps (seed grids, Optuna searches) tracked in MLflow"
+
 
 # ---------------------------------------------------------------- submit (Ray Jobs API)
 
@@ -121,12 +123,12 @@ def _cmd_submit(args: argparse.Namespace) -> int:
 
 def register_cli(subparsers) -> None:
     """Entry point ``flashnav.commands: sweep``: adds ``flashnav sweep run|submit``."""
-    parser = subparsers.add_parser("sweep", help="Ray Tune sweeps (seed grids, Optuna) tracked in MLflow")
+    parser = subparsers.add_parser("sweep", help=HELP, description=HELP)
     _add_commands(parser.add_subparsers(dest="sweep_command", metavar="{run,submit}", required=True))
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.sweep", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m services.sweep", description=HELP)
     _add_commands(parser.add_subparsers(dest="sweep_command", metavar="{run,submit}", required=True))
     args = parser.parse_args(argv)
     return args.func(args)
