@@ -45,8 +45,9 @@ def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
     p.add_argument("--seed", type=int, default=12345, help="start/goal sampling seed")
 
 
-def _setup(args, device: str = "cpu"):
-    """(policy, metadata, env): the policy checked against the robot, one env per episode."""
+def load_policy_and_env(args, device: str = "cpu"):
+    """(policy, metadata, env) for parsed `eval`-style arguments (policy, robot, map, episodes, seed):
+    the policy checked against the robot, one env per episode. Shared with `flashnav bench eval`."""
     from flashnav.config import RobotPreset
     from flashnav.export import load_policy
     from flashnav.sim.env import make_env
@@ -74,7 +75,7 @@ def run_eval(args) -> int:
 
     from flashnav.evaluate import evaluate
 
-    policy, meta, env = _setup(args, args.device)
+    policy, meta, env = load_policy_and_env(args, args.device)
     start = time.perf_counter()
     result = evaluate(policy, env, seed=args.seed)
     seconds = time.perf_counter() - start
@@ -150,7 +151,7 @@ def rollout(policy, env, seed: int) -> dict:
 def run_render(args) -> int:
     from flashnav.viz import draw_trajectories
 
-    policy, meta, env = _setup(args)
+    policy, meta, env = load_policy_and_env(args)
     result = rollout(policy, env, args.seed)
     poses, length, outcomes = result["poses"], result["length"], result["outcomes"]
     paths = [poses[: length[i], i, :2] for i in range(env.num_envs)]

@@ -29,12 +29,12 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
 
 def run_bench_eval(args) -> int:
     from flashnav.evaluate import evaluate
-    from flashnav.policy_cli import _setup
+    from flashnav.policy_cli import load_policy_and_env
 
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
     console = Console()
-    policy, _, env = _setup(args, args.device)
+    policy, _, env = load_policy_and_env(args, args.device)
     evaluate(policy, env, args.seed)  # warm-up: JIT caches, allocator
     seconds: dict[str, list[float]] = {"dense": [], "compact": []}
     rates: dict[str, dict] = {}
