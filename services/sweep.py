@@ -2,7 +2,7 @@
 
 The driver behind ``flashnav sweep run`` (the command line and ``flashnav sweep submit`` live in
 services.sweep_cli; ``python -m services.sweep run|submit ...`` is the same command line where the
-console script is missing). ``run`` is the driver: in-process Ray on this machine by default, the cluster named by ``--address`` /
+console script is missing): in-process Ray on this machine by default, the cluster named by ``--address`` /
 RAY_ADDRESS otherwise (inside ``ray job submit`` Ray sets RAY_ADDRESS). Where things go, all resolved
 to absolute paths here before anything is shipped to a worker:
 

@@ -158,9 +158,9 @@ class Distribution(Strict):
         """Whether ``value`` is a possible sample (bounds inclusive)."""
         if self.kind == "choice":
             return value in self.choice
-        if self.kind in ("int", "logint") and (isinstance(value, bool) or not isinstance(value, builtins.int)):
-            return False
         if isinstance(value, bool) or not isinstance(value, (builtins.int, float)):
+            return False
+        if self.kind in ("int", "logint") and not isinstance(value, builtins.int):
             return False
         low, high = self.args
         return low <= value <= high
