@@ -18,7 +18,9 @@ from typing import Any
 
 from ray.tune.search.optuna import OptunaSearch
 
-from services.sweep_schema import Distribution, Sweep, SweepError, sweep_to_yaml
+from services.schema_base import SweepError
+from services.search_space import Distribution
+from services.sweep_schema import Sweep, sweep_to_yaml
 
 PARAMS_KEY = "params"  # Tune config key holding the searched values; Optuna names them "params/<path>"
 

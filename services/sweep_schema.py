@@ -1,7 +1,8 @@
 """The sweep YAML: a strict pydantic schema and ``--set`` overrides.
 
 A sweep names robots x algorithms x seeds, the TrainConfig fields every trial shares (``base``,
-``overrides``, ``budget``), the Ray resources of one trial, and optionally an Optuna ``search``.
+``overrides``, ``budget``), the Ray resources of one trial, and optionally an Optuna ``search``
+(services.search_space).
 Unknown keys are errors whose message names the key's full path and the allowed names, so that a
 misspelt ``budjet`` fails at load time, not after an hour of sweeping.
 
@@ -12,7 +13,6 @@ each trial in its own directory, so a relative path would silently land in a fol
 
 from __future__ import annotations
 
-import builtins
 import re
 from pathlib import Path
 from typing import Any, Literal
@@ -21,49 +21,12 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
-ROBOTS = ("turtlebot2", "go2")
-# Objective name -> Optuna direction. Time/steps are censored (the run's total where not reached).
-OBJECTIVES = {
-    "time_to_90": "min", "time_to_95": "min", "time_to_100": "min",
-    "env_steps_to_90": "min", "env_steps_to_95": "min", "env_steps_to_100": "min",
-    "final_success_rate": "max", "best_success_rate": "max",
-}
-DISTRIBUTIONS = ("choice", "int", "logint", "loguniform", "uniform")
+from services.schema_base import ROBOTS, Strict, SweepError, known_algorithms
+from services.search_space import Search
+
 # Maps whose keys are themselves dotted config paths: `--set` treats the rest of a path as one key.
 _DOTTED_MAPS = ("overrides", "parameters")
 _PER_ALGORITHM_MAPS = ("algorithm_overrides", "algorithm_parameters")
-
-
-def _known_algorithms(names):
-    """``names`` (a list, or a dict keyed by algorithm) unchanged, or a clear error."""
-    for name in names:
-        if name not in ALGORITHMS:
-            raise ValueError(f"unknown algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")
-    return names
-
-
-class SweepError(ValueError):
-    """A sweep file that cannot be used; the message lists every problem with its key path."""
-
-
-class Strict(BaseModel):
-    """Base: unknown keys are errors that name the allowed keys."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _known_keys(cls, data: Any) -> Any:
-        # Checked here rather than by extra="forbid" alone so the message can list the allowed names.
-        if isinstance(data, dict):
-            allowed = sorted(cls.model_fields)
-            for key in data:
-                if key not in cls.model_fields:
-                    raise PydanticCustomError(
-                        "unknown_key", "unknown key; allowed: {allowed}", {"key": str(key), "allowed": ", ".join(allowed)}
-                    )
-        return data
 
 
 class Budget(Strict):
@@ -125,104 +88,6 @@ class BaseConfig(BaseModel):
         return data
 
 
-class Distribution(Strict):
-    """One search distribution, written ``{int: [2, 16]}`` (bounds inclusive), ``{choice: [...]}``, ..."""
-
-    # builtins.int: a field named `int` shadows the builtin inside the class body.
-    choice: list[Any] | None = None
-    int: tuple[builtins.int, builtins.int] | None = None
-    logint: tuple[builtins.int, builtins.int] | None = None
-    uniform: tuple[float, float] | None = None
-    loguniform: tuple[float, float] | None = None
-
-    @model_validator(mode="after")
-    def _exactly_one(self) -> "Distribution":
-        given = [name for name in DISTRIBUTIONS if getattr(self, name) is not None]
-        if len(given) != 1:
-            raise ValueError(f"give exactly one distribution; allowed: {', '.join(DISTRIBUTIONS)}")
-        kind = given[0]
-        value = getattr(self, kind)
-        if kind == "choice" and not value:
-            raise ValueError("choice needs at least one value")
-        if kind != "choice" and not value[0] < value[1]:
-            raise ValueError(f"{kind} bounds must be [low, high] with low < high, got {list(value)}")
-        if kind.startswith("log") and value[0] <= 0:
-            raise ValueError(f"{kind} bounds must be > 0, got {list(value)}")
-        return self
-
-    @property
-    def kind(self) -> str:
-        return next(name for name in DISTRIBUTIONS if getattr(self, name) is not None)
-
-    def contains(self, value: Any) -> bool:
-        """Whether ``value`` is a possible sample (bounds inclusive)."""
-        if self.kind == "choice":
-            return value in self.choice
-        if isinstance(value, bool) or not isinstance(value, (builtins.int, float)):
-            return False
-        if self.kind in ("int", "logint") and not isinstance(value, builtins.int):
-            return False
-        low, high = self.args
-        return low <= value <= high
-
-    @property
-    def args(self) -> Any:
-        return getattr(self, self.kind)
-
-
-class Search(Strict):
-    """Optuna search: one study per (robot, algorithm); each trial runs ``seeds_per_trial`` seeds."""
-
-    n_trials: int = Field(gt=0, description="trials per (robot, algorithm) study")
-    objective: str = Field("time_to_90", description="per-seed metric averaged over the trial's seeds")
-    seeds_per_trial: int = Field(1, gt=0, description="the first k of the sweep's seeds, the same for every trial")
-    unreached_penalty: float = Field(0.0, ge=0, description="added to a censored objective where not reached")
-    study_name: str | None = Field(None, description="default: <sweep>-<robot>-<algorithm>-<invocation stamp>")
-    storage: str | None = Field(None, description="Optuna RDB URL; default sqlite:///<runs>/optuna.db")
-    sampler_seed: int | None = None
-    best_seeds: int = Field(10, gt=0, description="seeds of the best-config sweep YAML written at the end")
-    parameters: dict[str, Distribution] = Field(default_factory=dict, description="config path -> distribution")
-    algorithm_parameters: dict[str, dict[str, Distribution]] = Field(default_factory=dict)
-    start_points: list[dict[str, Any]] = Field(
-        default_factory=list, description="trials run first, in order (e.g. the current recipe, a baseline "
-        "inside the study): config path -> value, each inside its distribution; unnamed paths are sampled")
-
-    @field_validator("objective")
-    @classmethod
-    def _objective(cls, value: str) -> str:
-        if value not in OBJECTIVES:
-            raise ValueError(f"unknown objective {value!r}; allowed: {', '.join(OBJECTIVES)}")
-        return value
-
-    @field_validator("algorithm_parameters")
-    @classmethod
-    def _algorithms(cls, value: dict) -> dict:
-        return _known_algorithms(value)
-
-    @model_validator(mode="after")
-    def _start_points_in_space(self) -> "Search":
-        known = dict(self.parameters)
-        for space in self.algorithm_parameters.values():
-            known.update(space)
-        for i, point in enumerate(self.start_points):
-            for path, value in point.items():
-                if path not in known:
-                    raise ValueError(f"start_points[{i}]: {path!r} is not a searched parameter; "
-                                     f"searched: {', '.join(known) or 'none'}")
-                if not known[path].contains(value):
-                    raise ValueError(f"start_points[{i}]: {path}={value!r} lies outside its distribution "
-                                     f"{{{known[path].kind}: {list(known[path].args)}}}")
-        return self
-
-    @property
-    def mode(self) -> str:
-        return OBJECTIVES[self.objective]
-
-    def space_for(self, algorithm: str) -> dict[str, Distribution]:
-        """The distributions that apply to ``algorithm`` (shared ones plus its own)."""
-        return {**self.parameters, **self.algorithm_parameters.get(algorithm, {})}
-
-
 class Resources(Strict):
     cpu: float = Field(1.0, gt=0, description="CPUs per trial")
     gpu: float = Field(0.0, ge=0, description="GPUs per trial; 0 = the trial trains on CPU even on a GPU host")
@@ -275,12 +140,12 @@ class Sweep(Strict):
     @field_validator("algorithms")
     @classmethod
     def _algorithms(cls, value: list[str]) -> list[str]:
-        return _known_algorithms(value)
+        return known_algorithms(value)
 
     @field_validator("algorithm_overrides")
     @classmethod
     def _override_algorithms(cls, value: dict) -> dict:
-        return _known_algorithms(value)
+        return known_algorithms(value)
 
     @field_validator("seeds")
     @classmethod

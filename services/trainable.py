@@ -29,7 +29,8 @@ from typing import Any, Callable
 import yaml
 
 from services import device as devices
-from services.sweep_schema import Search, Sweep
+from services.search_space import Search
+from services.sweep_schema import Sweep
 
 THRESHOLDS = ((0.9, "90"), (0.95, "95"), (1.0, "100"))
 CURVE_KEYS = ("success_rate", "mean_return", "train_seconds", "env_steps", "collision_rate", "timeout_rate")
