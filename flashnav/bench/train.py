@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from flashnav.learn.config import THRESHOLDS
+from flashnav.learn.progress import TrainProgress
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -57,7 +58,9 @@ def run_bench_train(args) -> int:
                 ns = argparse.Namespace(config=None, robot=robot, algorithm=algo, recipe=args.recipe,
                                         device=args.device, map=None, seed=seed, sequential=False,
                                         overrides=list(args.overrides) + [f"budget.max_train_seconds={args.budget_seconds}"])
-                result = train(build_config(ns))
+                with TrainProgress(console, label=f"{robot} {algo} seed {seed}", eval_lines=False,
+                                   transient=True) as progress:
+                    result = train(build_config(ns), on_eval=progress.on_eval, on_progress=progress.on_progress)
                 r = result.to_dict()
                 r.pop("config")
                 r.update(robot=robot, algorithm=algo, seed=seed, recipe=result.config["recipe"])

@@ -10,11 +10,11 @@ from typing import Any
 
 import yaml
 from rich.console import Console
-from rich.live import Live
 from rich.table import Table
 
 from flashnav.config import dump_yaml
 from flashnav.learn.config import THRESHOLDS, TrainConfig
+from flashnav.learn.progress import TrainProgress
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -60,17 +60,6 @@ def build_config(args) -> TrainConfig:
     return TrainConfig.model_validate(data)
 
 
-def _status(progress: dict, thresholds: dict) -> Table:
-    t = Table.grid(padding=(0, 2))
-    ev = progress.get("last_eval") or {}
-    rate = f"{ev['success_rate']:.1%}" if ev else "-"
-    reached = ", ".join(f"{int(k * 100)}% @ {v:.1f}s" for k, v in thresholds.items() if v is not None) or "-"
-    t.add_row(f"env steps [bold]{progress.get('env_steps', 0):,}[/]",
-              f"train time [bold]{progress.get('train_seconds', 0.0):.1f} s[/]",
-              f"last success [bold]{rate}[/]", f"reached {reached}")
-    return t
-
-
 def run_train(args) -> int:
     from flashnav.learn.loop import train
 
@@ -81,23 +70,8 @@ def run_train(args) -> int:
     out = Path(args.out or f"runs/train/{robot_name}-{config.algorithm}-s{config.seed}-{stamp}")
     out.mkdir(parents=True, exist_ok=True)
     console.print(f"[bold]flashnav train[/] {robot_name} / {config.algorithm}, seed {config.seed} -> {out}")
-    thresholds: dict[float, float | None] = {t: None for t in THRESHOLDS}
-    state: dict = {}
-
-    with Live(_status(state, thresholds), console=console, refresh_per_second=4, transient=False) as live:
-        def on_progress(p: dict) -> None:
-            state.update(p)
-            live.update(_status(state, thresholds))
-
-        def on_eval(m: dict) -> None:
-            for t in THRESHOLDS:
-                if thresholds[t] is None and m["success_rate"] >= t - 1e-9:
-                    thresholds[t] = m["train_seconds"]
-            live.console.print(f"eval {m['eval_index']:3d} {m['env_steps']:>9,} steps {m['train_seconds']:6.1f} s  "
-                               f"success {m['success_rate']:6.1%} collision {m['collision_rate']:5.1%} "
-                               f"return {m['mean_return']:6.2f}", soft_wrap=True)
-
-        result = train(config, on_eval=on_eval, on_progress=on_progress)
+    with TrainProgress(console) as progress:
+        result = train(config, on_eval=progress.on_eval, on_progress=progress.on_progress)
 
     _write_artefacts(result, out)
     _summary(console, result, out)

@@ -1,0 +1,61 @@
+"""A live status line for a training run, shared by ``flashnav train`` and ``flashnav bench train``."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from flashnav.learn.config import THRESHOLDS
+
+
+class TrainProgress:
+    """Context manager: pass ``on_eval`` / ``on_progress`` to ``flashnav.train``.
+
+    Shows env steps, training seconds, the last success rate and the thresholds reached so far. With
+    ``eval_lines`` every evaluation also prints a line; otherwise only a threshold's first crossing does.
+    """
+
+    def __init__(self, console: Console, *, label: str = "", eval_lines: bool = True, transient: bool = False):
+        self.console, self.label, self.eval_lines = console, label, eval_lines
+        self.thresholds: dict[float, float | None] = {t: None for t in THRESHOLDS}
+        self.state: dict = {}
+        self._live = Live(self._render(), console=console, refresh_per_second=4, transient=transient)
+
+    def __enter__(self) -> "TrainProgress":
+        self._live.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._live.__exit__(*exc)
+
+    def _render(self) -> Table:
+        t = Table.grid(padding=(0, 2))
+        ev = self.state.get("last_eval") or {}
+        rate = f"{ev['success_rate']:.1%}" if ev else "-"
+        reached = ", ".join(f"{int(k * 100)}% @ {v:.1f}s" for k, v in self.thresholds.items() if v is not None) or "-"
+        cells = [f"env steps [bold]{self.state.get('env_steps', 0):,}[/]",
+                 f"train time [bold]{self.state.get('train_seconds', 0.0):.1f} s[/]",
+                 f"last success [bold]{rate}[/]", f"reached {reached}"]
+        t.add_row(*([self.label] if self.label else []), *cells)
+        return t
+
+    def on_progress(self, progress: dict) -> None:
+        self.state.update(progress)
+        self._live.update(self._render())
+
+    def on_eval(self, m: dict) -> None:
+        self.state["last_eval"] = m
+        prefix = f"{self.label} " if self.label else ""
+        for t in THRESHOLDS:
+            if self.thresholds[t] is None and m["success_rate"] >= t - 1e-9:
+                self.thresholds[t] = m["train_seconds"]
+                if not self.eval_lines:
+                    self._live.console.print(f"{prefix}{int(t * 100)}% success at {m['train_seconds']:.1f} s "
+                                             f"({m['env_steps']:,} env steps)", soft_wrap=True)
+        if self.eval_lines:
+            self._live.console.print(f"{prefix}eval {m['eval_index']:3d} {m['env_steps']:>9,} steps "
+                                     f"{m['train_seconds']:6.1f} s  success {m['success_rate']:6.1%} "
+                                     f"collision {m['collision_rate']:5.1%} return {m['mean_return']:6.2f}",
+                                     soft_wrap=True)
+        self._live.update(self._render())

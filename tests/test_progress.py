@@ -1,0 +1,44 @@
+"""The live training status shared by ``flashnav train`` and ``flashnav bench train``."""
+
+from __future__ import annotations
+
+import io
+
+from rich.console import Console
+
+from flashnav.learn.progress import TrainProgress
+
+
+def _eval(i, rate, seconds):
+    return {"eval_index": i, "env_steps": 1000 * (i + 1), "train_seconds": seconds, "success_rate": rate,
+            "collision_rate": 0.0, "mean_return": 1.0}
+
+
+def _feed(progress, rates):
+    for i, rate in enumerate(rates):
+        progress.on_progress({"env_steps": 1000 * (i + 1), "train_seconds": 10.0 * (i + 1)})
+        progress.on_eval(_eval(i, rate, 10.0 * (i + 1)))
+
+
+def test_thresholds_are_first_crossings():
+    console = Console(file=io.StringIO(), width=200)
+    with TrainProgress(console, eval_lines=False) as progress:
+        _feed(progress, [0.5, 0.92, 0.89, 0.96, 1.0, 1.0])
+    assert progress.thresholds == {0.9: 20.0, 0.95: 40.0, 1.0: 50.0}
+
+
+def test_bench_mode_prints_only_threshold_crossings():
+    console = Console(file=io.StringIO(), width=200)
+    with TrainProgress(console, label="tb2 dsac seed 1", eval_lines=False, transient=True) as progress:
+        _feed(progress, [0.5, 0.92, 0.93])
+    out = console.file.getvalue()
+    assert "tb2 dsac seed 1 90% success at 20.0 s (2,000 env steps)" in out
+    assert "eval " not in out and "95%" not in out
+
+
+def test_train_mode_prints_every_evaluation():
+    console = Console(file=io.StringIO(), width=200)
+    with TrainProgress(console) as progress:
+        _feed(progress, [0.5, 0.92, 0.93])
+    lines = [line for line in console.file.getvalue().splitlines() if line.startswith("eval ")]
+    assert len(lines) == 3 and "success  93.0%" in lines[-1]
