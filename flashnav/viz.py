@@ -39,3 +39,40 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
+                       thresholds: tuple[float, ...] = (0.9, 0.95, 1.0)) -> Path:
+    """Save a PNG of evaluation success against training seconds, one line per run (``bench train``
+    JSON records: ``robot``, ``algorithm``, ``seed`` and ``curve``), one panel per robot x algorithm,
+    with each run's first crossing of ``thresholds`` marked."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r.get("robot", "?"), r.get("algorithm", "?")), []).append(r)
+    if not groups:
+        raise ValueError("no runs to plot")
+    fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False, sharey=True)
+    for ax, ((robot, algo), members) in zip(axes[0], groups.items()):
+        for r in members:
+            t = [p["train_seconds"] for p in r["curve"]]
+            s = [100 * p["success_rate"] for p in r["curve"]]
+            (line,) = ax.plot(t, s, lw=1.2, label=f"seed {r.get('seed', '?')}")
+            for th in thresholds:
+                hit = r.get("time_to_threshold", {}).get(str(th))
+                if hit is not None:
+                    ax.plot([hit], [100 * th], "o", ms=4, color=line.get_color())
+        for th in thresholds:
+            ax.axhline(100 * th, color="grey", lw=0.6, ls=":")
+        ax.set_title(f"{robot} {algo}")
+        ax.set_xlabel("training seconds (collection + learning)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    axes[0][0].set_ylabel("evaluation success (%)")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out

@@ -30,7 +30,7 @@ def test_summarise_counts_only_seeds_that_reached():
 def test_bench_train_command_writes_every_run(tmp_path, capsys):
     out = tmp_path / "bench.json"
     code = cli_main(["bench", "train", "--seeds", "2", "--recipe", "cpu", "--device", "cpu", "--budget-seconds", "1",
-                     "--json", str(out), "algo.num_envs=32", "algo.learning_start=64", "algo.updates_per_step=2",
+                     "--json", str(out), "--plot", str(tmp_path / "curves.png"), "algo.num_envs=32", "algo.learning_start=64", "algo.updates_per_step=2",
                      "algo.batch_size=64", "algo.eval_every=2", "eval.episodes=8", "budget.max_env_steps=256"])
     assert code == 0
     data = json.loads(out.read_text())
@@ -39,3 +39,27 @@ def test_bench_train_command_writes_every_run(tmp_path, capsys):
     (robot, algo, recipe, device, summary), = data["groups"]
     assert (robot, algo, recipe) == ("turtlebot2", "fastdsac", "cpu") and summary["runs"] == 2
     assert "turtlebot2 fastdsac seed 1: 90% at" in capsys.readouterr().out
+    assert (tmp_path / "curves.png").stat().st_size > 0
+
+
+def _curve_run(seed, rates, t90=None):
+    return {"robot": "turtlebot2", "algorithm": "fastdsac", "seed": seed,
+            "time_to_threshold": {"0.9": t90, "0.95": None, "1.0": None},
+            "curve": [{"train_seconds": 10.0 * i, "success_rate": r} for i, r in enumerate(rates)]}
+
+
+def test_bench_plot_redraws_a_saved_json(tmp_path):
+    src = tmp_path / "bench.json"
+    src.write_text(json.dumps({"date": "2026-11-23 10:00",
+                               "runs": [_curve_run(0, [0.0, 0.5, 0.95], t90=20.0), _curve_run(1, [0.0, 0.2, 0.4])]}))
+    png = tmp_path / "fig" / "curves.png"
+    assert cli_main(["bench", "plot", str(src), "--out", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+
+
+def test_bench_plot_names_a_bad_file(tmp_path, capsys):
+    bad = tmp_path / "sim.json"
+    bad.write_text(json.dumps({"rows": []}))
+    assert cli_main(["bench", "plot", str(bad), "--out", str(tmp_path / "x.png")]) == 2
+    assert "sim.json is not a `flashnav bench train --json` file" in capsys.readouterr().out
+    assert not (tmp_path / "x.png").exists()

@@ -23,8 +23,13 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..S-1")
     p.add_argument("--budget-seconds", type=float, default=600.0, help="training-clock budget per run")
     p.add_argument("--json", metavar="FILE", help="write every run's metrics")
+    p.add_argument("--plot", metavar="PNG", help="draw success against training seconds, one line per seed")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="as for flashnav train")
     p.set_defaults(func=run_bench_train)
+    q = bsub.add_parser("plot", help="redraw the success curves of a `bench train --json` file")
+    q.add_argument("json_file", metavar="JSON", help="written by flashnav bench train --json")
+    q.add_argument("--out", required=True, metavar="PNG")
+    q.set_defaults(func=run_bench_plot)
 
 
 def summarise(runs: list[dict]) -> dict:
@@ -73,6 +78,31 @@ def run_bench_train(args) -> int:
             groups.append((robot, algo, runs[0]["recipe"], runs[0]["device_name"], summarise(runs)))
             _save(args.json, when, groups, results)
     _print(console, groups, args.seeds, when)
+    if args.plot:
+        from flashnav.viz import plot_training_runs
+
+        console.print(f"success curves: {plot_training_runs(results, args.plot, _plot_title(when, args.budget_seconds))}")
+    return 0
+
+
+def _plot_title(when: str, budget_seconds: float | None) -> str:
+    budget = "" if budget_seconds is None else f", budget {budget_seconds:g} s per run"
+    return f"flashnav bench train {when}{budget}; dots: first 90/95/100 % crossing"
+
+
+def run_bench_plot(args) -> int:
+    from flashnav.viz import plot_training_runs
+
+    try:
+        with open(args.json_file, encoding="utf-8") as f:
+            data = json.load(f)
+        runs = data["runs"]
+        if not runs or not all("curve" in r for r in runs):
+            raise KeyError("curve")
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
+        print(f"flashnav bench plot: {args.json_file} is not a `flashnav bench train --json` file ({e})")
+        return 2
+    print(f"success curves: {plot_training_runs(runs, args.out, _plot_title(data.get('date', '?'), None))}")
     return 0
 
 
