@@ -110,7 +110,7 @@ def test_fastdsac_learns_to_navigate_a_small_map(easy_map):
     config = TrainConfig(map=easy_map, device="cpu", recipe="cpu", seed=0,
                          # the cpu recipe's first guess, pinned: this test's env-step budget was set with it
                          overrides={"robot.episode.max_goal_distance": 3.0, "algo.updates_per_step": 8,
-                                    "algo.temperature": 2.0},
+                                    "algo.temperature": 2.0, "algo.batch_size": 256, "algo.gamma": 0.97},
                          budget={"max_env_steps": 160_000, "stop_at_success": 0.8, "max_train_seconds": 1e9},
                          eval={"episodes": 128, "every": 40})
     result = train(config)
