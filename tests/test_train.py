@@ -117,3 +117,23 @@ def test_fastdsac_learns_to_navigate_a_small_map(easy_map):
     rates = [c["success_rate"] for c in result.curve]
     assert rates[0] < 0.2, rates
     assert max(rates) >= 0.8, rates
+
+
+def test_overlapped_cpu_learner_runs_on_one_thread_from_the_first_run():
+    """The learner owns one core and the collector the other, also in a fresh process's first run,
+    where the first numba parallel kernel starts its OpenMP pool and resets torch's thread count."""
+    import subprocess
+    import sys
+
+    code = ("import torch, json; from flashnav import train; from flashnav.learn.config import TrainConfig\n"
+            "seen = []\n"
+            f"cfg = TrainConfig.model_validate(dict(device='cpu', recipe='cpu', overrides={TINY!r},\n"
+            "    budget={'max_env_steps': 256, 'stop_at_success': None}, eval={'episodes': 8}))\n"
+            "r = train(cfg, on_progress=lambda m: seen.append(torch.get_num_threads()))\n"
+            "print(json.dumps({'during': sorted(set(seen)), 'name': r.device_name, 'after': torch.get_num_threads()}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**__import__("os").environ, "OMP_NUM_THREADS": "2"})
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["during"] == [1] and got["name"].endswith("(1 threads)"), got
+    assert got["after"] == 2, got  # restored for the caller

@@ -126,23 +126,26 @@ def train(config: TrainConfig | None = None, *, on_eval: Callable[[dict], bool |
     config = config or TrainConfig()
     preset, hp, device, recipe = _resolve(config)
     threads_before = torch.get_num_threads()
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    elif config.overlap and device == "cpu":
-        torch.set_num_threads(1)  # one core for the learner, the other for the collector thread
+    # one core for the learner, the other for the collector thread
+    threads = config.threads or (1 if config.overlap and device == "cpu" else None)
     try:
-        return _train(config, preset, hp, device, on_eval, on_progress)
+        return _train(config, preset, hp, device, on_eval, on_progress, threads)
     finally:
         torch.set_num_threads(threads_before)
 
 
-def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress) -> TrainResult:
+def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress, threads: int | None) -> TrainResult:
     dev = torch.device(device)
     torch.manual_seed(config.seed)
     grid = resolve_map(config.map, preset.map)
     env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster)
     eval_env = NavVecEnv(preset, config.eval.episodes, grid=grid, device=dev, seed=config.eval.seed,
                          raycaster=config.raycaster)
+    if threads:
+        # After the environments exist: the first numba parallel kernel of a process starts its
+        # OpenMP pool, which resets the thread count torch shares with it (the first run of every
+        # process used to learn on 2 threads, competing with the collector for the same cores).
+        torch.set_num_threads(threads)
     learner = make_learner(config.algorithm, hp, ObsLayout.from_robot(preset), 2, hp.num_envs, dev, config.seed)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
 
