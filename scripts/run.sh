@@ -9,7 +9,7 @@ if [ "$#" -gt 0 ]; then
   exec .venv/bin/flashnav "$@"
 fi
 out=runs/main
-# Without a GPU the CPU recipe needs ~2 min of training for 95 % and then creeps towards 100 % (see
+# Without a GPU the CPU recipe needs ~2-4 min of training for 95 % and then creeps towards 100 % (see
 # docs/benchmarks.md): the demo stops at 95 % there so that a newcomer waits minutes, not the budget.
 stop=()
 if ! (command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1); then
