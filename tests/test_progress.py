@@ -42,3 +42,13 @@ def test_train_mode_prints_every_evaluation():
         _feed(progress, [0.5, 0.92, 0.93])
     lines = [line for line in console.file.getvalue().splitlines() if line.startswith("eval ")]
     assert len(lines) == 3 and "success  93.0%" in lines[-1]
+
+
+def test_final_status_ends_its_line_in_a_log_file():
+    # Off a terminal rich writes the last status without a line end; what follows must not share it.
+    console = Console(file=io.StringIO(), width=200)
+    with TrainProgress(console) as progress:
+        _feed(progress, [0.5])
+    console.print("SUMMARY")
+    lines = console.file.getvalue().splitlines()
+    assert lines[-1] == "SUMMARY" and lines[-2].startswith("env steps 1,000"), lines

@@ -74,11 +74,9 @@ class TrainResult:
 
 def device_name(device: str) -> str:
     """The platform as reports show it: the GPU's name, or the CPU model and thread count."""
-    if device.startswith("cuda"):
-        return torch.cuda.get_device_name(torch.device(device))
-    from flashnav.bench.sim import cpu_model
+    from flashnav.bench.sim import machine_description
 
-    return f"{cpu_model()} ({torch.get_num_threads()} threads)"
+    return machine_description(device)
 
 
 class _Timer:

@@ -28,6 +28,9 @@ class TrainProgress:
 
     def __exit__(self, *exc) -> None:
         self._live.__exit__(*exc)
+        if not self.console.is_terminal and not self._live.transient:
+            # Off a terminal (a log file, CI) rich leaves the final status without a line end.
+            self.console.line()
 
     def _render(self) -> Table:
         t = Table.grid(padding=(0, 2))
