@@ -29,6 +29,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     from flashnav.bench import evaluation as bench_eval
 
     bench_eval.register_cli(bsub)
+    from flashnav.bench import update as bench_update
+
+    bench_update.register_cli(bsub)
     try:
         from flashnav.bench import train as bench_train
     except ImportError:

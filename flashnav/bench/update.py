@@ -1,0 +1,172 @@
+"""``flashnav bench update``: milliseconds per learner update, eager against ``torch.compile``, in one run.
+
+The learner update (critic step, actor/temperature step every ``policy_frequency``-th, Polyak) is the
+learning side of the paper's cycle. This bench times it on fixed random batches of the recipe's batch
+size, once per way: ``eager`` (what ``flashnav train`` runs) and each ``torch.compile`` mode named,
+applied to the actor, the twin critic and its target (the networks; noise draws, losses and the
+optimiser stay eager). Every way starts from the same seed and the same batches; each reports its
+warm-up seconds (compilation, which a training clock would pay) apart from the timed updates, and its
+speed as a ratio to eager. Use it to decide whether compiling pays on a machine before turning it on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import time
+
+from rich.console import Console
+from rich.table import Table
+
+#: ``--ways`` values: eager, or a torch.compile mode ("default" is torch's default mode).
+WAYS = ("eager", "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+
+
+def register_cli(bsub: argparse._SubParsersAction) -> None:
+    p = bsub.add_parser("update", help="ms per learner update: eager vs torch.compile modes")
+    p.add_argument("--robot", default="turtlebot2")
+    p.add_argument("--algo", default="fastdsac", choices=["fastdsac", "fastsac", "fasttd3"])
+    p.add_argument("--recipe", default="auto", choices=["auto", "paper", "cpu"])
+    p.add_argument("--device", default="auto")
+    p.add_argument("--ways", default="eager,default", help=f"comma-separated, from {', '.join(WAYS)}")
+    p.add_argument("--seconds", type=float, default=10.0, help="timed seconds per way (after warm-up)")
+    p.add_argument("--warmup", type=int, default=24, help="untimed updates per way (compilation happens here)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch threads on a CPU (1: the learner's share of a 2-core overlapped run)")
+    p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    p.add_argument("overrides", nargs="*", metavar="key=value",
+                   help="hyperparameter overrides, e.g. batch_size=256 (an algo. prefix is accepted)")
+    p.set_defaults(func=run_bench_update)
+
+
+def parse_ways(text: str) -> list[str]:
+    ways = [w.strip() for w in text.split(",") if w.strip()]
+    bad = [w for w in ways if w not in WAYS]
+    if bad or not ways:
+        raise ValueError(f"--ways: unknown {', '.join(bad) or '(empty)'}; use some of {', '.join(WAYS)}")
+    return ways
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """``["batch_size=256", "algo.gamma=0.99"]`` -> hyperparameter overrides (``algo.`` optional)."""
+    import yaml
+
+    out = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"override {item!r} is not key=value")
+        out[key.removeprefix("algo.")] = yaml.safe_load(raw)
+    return out
+
+
+def compile_networks(learner, way: str) -> None:
+    """``torch.compile`` the learner's actor, twin critic and target critic in mode ``way`` (in place;
+    nothing for ``"eager"``)."""
+    if way not in WAYS:
+        raise ValueError(f"unknown way {way!r}: use one of {', '.join(WAYS)}")
+    if way == "eager":
+        return
+    s = learner.state
+    for module in (s.actor, s.critic, s.critic_target):
+        module.compile(mode=None if way == "default" else way, dynamic=False)
+
+
+def random_batches(obs_dim: int, batch_size: int, device, seed: int, n: int) -> list:
+    """``n`` fixed random :class:`~flashnav.learn.replay.Transition` batches ``[batch_size, ...]``
+    (observations positive, like ranges in metres; 5 % terminal), the same for the same seed."""
+    import torch
+
+    from flashnav.learn.replay import Transition
+
+    gen = torch.Generator().manual_seed(seed)
+    batches = []
+    for _ in range(n):
+        obs = torch.rand(batch_size, obs_dim, generator=gen) * 3.0 + 0.3
+        fields = (obs, torch.rand(batch_size, 2, generator=gen) * 2 - 1, torch.randn(batch_size, generator=gen),
+                  (torch.rand(batch_size, generator=gen) < 0.05).float(), obs + 0.01)
+        batches.append(Transition(*(t.to(device) for t in fields)))
+    return batches
+
+
+def time_updates(algo: str, robot: str, recipe: str, device: str, way: str, *, seconds: float, warmup: int,
+                 overrides: dict | None = None, seed: int = 0, num_batches: int = 8) -> dict:
+    """Build a learner (``seed``), compile its networks unless ``way == "eager"``, run ``warmup``
+    updates, then time whole updates for at least ``seconds`` (device synchronised at both ends).
+
+    Returns ``{"way", "batch_size", "warmup_s", "updates", "ms_per_update"}``."""
+    import torch
+
+    from flashnav.learn.hparams import load_hparams
+    from flashnav.learn.learners import make_learner
+    from flashnav.learn.networks import ObsLayout
+    from flashnav.presets import load_robot
+
+    preset = load_robot(robot)
+    hp = load_hparams(algo, robot, recipe, overrides)
+    layout = ObsLayout.from_robot(preset)
+    learner = make_learner(algo, hp, layout, 2, hp.num_envs, device, seed)
+    compile_networks(learner, way)
+    batches = random_batches(layout.obs_dim, hp.batch_size, device, seed, num_batches)
+
+    def sync():
+        if str(device).startswith("cuda"):
+            torch.cuda.synchronize(device)
+
+    start = time.perf_counter()
+    for i in range(warmup):
+        learner.update(batches[i % num_batches])
+    sync()
+    warmup_s = time.perf_counter() - start
+    updates, start = 0, time.perf_counter()
+    while True:
+        for batch in batches:
+            learner.update(batch)
+        updates += num_batches
+        sync()
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds:
+            break
+    return {"way": way, "batch_size": hp.batch_size, "warmup_s": warmup_s, "updates": updates,
+            "ms_per_update": 1000.0 * elapsed / updates}
+
+
+def run_bench_update(args) -> int:
+    import torch
+
+    from flashnav.bench.sim import machine_description
+    from flashnav.learn.config import resolve_device, resolve_recipe
+
+    ways = parse_ways(args.ways)
+    if args.seconds <= 0 or args.warmup < 1 or args.threads < 1:
+        raise ValueError("--seconds must be > 0, --warmup >= 1 and --threads >= 1")
+    device = resolve_device(args.device)
+    recipe = resolve_recipe(args.recipe, device)
+    if device == "cpu":
+        torch.set_num_threads(args.threads)
+    overrides = parse_overrides(args.overrides)
+    console = Console()
+    machine, when = machine_description(device), dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    console.print(f"[bold]flashnav bench update[/] {when} on {machine}: {args.robot} / {args.algo} / "
+                  f"recipe {recipe}, >= {args.seconds:g} s per way after {args.warmup} warm-up updates")
+    rows = []
+    for way in ways:
+        row = time_updates(args.algo, args.robot, recipe, device, way, seconds=args.seconds,
+                           warmup=args.warmup, overrides=overrides)
+        rows.append(row)
+        console.print(f"  {way:28s} {row['ms_per_update']:8.2f} ms/update (warm-up {row['warmup_s']:.1f} s)")
+    base = next((r["ms_per_update"] for r in rows if r["way"] == "eager"), rows[0]["ms_per_update"])
+    t = Table(title=f"learner update, batch {rows[0]['batch_size']}, device {device}")
+    for col in ("way", "ms / update", "speed vs " + ("eager" if any(r["way"] == "eager" for r in rows) else rows[0]["way"]),
+                "warm-up s", "updates timed"):
+        t.add_column(col, justify="right")
+    for r in rows:
+        t.add_row(r["way"], f"{r['ms_per_update']:.2f}", f"{base / r['ms_per_update']:.2f}x", f"{r['warmup_s']:.1f}",
+                  f"{r['updates']:,}")
+    console.print(t)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump({"machine": machine, "date": when, "robot": args.robot, "algo": args.algo, "recipe": recipe,
+                       "device": device, "rows": rows}, f, indent=2)
+    return 0

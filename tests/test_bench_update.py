@@ -1,0 +1,65 @@
+"""``flashnav bench update``: eager vs torch.compile learner updates, timed side by side."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from flashnav.bench.update import compile_networks, parse_ways, random_batches, time_updates
+from flashnav.cli import main as cli_main
+from flashnav.learn.hparams import load_hparams
+from flashnav.learn.learners import make_learner
+from flashnav.learn.networks import ObsLayout
+from flashnav.presets import load_robot
+
+
+def test_ways_name_the_bad_one():
+    assert parse_ways("eager, default") == ["eager", "default"]
+    with pytest.raises(ValueError, match="unknown fast"):
+        parse_ways("eager,fast")
+
+
+def test_time_updates_counts_whole_updates():
+    row = time_updates("fastsac", "turtlebot2", "cpu", "cpu", "eager", seconds=0.2, warmup=2,
+                       overrides={"batch_size": 32})
+    assert row["way"] == "eager" and row["batch_size"] == 32
+    assert row["updates"] >= 8 and row["updates"] % 8 == 0 and row["ms_per_update"] > 0
+
+
+def _learner(way):
+    hp = load_hparams("fastdsac", "turtlebot2", "cpu", {"batch_size": 64})
+    layout = ObsLayout.from_robot(load_robot("turtlebot2"))
+    learner = make_learner("fastdsac", hp, layout, 2, hp.num_envs, "cpu", seed=3)
+    compile_networks(learner, way)
+    return learner, random_batches(layout.obs_dim, 64, "cpu", seed=5, n=4)
+
+
+def test_compiled_networks_update_like_eager_ones():
+    # The compiled way is only worth timing if it computes the same update: same seed, same batches,
+    # same losses and weights (to float rounding) after a few updates, the actor's included.
+    (eager, batches), (compiled, _) = _learner("eager"), _learner("default")
+    assert compiled.state.critic._compiled_call_impl is not None and eager.state.critic._compiled_call_impl is None
+    for batch in batches:
+        a, b = eager.update(batch), compiled.update(batch)
+        for key in ("critic_loss", "actor_loss", "alpha"):
+            assert float(b[key]) == pytest.approx(float(a[key]), rel=1e-4, abs=1e-5), key
+    for p, q in zip(eager.state.critic.parameters(), compiled.state.critic.parameters()):
+        torch.testing.assert_close(q, p, rtol=1e-4, atol=1e-5)
+    assert compiled.state.critic.state_dict().keys() == eager.state.critic.state_dict().keys()
+
+
+def test_bench_update_command_writes_rows(tmp_path, capsys):
+    out = tmp_path / "update.json"
+    code = cli_main(["bench", "update", "--ways", "eager", "--seconds", "0.2", "--warmup", "2", "--device", "cpu",
+                     "--json", str(out), "algo.batch_size=32"])
+    assert code == 0
+    data = json.loads(out.read_text())
+    assert data["recipe"] == "cpu" and [r["way"] for r in data["rows"]] == ["eager"]
+    assert "1.00x" in capsys.readouterr().out
+
+
+def test_bench_update_rejects_a_bad_way(capsys):
+    assert cli_main(["bench", "update", "--ways", "eager,turbo", "--device", "cpu"]) == 2
+    assert "unknown turbo" in capsys.readouterr().err
