@@ -35,6 +35,14 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_train)
 
 
+def split_override(item: str) -> tuple[str, Any]:
+    """``"algo.batch_size=512"`` -> ``("algo.batch_size", 512)``: the value read as YAML (safely)."""
+    key, sep, raw = item.partition("=")
+    if not sep or not key:
+        raise ValueError(f"override {item!r} is not key=value")
+    return key, yaml.safe_load(raw)
+
+
 def build_config(args) -> TrainConfig:
     data: dict[str, Any] = {}
     if args.config:
@@ -45,10 +53,7 @@ def build_config(args) -> TrainConfig:
     if args.sequential:
         data["overlap"] = False
     for item in args.overrides:
-        key, sep, raw = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"override {item!r} is not key=value")
-        value = yaml.safe_load(raw)
+        key, value = split_override(item)
         if key.startswith(("algo.", "robot.")):
             data.setdefault("overrides", {})[key] = value
         else:
