@@ -12,13 +12,43 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_core import PydanticCustomError
 
 
-class Strict(BaseModel):
-    """Base: unknown keys are errors (a misspelt key must not be silently ignored)."""
+class KnownKeys(BaseModel):
+    """Base: unknown keys are errors that name the key and the allowed names (a misspelt key must not
+    be silently ignored, and the message should say what was meant)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        # Checked here rather than by extra="forbid" alone so the message can list the allowed names.
+        if isinstance(data, dict):
+            for key in data:
+                if key not in cls.model_fields:
+                    raise PydanticCustomError("unknown_key", "unknown key; allowed: {allowed}",
+                                              {"key": str(key), "allowed": ", ".join(sorted(cls.model_fields))})
+        return data
+
+
+class Strict(KnownKeys):
+    """Base of frozen models: unknown keys are errors that list the allowed names."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def error_lines(exc: ValidationError) -> list[str]:
+    """One ``key.path: message`` per problem of a pydantic error (an unknown key's name included)."""
+    lines = []
+    for item in exc.errors():
+        loc = [str(part) for part in item["loc"]]
+        if item["type"] == "unknown_key":
+            loc.append((item.get("ctx") or {}).get("key", "?"))
+        lines.append(f"{'.'.join(loc) or '<top>'}: {item['msg'].removeprefix('Value error, ')}")
+    return lines
 
 
 class Footprint(Strict):
@@ -142,3 +172,80 @@ def load_yaml(path: str | Path) -> Any:
 def dump_yaml(data: Any, path: str | Path) -> None:
     with open(path, "w", encoding="utf-8") as f:
         yaml.safe_dump(data, f, sort_keys=False)
+
+
+# ---- dotted keys: the one setter behind every override path ---------------------------------------
+
+
+def parse_assignment(item: str, what: str = "override") -> tuple[str, Any]:
+    """``"algo.batch_size=512"`` -> ``("algo.batch_size", 512)``: the value is read as YAML, safely."""
+    key, sep, raw = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ValueError(f"{what} {item!r} is not key=value")
+    try:
+        return key, yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        problem = str(exc).splitlines()[0]
+        raise ValueError(f"{what} {item!r}: the value is not valid YAML ({problem})") from None
+
+
+def set_dotted(data: dict, dotted: str, value: Any, *, known: Any = None, create: bool = False,
+               what: str = "override") -> None:
+    """Set ``data["a"]["b"]["c"] = value`` for ``dotted = "a.b.c"``, in place.
+
+    ``known``: the names allowed at the leaf's level when it is not in ``data`` yet (a set of names,
+    or a pydantic model class whose fields are allowed at the top level); ``create``: make missing
+    sections instead of failing. An unknown name is a ValueError that names the key and suggests
+    the closest allowed names. Every override path (``flashnav train key=value``, ``--config``,
+    sweep ``--set``, preset and hyperparameter overrides) goes through here.
+    """
+    import difflib
+
+    *parents, leaf = dotted.split(".")
+    if not all(parents) or not leaf:
+        raise ValueError(f"{what} {dotted!r}: empty name in the dotted key")
+    node = data
+    for i, part in enumerate(parents):
+        child = node.get(part)
+        if child is None and create:
+            child = node[part] = {}
+        if not isinstance(child, dict):
+            where = ".".join(parents[: i + 1])
+            if child is not None:
+                raise ValueError(f"{what} {dotted!r}: {where!r} is not a section (it holds {child!r})")
+            sections = sorted(k for k, v in node.items() if isinstance(v, dict))
+            close = difflib.get_close_matches(part, sections, n=3)
+            hint = f"; did you mean {', '.join(close)}?" if close else (
+                f"; sections: {', '.join(sections)}" if sections else "")
+            raise ValueError(f"{what} {dotted!r}: no section {where!r}{hint}")
+        node = child
+    allowed = set(node)
+    if isinstance(known, type) and issubclass(known, BaseModel):
+        allowed |= _fields_at(known, parents)
+    elif known is not None:
+        allowed |= set(known)
+    if known is not None and leaf not in allowed:
+        close = difflib.get_close_matches(leaf, sorted(allowed), n=3)
+        hint = f"; did you mean {', '.join(close)}?" if close else f"; known: {', '.join(sorted(allowed))}"
+        raise ValueError(f"{what} {dotted!r}: unknown key {leaf!r}{hint}")
+    node[leaf] = value
+
+
+def _fields_at(model: type[BaseModel], path: list[str]) -> set[str]:
+    """Field names of the sub-model reached from ``model`` along ``path`` (empty if none is)."""
+    for part in path:
+        field = model.model_fields.get(part)
+        sub = getattr(field, "annotation", None)
+        if not (isinstance(sub, type) and issubclass(sub, BaseModel)):
+            return set()
+        model = sub
+    return set(model.model_fields)
+
+
+def deep_merge(base: dict, top: dict) -> dict:
+    """A new dict: ``top`` over ``base``, section by section (lists and values are replaced whole)."""
+    out = dict(base)
+    for key, value in top.items():
+        out[key] = deep_merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out

@@ -11,7 +11,7 @@ from typing import Callable
 
 import torch
 
-from flashnav.learn.config import THRESHOLDS
+from flashnav.names import THRESHOLDS
 from flashnav.sim.env import NavVecEnv
 
 

@@ -143,7 +143,8 @@ def export_policy(actor: nn.Module, preset: RobotPreset, out_dir: str | Path, on
     meta = policy_metadata(preset)
     meta_json = json.dumps(meta, indent=1)
     gen = torch.Generator().manual_seed(0)
-    example = sample_observations(preset, 8, gen)
+    goal_max = goal_distance_scale(actor, preset)
+    example = sample_observations(preset, 8, gen, goal_max)
 
     paths: dict[str, Path] = {"torchscript": out_dir / "policy.pt", "metadata": out_dir / "policy.json"}
     # torch.jit.script cannot compile IPAPRec (it reads a module-level float); tracing is exact here
@@ -159,7 +160,7 @@ def export_policy(actor: nn.Module, preset: RobotPreset, out_dir: str | Path, on
             _export_onnx(module, example, paths["onnx"], meta_json)
     paths["metadata"].write_text(meta_json + "\n", encoding="utf-8")
 
-    probe = sample_observations(preset, 64, gen)
+    probe = sample_observations(preset, 64, gen, goal_max)
     with torch.no_grad():
         expected = module(probe)[0]
     for kind in ("torchscript", "onnx"):
@@ -190,11 +191,24 @@ def _export_onnx(module: nn.Module, example: torch.Tensor, path: Path, meta_json
     onnx.save(model, str(path))
 
 
-def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+def goal_distance_scale(actor: nn.Module, preset: RobotPreset) -> float:
+    """The goal-distance scale (metres) the actor's input transform was built with: the training
+    map's diagonal. An actor without an :class:`IPAPRec` falls back to the preset's map size."""
+    from flashnav.learn.networks import IPAPRec
+
+    for module in actor.modules():
+        if isinstance(module, IPAPRec):
+            return float(1.0 / module.inv_scale[0])
+    return math.hypot(*preset.map_size)
+
+
+def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator | None = None,
+                        goal_distance_max: float | None = None) -> torch.Tensor:
     """``[n, D]`` float32 observations spread over the valid ranges (for export checks and tests).
 
     LiDAR readings are uniform in [inscribed radius, max range] with about a tenth exactly at each
-    end (the IPAPRec pole side and the no-return reading); goal distance in [0, map diagonal], goal
+    end (the IPAPRec pole side and the no-return reading); goal distance in [0, goal_distance_max]
+    (default: the diagonal of the preset's map size), goal
     angle in [-pi, pi), velocities inside the command bounds (vy = 0 for a 3-D velocity state).
     """
     s, lidar, m = preset.lidar.sectors, preset.lidar, preset.motion
@@ -204,7 +218,7 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
     pick = u(n, s)
     ranges = torch.where(pick < 0.1, torch.full_like(ranges, r_in), ranges)
     ranges = torch.where(pick > 0.9, torch.full_like(ranges, r_max), ranges)
-    dist = math.hypot(*preset.map_size) * u(n, 1)
+    dist = (goal_distance_max or math.hypot(*preset.map_size)) * u(n, 1)
     angle = math.pi * (2.0 * u(n, 1) - 1.0)
     v = m.v_bounds[0] + (m.v_bounds[1] - m.v_bounds[0]) * u(n, 1)
     w = m.w_bounds[0] + (m.w_bounds[1] - m.w_bounds[0]) * u(n, 1)

@@ -6,13 +6,9 @@ importing each other.
 
 from __future__ import annotations
 
-from typing import Any
+from flashnav.config import Strict  # noqa: F401  (the sweep schema's base: one strict model for the project)
+from flashnav.names import ALGORITHMS
 
-from pydantic import BaseModel, ConfigDict, model_validator
-from pydantic_core import PydanticCustomError
-
-ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
-ROBOTS = ("turtlebot2", "go2")
 # Objective name -> Optuna direction. Time/steps are censored (the run's total where not reached).
 OBJECTIVES = {
     "time_to_90": "min", "time_to_95": "min", "time_to_100": "min",
@@ -31,23 +27,3 @@ def known_algorithms(names):
 
 class SweepError(ValueError):
     """A sweep file that cannot be used; the message lists every problem with its key path."""
-
-
-class Strict(BaseModel):
-    """Base: unknown keys are errors that name the allowed keys."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _known_keys(cls, data: Any) -> Any:
-        # Checked here rather than by extra="forbid" alone so the message can list the allowed names.
-        if isinstance(data, dict):
-            allowed = sorted(cls.model_fields)
-            for key in data:
-                if key not in cls.model_fields:
-                    raise PydanticCustomError(
-                        "unknown_key", "unknown key; allowed: {allowed}", {"key": str(key), "allowed": ", ".join(allowed)}
-                    )
-        return data
-

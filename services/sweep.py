@@ -114,12 +114,9 @@ def make_plan(sweep: Sweep, source: str, resume: bool = False) -> Plan:
 
 
 def validate_train_configs(plan: Plan) -> None:
-    """Build every (robot, algorithm) TrainConfig in the driver so a bad key fails before Ray starts."""
-    try:
-        from flashnav.learn.config import TrainConfig
-    except ImportError:  # the library does not ship TrainConfig yet: the sweep schema is all we check
-        return
-    from pydantic import ValidationError
+    """Resolve every (robot, algorithm) run in the driver, through the library's one resolver, so a bad
+    key, a misspelt searched hyperparameter or a missing map fails before Ray starts."""
+    from flashnav.spec import config_from_data, resolve
 
     sweep = plan.sweep
     for robot in sweep.robots:
@@ -127,22 +124,12 @@ def validate_train_configs(plan: Plan) -> None:
             extra = ({p: optuna_search.first_value(d) for p, d in sweep.search.space_for(algorithm).items()}
                      if sweep.search else {})
             data = sweep.train_config(robot, algorithm, sweep.seed_list[0], "cpu", extra)
+            if data.get("recipe", "auto") == "auto":  # the trials' recipe: their device is not known here
+                data["recipe"] = "paper" if sweep.resources.gpu > 0 else "cpu"
             try:
-                config = TrainConfig.model_validate(data)
-                _check_hyperparameters(config, sweep.resources.gpu)
-            except (ValidationError, ValueError, KeyError) as exc:
-                raise SweepError(f"{plan.source}: {robot}/{algorithm}: not a valid TrainConfig:\n{exc}") from None
-
-
-def _check_hyperparameters(config, gpu: float) -> None:
-    """Resolve the ``algo.*`` overrides against the recipe's hyperparameters, where the library exposes
-    them: a misspelt searched parameter would otherwise fail every trial, one by one, on the cluster."""
-    try:
-        from flashnav.learn.hparams import load_hparams
-    except ImportError:
-        return
-    recipe = config.recipe if config.recipe != "auto" else ("paper" if gpu > 0 else "cpu")
-    load_hparams(config.algorithm, config.robot, recipe, config.algo_overrides())
+                resolve(config_from_data(data, f"{robot}/{algorithm}"))
+            except ValueError as exc:
+                raise SweepError(f"{plan.source}: {robot}/{algorithm}: not a valid training config:\n{exc}") from None
 
 
 def describe(plan: Plan) -> str:

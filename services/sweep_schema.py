@@ -1,7 +1,7 @@
 """The sweep YAML: a strict pydantic schema and ``--set`` overrides.
 
-A sweep names robots x algorithms x seeds, the TrainConfig fields every trial shares (``base``,
-``overrides``, ``budget``), the Ray resources of one trial, and optionally an Optuna ``search``
+A sweep names robots x algorithms x seeds, the TrainConfig fields every trial shares (``base``, a
+partial :class:`flashnav.spec.TrainConfig`; ``overrides``; ``budget``, TrainConfig's own Budget), the Ray resources of one trial, and optionally an Optuna ``search``
 (services.search_space).
 Unknown keys are errors whose message names the key's full path and the allowed names, so that a
 misspelt ``budjet`` fails at load time, not after an hour of sweeping.
@@ -15,13 +15,15 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from services.schema_base import ROBOTS, Strict, SweepError, known_algorithms
+from flashnav.names import ROBOTS
+from flashnav.spec import Budget, TrainConfig
+from services.schema_base import Strict, SweepError, known_algorithms
 from services.search_space import Search
 
 # Maps whose keys are themselves dotted config paths: `--set` treats the rest of a path as one key.
@@ -29,63 +31,23 @@ _DOTTED_MAPS = ("overrides", "parameters")
 _PER_ALGORITHM_MAPS = ("algorithm_overrides", "algorithm_parameters")
 
 
-class Budget(Strict):
-    """TrainConfig.budget: when a training run stops."""
-
-    max_train_seconds: float = Field(600.0, gt=0, description="training-clock budget, seconds")
-    max_env_steps: int | None = Field(None, gt=0, description="None = the recipe's total env steps")
-    stop_at_success: float | None = Field(1.0, gt=0, le=1, description="stop once an evaluation reaches it")
-
-
-class EvalSpec(Strict):
-    """TrainConfig.eval; fields left out keep TrainConfig's defaults (``every`` is the recipe's)."""
-
-    episodes: int | None = Field(None, gt=0)
-    every: int | None = Field(None, gt=0)
-    seed: int | None = None
-
-
 # TrainConfig fields a sweep sets elsewhere, and where.
 _SET_BY_SWEEP = {"robot": "robots", "algorithm": "algorithms", "seed": "seeds", "device": "resources.gpu",
                  "budget": "budget (top level)", "overrides": "overrides (top level)"}
-_DOCUMENTED_BASE = ("eval", "map", "overlap", "raycaster", "recipe", "threads")
 
 
-def _base_fields() -> list[str]:
-    """TrainConfig's fields that ``base`` may set: the library's own list where it is importable."""
-    try:
-        from flashnav.learn.config import TrainConfig
-    except ImportError:
-        return list(_DOCUMENTED_BASE)
-    return sorted(set(TrainConfig.model_fields) - set(_SET_BY_SWEEP))
-
-
-class BaseConfig(BaseModel):
-    """TrainConfig fields shared by every trial; robot, algorithm, seed and device come from the sweep.
-
-    Fields not typed here (``raycaster``, ``threads``, ``overlap``, ...) pass through to TrainConfig,
-    which the driver validates before anything runs.
-    """
-
-    model_config = ConfigDict(extra="allow", frozen=True)
-
-    recipe: Literal["paper", "cpu", "auto"] = "auto"
-    map: str | None = None
-    eval: EvalSpec = EvalSpec()
-
-    @model_validator(mode="before")
-    @classmethod
-    def _known_keys(cls, data: Any) -> Any:
-        if isinstance(data, dict):
-            allowed = _base_fields()
-            for key in data:
-                if key in _SET_BY_SWEEP:
-                    raise PydanticCustomError("unknown_key", "set by the sweep's {where}, not in base",
-                                              {"key": str(key), "where": _SET_BY_SWEEP[key]})
-                if key not in allowed:
-                    raise PydanticCustomError("unknown_key", "unknown key; allowed: {allowed}",
-                                              {"key": str(key), "allowed": ", ".join(allowed)})
-        return data
+def _base_keys(data: Any) -> Any:
+    """``base`` is a partial TrainConfig: its own fields only, minus those the sweep sets elsewhere."""
+    if isinstance(data, dict):
+        allowed = sorted(set(TrainConfig.model_fields) - set(_SET_BY_SWEEP))
+        for key in data:
+            if key in _SET_BY_SWEEP:
+                raise PydanticCustomError("unknown_key", "set by the sweep's {where}, not in base",
+                                          {"key": str(key), "where": _SET_BY_SWEEP[key]})
+            if key not in allowed:
+                raise PydanticCustomError("unknown_key", "unknown key; allowed: {allowed}",
+                                          {"key": str(key), "allowed": ", ".join(allowed)})
+    return data
 
 
 class Resources(Strict):
@@ -110,7 +72,8 @@ class Sweep(Strict):
     robots: list[str] = Field(min_length=1)
     algorithms: list[str] = Field(min_length=1)
     seeds: int | list[int] = Field(description="n (= seeds 0..n-1) or an explicit list")
-    base: BaseConfig = BaseConfig()
+    base: TrainConfig = Field(default_factory=TrainConfig,
+                              description="TrainConfig fields every trial shares (recipe, map, eval, raycaster, ...)")
     overrides: dict[str, Any] = Field(default_factory=dict, description="TrainConfig.overrides for every trial")
     algorithm_overrides: dict[str, dict[str, Any]] = Field(default_factory=dict)
     budget: Budget = Budget()
@@ -128,6 +91,16 @@ class Sweep(Strict):
         if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", value):
             raise ValueError(f"{value!r} must be letters, digits, '.', '_', '-' (it names folders and studies)")
         return value
+
+    @field_validator("base", mode="before")
+    @classmethod
+    def _base(cls, value: Any) -> Any:
+        return _base_keys(value)
+
+    @field_serializer("base")
+    def _dump_base(self, base: TrainConfig, info) -> dict[str, Any]:
+        # only what the sweep set: the trials' robot, algorithm, seed... come from the sweep itself
+        return base.model_dump(mode=info.mode, exclude_unset=True, exclude_defaults=info.exclude_defaults)
 
     @field_validator("robots")
     @classmethod
@@ -187,16 +160,13 @@ class Sweep(Strict):
     def train_config(self, robot: str, algorithm: str, seed: int, device: str, extra: dict | None = None) -> dict:
         """The TrainConfig of one training run, as the plain dict ``TrainConfig.model_validate`` takes."""
         return {
+            **self.base.model_dump(mode="json", exclude_unset=True),
             "robot": robot,
             "algorithm": algorithm,
             "seed": int(seed),
             "device": device,
-            "recipe": self.base.recipe,
-            "map": self.base.map,
-            **(self.base.model_extra or {}),
             "overrides": {**self.overrides_for(algorithm), **(extra or {})},
             "budget": self.budget.model_dump(),
-            "eval": self.base.eval.model_dump(exclude_none=True),
         }
 
 

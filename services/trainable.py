@@ -28,6 +28,7 @@ from typing import Any, Callable
 
 import yaml
 
+from flashnav.spec import config_from_data
 from services import device as devices
 from services.search_space import Search
 from services.sweep_schema import Sweep
@@ -144,7 +145,7 @@ def _write_seed(stage: Path, seed: int, result: Any, final: dict, done: dict, ex
     shutil.rmtree(seed_dir, ignore_errors=True)
     seed_dir.mkdir()
     with open(seed_dir / "config.yaml", "w", encoding="utf-8") as f:
-        yaml.safe_dump(_plain(result.config), f, sort_keys=False)
+        yaml.safe_dump(_plain(result.spec.to_dict()), f, sort_keys=False)
     write_curve_csv(list(result.curve or []), seed_dir / "curve.csv")
     with open(seed_dir / "result.json", "w", encoding="utf-8") as f:
         json.dump(_plain(result.to_dict()) if hasattr(result, "to_dict") else final, f, indent=1)
@@ -163,11 +164,9 @@ def _export_policy(result: Any, out_dir: Path) -> None:
     if learner is None:
         return
     try:
-        from flashnav.config import RobotPreset
         from flashnav.export import export_policy
 
-        preset = RobotPreset.model_validate(result.config["robot_preset"])
-        export_policy(learner.policy, preset, out_dir, onnx=False)  # ONNX: `flashnav` can convert later
+        export_policy(learner.policy, result.spec.robot, out_dir, onnx=False)  # ONNX: `flashnav` can convert later
     except Exception as exc:  # noqa: BLE001 - the run's metrics matter more than its artifact
         logger.warning("policy export failed: %s", exc)
 
@@ -186,15 +185,6 @@ def _plain(value: Any) -> Any:
 
 
 # ---------------------------------------------------------------- the trainable
-
-
-def _make_train_config(data: dict) -> Any:
-    """A TrainConfig, or the plain dict where the library does not ship TrainConfig yet (test fakes only)."""
-    try:
-        from flashnav.learn.config import TrainConfig
-    except ImportError:
-        return data
-    return TrainConfig.model_validate(data)
 
 
 def _localise(path: str | None) -> str | None:
@@ -250,7 +240,7 @@ def train_trial(config: dict, *, sweep: dict, git_commit: str = "unknown",
             if seed in done:  # trained before a retry/restore: its run is already in MLflow
                 continue
             data = spec.train_config(robot, algorithm, seed, device, extra=params)
-            data["robot"], data["map"] = _localise(data["robot"]), _localise(data["map"])
+            data["robot"], data["map"] = _localise(data["robot"]), _localise(data.get("map"))
             curve: list[dict[str, float]] = []
 
             def on_eval(metrics: dict[str, float], seed: int = seed, curve: list = curve) -> None:
@@ -261,7 +251,7 @@ def train_trial(config: dict, *, sweep: dict, git_commit: str = "unknown",
                     report["objective"] = objective.mean(finished, objective.of_curve(curve))
                 tune.report(report)  # blocks until the driver takes it; flashnav's clock is paused here
 
-            result = train_fn(_make_train_config(data), on_eval=on_eval)
+            result = train_fn(config_from_data(data, f"{robot}/{algorithm} seed {seed}"), on_eval=on_eval)
             final = final_metrics(result)
             done[seed] = final
             if objective:

@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from flashnav.bench.update import compile_networks, parse_ways, random_batches, time_updates
+from flashnav.bench.update import compile_networks, parse_ways, random_batches, run_spec, time_updates
 from flashnav.cli import main as cli_main
 from flashnav.learn.hparams import load_hparams
 from flashnav.learn.learners import make_learner
@@ -22,15 +22,15 @@ def test_ways_name_the_bad_one():
 
 
 def test_time_updates_counts_whole_updates():
-    row = time_updates("fastsac", "turtlebot2", "cpu", "cpu", "eager", seconds=0.2, warmup=2,
-                       overrides={"batch_size": 32})
+    spec = run_spec("fastsac", "turtlebot2", "cpu", "cpu", ["batch_size=32"])
+    row = time_updates(spec, "eager", seconds=0.2, warmup=2)
     assert row["way"] == "eager" and row["batch_size"] == 32
     assert row["updates"] >= 8 and row["updates"] % 8 == 0 and row["ms_per_update"] > 0
 
 
 def _learner(way):
     hp = load_hparams("fastdsac", "turtlebot2", "cpu", {"batch_size": 64})
-    layout = ObsLayout.from_robot(load_robot("turtlebot2"))
+    layout = ObsLayout.from_robot(load_robot("turtlebot2"), 10.0 * 2 ** 0.5)
     learner = make_learner("fastdsac", hp, layout, 2, hp.num_envs, "cpu", seed=3)
     compile_networks(learner, way)
     return learner, random_batches(layout.obs_dim, 64, "cpu", seed=5, n=4)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ def random_actor(preset, seed: int = 0, heads: int = 3) -> Actor:
     """An actor with random weights; the output layer is re-drawn with a large std so that actions
     cover [-1, 1] (at the training init they sit near 0 and would test little)."""
     gen = torch.Generator().manual_seed(seed)
-    actor = Actor(ObsLayout.from_robot(preset), 2, HIDDEN, heads, gen)
+    actor = Actor(ObsLayout.from_robot(preset, math.hypot(*preset.map_size)), 2, HIDDEN, heads, gen)
     with torch.no_grad():
         actor.mlp.net[-1].weight.normal_(0.0, 1.0, generator=gen)
     return actor
@@ -150,11 +151,11 @@ def learner():
 
     preset = load_robot("turtlebot2")
     hp = load_hparams("fasttd3", "turtlebot2", "cpu", {"actor_hidden": [16], "critic_hidden": [16]})
-    return make_learner("fasttd3", hp, ObsLayout.from_robot(preset), 2, 4, "cpu", seed=0)
+    return make_learner("fasttd3", hp, ObsLayout.from_robot(preset, math.hypot(*preset.map_size)), 2, 4, "cpu", seed=0)
 
 
 def test_checkpoint_round_trip(learner, tmp_path):
-    from flashnav.learn.config import TrainConfig
+    from flashnav.spec import TrainConfig
 
     config = TrainConfig(seed=3)
     path = save_checkpoint(tmp_path / "ckpt" / "last.pt", learner.state_dict(), config, {"env_steps": 4096})

@@ -6,6 +6,7 @@ import pytest
 import torch
 from torch import nn
 
+from flashnav import presets
 from flashnav.learn import networks
 from flashnav.learn.networks import (BETA_MARGIN, Actor, DeterministicActor, IPAPRec, ObsLayout, TwinCritic,
                                      bounded_log_std, dem_log_weights, gaussian_head, squashed_gaussian)
@@ -28,10 +29,10 @@ def random_obs(layout, n, seed=0, lidar_low=None):
 def test_layout_dims_and_from_robot_presets():
     assert TB2.obs_dim == 34 and GO2.obs_dim == 35
     assert GO2.goal_scale == (15.0, math.pi)
-    presets = pytest.importorskip("flashnav.presets")
     for name, dim, r_in in (("turtlebot2", 34, 0.2), ("go2", 35, 0.205)):
-        layout = ObsLayout.from_robot(presets.load_robot(name))
+        layout = ObsLayout.from_robot(presets.load_robot(name), 14.0)
         assert layout.obs_dim == dim and layout.inscribed_radius == pytest.approx(r_in)
+        assert layout.goal_scale == (14.0, math.pi)  # the map's diagonal, as given
         assert layout.velocity_scales[-1] == pytest.approx(math.pi / 4)
     with pytest.raises(ValueError):
         ObsLayout(30, 0.0, 20.0, 15.0, (0.5, 1.0))

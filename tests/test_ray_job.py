@@ -26,13 +26,6 @@ VENV_BIN = Path(sys.executable).parent
 TINY = ["--set", "budget.max_train_seconds=3", "--set", "base.eval.episodes=16", "--set", "base.eval.every=10"]
 
 
-def _train_available() -> bool:
-    try:
-        import flashnav.learn.loop  # noqa: F401
-        from flashnav.learn.config import TrainConfig  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +57,6 @@ def _runs(runs: Path, experiment: str):
             [r for r in found if r.data.tags.get("role") == "trial"])
 
 
-@pytest.mark.skipif(not _train_available(), reason="flashnav.train not implemented yet")
 def test_ray_job_submit_quickstart(head):
     runs, address = head
     job = _cli(["ray", "job", "submit", "--address", address, "--working-dir", ".", "--",

@@ -1,7 +1,7 @@
 """Whole sweeps in-process: Ray Tune + MLflow + Optuna, retry and --resume.
 
-Plumbing tests train with FAKE functions (named fake_*: they only shape a TrainResult); the test marked
-skipif at the end runs the real flashnav.train once it exists.
+Plumbing tests train with FAKE functions (named fake_*: they only shape a TrainResult); the test at the
+end runs the real flashnav.train.
 """
 
 from __future__ import annotations
@@ -31,13 +31,6 @@ SCHEMA_TAGS = {"sweep", "role", "trial_id", "robot", "algorithm", "seed", "recip
                "host", "flashnav_version", "git_commit", "torch_version"}
 
 
-def _train_available() -> bool:
-    try:
-        import flashnav.learn.loop  # noqa: F401
-        from flashnav.learn.config import TrainConfig  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 def fake_train(config, on_eval=None, *, marks: str | None = None, fail_once: bool = False, evals: int = 3):
@@ -63,7 +56,7 @@ def fake_train(config, on_eval=None, *, marks: str | None = None, fail_once: boo
     result = types.SimpleNamespace(curve=curve, time_to_threshold=times, env_steps_to_threshold=steps,
                                    cycle={"collector_ms": 1.0, "learner_ms": 2.0, "effective_ms": 2.0},
                                    train_seconds=curve[-1]["train_seconds"], env_steps=curve[-1]["env_steps"],
-                                   config=data, device_name="Fake CPU (1 threads)")
+                                   spec=types.SimpleNamespace(to_dict=lambda data=data: data), device_name="Fake CPU (1 threads)")
     result.to_dict = lambda: {"curve": curve}
     return result
 
@@ -201,7 +194,7 @@ DRIVER = textwrap.dedent('''
             curve.append(point)
             on_eval(dict(point))
         result = types.SimpleNamespace(curve=curve, time_to_threshold={1.0: 1.6}, env_steps_to_threshold={1.0: 400.0},
-                                       cycle={}, train_seconds=1.6, env_steps=400, config=data, device_name="Fake")
+                                       cycle={}, train_seconds=1.6, env_steps=400, spec=types.SimpleNamespace(to_dict=lambda data=data: data), device_name="Fake")
         result.to_dict = lambda: {}
         return result
 
@@ -251,7 +244,6 @@ def test_resume_after_kill_reruns_nothing_finished(tmp_path, runs, stop):
     assert all(c.info.status in ("FINISHED", "FAILED") for c in children)  # the killed attempt: FAILED
 
 
-@pytest.mark.skipif(not _train_available(), reason="flashnav.train not implemented yet")
 def test_quickstart_with_real_train(runs, ray_session):
     sets = ["budget.max_train_seconds=3", "base.eval.episodes=16", "base.eval.every=10"]
     assert run_sweep(ROOT / "sweeps/quickstart.yaml", sets=sets, verbose=0) == 0

@@ -246,7 +246,6 @@ def test_cli_reports_schema_errors(capsys):
 
 
 def test_misspelt_hyperparameter_is_refused_before_anything_runs(tmp_path, monkeypatch, capsys):
-    pytest.importorskip("flashnav.learn.hparams")
     monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
     rc = sweep_main(["run", str(ROOT / "sweeps/tb2_optuna.yaml"), "--dry-run",
                      "--set", "search.algorithm_parameters.fastsac={algo.temprature: {loguniform: [0.5, 4]}}"])

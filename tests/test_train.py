@@ -10,7 +10,7 @@ import torch
 
 from flashnav import train
 from flashnav.cli import main as cli_main
-from flashnav.learn.config import TrainConfig
+from flashnav.spec import TrainConfig
 from flashnav.maps import generate_map, save_ros_map
 
 TINY = {"algo.num_envs": 32, "algo.learning_start": 64, "algo.updates_per_step": 2, "algo.batch_size": 64,
@@ -125,7 +125,7 @@ def test_overlapped_cpu_learner_runs_on_one_thread_from_the_first_run():
     import subprocess
     import sys
 
-    code = ("import torch, json; from flashnav import train; from flashnav.learn.config import TrainConfig\n"
+    code = ("import torch, json; from flashnav import train; from flashnav.spec import TrainConfig\n"
             "seen = []\n"
             f"cfg = TrainConfig.model_validate(dict(device='cpu', recipe='cpu', overrides={TINY!r},\n"
             "    budget={'max_env_steps': 256, 'stop_at_success': None}, eval={'episodes': 8}))\n"

@@ -17,13 +17,16 @@ from services.sweep_schema import parse_sweep
 from services.trainable import Objective, _write_seed, final_metrics, load_manifest, write_curve_csv
 
 
-def _train_available() -> bool:
-    try:
-        import flashnav.learn.loop  # noqa: F401
-        from flashnav.learn.config import TrainConfig  # noqa: F401
-    except ImportError:
-        return False
-    return True
+
+
+class _FakeSpec:
+    """What the trainable reads of a RunSpec: its plain data."""
+
+    def __init__(self, data: dict):
+        self.data = data
+
+    def to_dict(self) -> dict:
+        return self.data
 
 
 def fake_result(rates, dt=1.0, times=None, steps=None, cycle=None, config=None):
@@ -33,7 +36,7 @@ def fake_result(rates, dt=1.0, times=None, steps=None, cycle=None, config=None):
                                    cycle=cycle if cycle is not None else {"collector_ms": 1.0, "learner_ms": 3.0,
                                                                           "effective_ms": 3.0},
                                    train_seconds=curve[-1]["train_seconds"] if curve else 0.0,
-                                   env_steps=curve[-1]["env_steps"] if curve else 0, config=config or {"seed": 0},
+                                   env_steps=curve[-1]["env_steps"] if curve else 0, spec=_FakeSpec(config or {"seed": 0}),
                                    device_name="Fake CPU (1 threads)")
     result.to_dict = lambda: {"curve": curve}
     return result
@@ -57,7 +60,7 @@ def fake_train(config, on_eval=None, *, log_dir: str | None = None, evals: int =
     result = types.SimpleNamespace(curve=curve, time_to_threshold=times, env_steps_to_threshold=steps,
                                    cycle={"collector_ms": 1.0, "learner_ms": 2.0, "effective_ms": 2.0},
                                    train_seconds=curve[-1]["train_seconds"], env_steps=curve[-1]["env_steps"],
-                                   config=data, device_name="Fake CPU (1 threads)")
+                                   spec=_FakeSpec(data), device_name="Fake CPU (1 threads)")
     result.to_dict = lambda: {"curve": curve}
     return result
 
@@ -193,7 +196,6 @@ def test_trainable_runs_every_seed_and_reports_the_mean_objective(tmp_path, ray_
     assert json.loads((tmp_path / "seed_1.json").read_text())["overrides"] == {"algo.batch_size": 256}
 
 
-@pytest.mark.skipif(not _train_available(), reason="flashnav.train not implemented yet")
 def test_trainable_with_real_train(tmp_path, ray_session):
     data = {"name": "t", "robots": ["turtlebot2"], "algorithms": ["fastdsac"], "seeds": 1,
             "base": {"recipe": "cpu", "eval": {"episodes": 16, "every": 10}}, "budget": {"max_train_seconds": 4},

@@ -10,15 +10,15 @@ import statistics
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.learn.config import THRESHOLDS
+from flashnav.names import ALGORITHMS, RECIPE_CHOICES, ROBOTS, THRESHOLDS
 from flashnav.learn.progress import TrainProgress
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("train", help="time-to-90/95/100%% success over several seeds")
-    p.add_argument("--robots", default="turtlebot2", help="comma-separated presets")
-    p.add_argument("--algos", default="fastdsac", help="comma-separated learners")
-    p.add_argument("--recipe", default="auto", choices=["auto", "paper", "cpu"])
+    p.add_argument("--robots", default="turtlebot2", help=f"comma-separated presets ({', '.join(ROBOTS)} or YAML paths)")
+    p.add_argument("--algos", default="fastdsac", help=f"comma-separated learners ({', '.join(ALGORITHMS)})")
+    p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
     p.add_argument("--device", default="auto")
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..S-1")
     p.add_argument("--budget-seconds", type=float, default=600.0, help="training-clock budget per run")
@@ -50,33 +50,36 @@ def summarise(runs: list[dict]) -> dict:
 
 
 def run_bench_train(args) -> int:
-    from flashnav.learn.cli import build_config
     from flashnav.learn.loop import train
+    from flashnav.spec import config_from_cli, resolve
 
     console = Console()
     when = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    # Every run's spec first, through flashnav train's own path: a bad name or key fails before any training.
+    assignments = [*args.overrides, f"budget.max_train_seconds={args.budget_seconds}"]
+    plan = [[(robot, algo, seed, resolve(config_from_cli(None, dict(robot=robot, algorithm=algo, recipe=args.recipe,
+                                                                     device=args.device, seed=seed), assignments)))
+             for seed in range(args.seeds)]
+            for robot in args.robots.split(",") for algo in args.algos.split(",")]
     results, groups = [], []
-    for robot in args.robots.split(","):
-        for algo in args.algos.split(","):
-            runs = []
-            for seed in range(args.seeds):
-                ns = argparse.Namespace(config=None, robot=robot, algorithm=algo, recipe=args.recipe,
-                                        device=args.device, map=None, seed=seed, sequential=False,
-                                        overrides=list(args.overrides) + [f"budget.max_train_seconds={args.budget_seconds}"])
-                with TrainProgress(console, label=f"{robot} {algo} seed {seed}", eval_lines=False,
-                                   transient=True) as progress:
-                    result = train(build_config(ns), on_eval=progress.on_eval, on_progress=progress.on_progress)
-                r = result.to_dict()
-                r.pop("config")
-                r.update(robot=robot, algorithm=algo, seed=seed, recipe=result.config["recipe"])
-                runs.append(r)
-                t90 = r["time_to_threshold"]["0.9"]
-                console.print(f"  {robot} {algo} seed {seed}: 90% at {'-' if t90 is None else f'{t90:.1f} s'}, "
-                              f"final success {r['curve'][-1]['success_rate']:.1%} ({r['stop_reason']})")
-                _save(args.json, when, groups, results + runs)  # after every run: an interrupted bench keeps its runs
-            results += runs
-            groups.append((robot, algo, runs[0]["recipe"], runs[0]["device_name"], summarise(runs)))
-            _save(args.json, when, groups, results)
+    for specs in plan:
+        runs = []
+        for robot, algo, seed, spec in specs:
+            with TrainProgress(console, label=f"{robot} {algo} seed {seed}", eval_lines=False,
+                               transient=True) as progress:
+                result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress)
+            r = result.to_dict()
+            r.pop("config")
+            r.update(robot=robot, algorithm=algo, seed=seed, recipe=spec.recipe)
+            runs.append(r)
+            t90 = r["time_to_threshold"]["0.9"]
+            console.print(f"  {robot} {algo} seed {seed}: 90% at {'-' if t90 is None else f'{t90:.1f} s'}, "
+                          f"final success {r['curve'][-1]['success_rate']:.1%} ({r['stop_reason']})")
+            _save(args.json, when, groups, results + runs)  # after every run: an interrupted bench keeps its runs
+        results += runs
+        robot, algo = specs[0][0], specs[0][1]
+        groups.append((robot, algo, runs[0]["recipe"], runs[0]["device_name"], summarise(runs)))
+        _save(args.json, when, groups, results)
     _print(console, groups, args.seeds, when)
     if args.plot:
         from flashnav.viz import plot_training_runs

@@ -19,6 +19,8 @@ import time
 from rich.console import Console
 from rich.table import Table
 
+from flashnav.names import ALGORITHMS, RECIPE_CHOICES
+
 #: ``--ways`` values: eager, or a torch.compile mode ("default" is torch's default mode).
 WAYS = ("eager", "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 
@@ -26,8 +28,8 @@ WAYS = ("eager", "default", "reduce-overhead", "max-autotune", "max-autotune-no-
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("update", help="ms per learner update: eager vs torch.compile modes")
     p.add_argument("--robot", default="turtlebot2")
-    p.add_argument("--algo", default="fastdsac", choices=["fastdsac", "fastsac", "fasttd3"])
-    p.add_argument("--recipe", default="auto", choices=["auto", "paper", "cpu"])
+    p.add_argument("--algo", default="fastdsac", choices=ALGORITHMS)
+    p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
     p.add_argument("--device", default="auto")
     p.add_argument("--ways", default="eager,default", help=f"comma-separated, from {', '.join(WAYS)}")
     p.add_argument("--seconds", type=float, default=10.0, help="timed seconds per way (after warm-up)")
@@ -48,11 +50,13 @@ def parse_ways(text: str) -> list[str]:
     return ways
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """``["batch_size=256", "algo.gamma=0.99"]`` -> hyperparameter overrides (``algo.`` optional)."""
-    from flashnav.learn.cli import split_override
+def run_spec(algo: str, robot: str, recipe: str, device: str, overrides: list[str] | tuple[str, ...] = ()):
+    """The RunSpec whose learner is timed, through ``flashnav train``'s own path; ``overrides`` are
+    ``key=value`` hyperparameters (the ``algo.`` prefix optional)."""
+    from flashnav.spec import config_from_cli, resolve
 
-    return {key.removeprefix("algo."): value for key, value in map(split_override, items)}
+    items = [item if item.startswith(("algo.", "robot.")) else f"algo.{item}" for item in overrides]
+    return resolve(config_from_cli(None, dict(algorithm=algo, robot=robot, recipe=recipe, device=device), items))
 
 
 def compile_networks(learner, way: str) -> None:
@@ -84,23 +88,19 @@ def random_batches(obs_dim: int, batch_size: int, device, seed: int, n: int) -> 
     return batches
 
 
-def time_updates(algo: str, robot: str, recipe: str, device: str, way: str, *, seconds: float, warmup: int,
-                 overrides: dict | None = None, seed: int = 0, num_batches: int = 8) -> dict:
-    """Build a learner (``seed``), compile its networks unless ``way == "eager"``, run ``warmup``
+def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, num_batches: int = 8) -> dict:
+    """Build the learner of ``spec`` (a :class:`flashnav.spec.RunSpec`; ``seed``), compile its networks unless ``way == "eager"``, run ``warmup``
     updates, then time whole updates for at least ``seconds`` (device synchronised at both ends).
 
     Returns ``{"way", "batch_size", "warmup_s", "updates", "ms_per_update"}``."""
     import torch
 
-    from flashnav.learn.hparams import load_hparams
     from flashnav.learn.learners import make_learner
     from flashnav.learn.networks import ObsLayout
-    from flashnav.presets import load_robot
 
-    preset = load_robot(robot)
-    hp = load_hparams(algo, robot, recipe, overrides)
-    layout = ObsLayout.from_robot(preset)
-    learner = make_learner(algo, hp, layout, 2, hp.num_envs, device, seed)
+    hp, device = spec.hparams, spec.device
+    layout = ObsLayout.from_robot(spec.robot, spec.goal_distance_max)
+    learner = make_learner(spec.algorithm, hp, layout, 2, hp.num_envs, device, seed)
     compile_networks(learner, way)
     batches = random_batches(layout.obs_dim, hp.batch_size, device, seed, num_batches)
 
@@ -130,24 +130,21 @@ def run_bench_update(args) -> int:
     import torch
 
     from flashnav.bench.sim import machine_description
-    from flashnav.learn.config import resolve_device, resolve_recipe
 
     ways = parse_ways(args.ways)
     if args.seconds <= 0 or args.warmup < 1 or args.threads < 1:
         raise ValueError("--seconds must be > 0, --warmup >= 1 and --threads >= 1")
-    device = resolve_device(args.device)
-    recipe = resolve_recipe(args.recipe, device)
+    spec = run_spec(args.algo, args.robot, args.recipe, args.device, args.overrides)
+    device, recipe = spec.device, spec.recipe
     if device == "cpu":
         torch.set_num_threads(args.threads)
-    overrides = parse_overrides(args.overrides)
     console = Console()
     machine, when = machine_description(device), dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     console.print(f"[bold]flashnav bench update[/] {when} on {machine}: {args.robot} / {args.algo} / "
                   f"recipe {recipe}, >= {args.seconds:g} s per way after {args.warmup} warm-up updates")
     rows = []
     for way in ways:
-        row = time_updates(args.algo, args.robot, recipe, device, way, seconds=args.seconds,
-                           warmup=args.warmup, overrides=overrides)
+        row = time_updates(spec, way, seconds=args.seconds, warmup=args.warmup)
         rows.append(row)
         console.print(f"  {way:28s} {row['ms_per_update']:8.2f} ms/update (warm-up {row['warmup_s']:.1f} s)")
     ref = next((r for r in rows if r["way"] == "eager"), rows[0])   # the ratio's baseline

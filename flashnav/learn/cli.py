@@ -6,15 +6,14 @@ import argparse
 import datetime as dt
 import json
 from pathlib import Path
-from typing import Any
 
-import yaml
 from rich.console import Console
 from rich.table import Table
 
 from flashnav.config import dump_yaml
-from flashnav.learn.config import THRESHOLDS, TrainConfig
 from flashnav.learn.progress import TrainProgress
+from flashnav.names import ALGORITHMS, RECIPE_CHOICES, THRESHOLDS
+from flashnav.spec import TrainConfig, config_from_cli, resolve
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -22,8 +21,8 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                        description="Train a policy; writes config.yaml, metrics.json, checkpoint.pt, "
                                    "policy.pt (TorchScript) and policy.onnx to --out.")
     p.add_argument("--robot", help="turtlebot2 (default), go2, or a preset YAML")
-    p.add_argument("--algo", dest="algorithm", choices=["fastdsac", "fastsac", "fasttd3"], help="learner (default fastdsac)")
-    p.add_argument("--recipe", choices=["auto", "paper", "cpu"], help="hyperparameters: paper (GPU), cpu, auto (by device)")
+    p.add_argument("--algo", dest="algorithm", choices=ALGORITHMS, help="learner (default fastdsac)")
+    p.add_argument("--recipe", choices=RECIPE_CHOICES, help="hyperparameters: paper (GPU), cpu, auto (by device)")
     p.add_argument("--device", help="auto (default), cpu, cuda, cuda:N")
     p.add_argument("--map", help="ROS map YAML (default: the preset's bundled map)")
     p.add_argument("--seed", type=int, help="training seed (default 0)")
@@ -35,48 +34,27 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_train)
 
 
-def split_override(item: str) -> tuple[str, Any]:
-    """``"algo.batch_size=512"`` -> ``("algo.batch_size", 512)``: the value read as YAML (safely)."""
-    key, sep, raw = item.partition("=")
-    if not sep or not key:
-        raise ValueError(f"override {item!r} is not key=value")
-    return key, yaml.safe_load(raw)
-
-
-def build_config(args) -> TrainConfig:
-    data: dict[str, Any] = {}
-    if args.config:
-        data = TrainConfig.from_yaml(args.config).model_dump()
-    for name in ("robot", "algorithm", "recipe", "device", "map", "seed"):
-        if getattr(args, name) is not None:
-            data[name] = getattr(args, name)
+def config_from_args(args) -> TrainConfig:
+    """The TrainConfig of ``flashnav train``'s arguments (through :func:`flashnav.spec.config_from_cli`)."""
+    flags = {name: getattr(args, name) for name in ("robot", "algorithm", "recipe", "device", "map", "seed")}
     if args.sequential:
-        data["overlap"] = False
-    for item in args.overrides:
-        key, value = split_override(item)
-        if key.startswith(("algo.", "robot.")):
-            data.setdefault("overrides", {})[key] = value
-        else:
-            node = data
-            *parents, leaf = key.split(".")
-            for part in parents:
-                node = node.setdefault(part, {})
-            node[leaf] = value
-    return TrainConfig.model_validate(data)
+        flags["overlap"] = False
+    return config_from_cli(args.config, flags, args.overrides)
 
 
 def run_train(args) -> int:
     from flashnav.learn.loop import train
 
     console = Console()
-    config = build_config(args)
+    spec = resolve(config_from_args(args))  # every bad input fails here, before anything is written
+    config = spec.config
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    robot_name = Path(config.robot).stem
-    out = Path(args.out or f"runs/train/{robot_name}-{config.algorithm}-s{config.seed}-{stamp}")
+    out = Path(args.out or f"runs/train/{spec.robot_name}-{config.algorithm}-s{config.seed}-{stamp}")
     out.mkdir(parents=True, exist_ok=True)
-    console.print(f"[bold]flashnav train[/] {robot_name} / {config.algorithm}, seed {config.seed} -> {out}")
+    console.print(f"[bold]flashnav train[/] {spec.robot_name} / {config.algorithm} ({spec.recipe} recipe, "
+                  f"{spec.device}), seed {config.seed} -> {out}")
     with TrainProgress(console) as progress:
-        result = train(config, on_eval=progress.on_eval, on_progress=progress.on_progress)
+        result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress)
 
     _write_artefacts(result, out)
     _summary(console, result, out)
@@ -84,20 +62,19 @@ def run_train(args) -> int:
 
 
 def _write_artefacts(result, out: Path) -> None:
-    from flashnav.config import RobotPreset
     from flashnav.export import export_policy, save_checkpoint
 
-    dump_yaml(result.config, out / "config.yaml")
+    config = result.spec.to_dict()
+    dump_yaml(config, out / "config.yaml")
     with open(out / "metrics.json", "w", encoding="utf-8") as f:
         json.dump(result.to_dict(), f, indent=2)
-    save_checkpoint(out / "checkpoint.pt", result.learner.state_dict(), result.config,
+    save_checkpoint(out / "checkpoint.pt", result.learner.state_dict(), config,
                     {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"}})
-    preset = RobotPreset.model_validate(result.config["robot_preset"])
-    export_policy(result.policy, preset, out)  # the best evaluated policy
+    export_policy(result.policy, result.spec.robot, out)  # the best evaluated policy
 
 
 def _summary(console: Console, result, out: Path) -> None:
-    t = Table(title=f"{result.config['robot_preset']['name']} / {result.config['algorithm']} on {result.device_name}")
+    t = Table(title=f"{result.spec.robot_name} / {result.spec.algorithm} on {result.device_name}")
     for col in ("threshold", "train seconds", "env steps"):
         t.add_column(col, justify="right")
     for k in THRESHOLDS:

@@ -1,31 +1,23 @@
 """Learner hyperparameters: pydantic models (unknown keys rejected) and the preset loader.
 
-The numbers live in ``flashnav/presets/{fastdsac,fastsac,fasttd3}.yaml`` (the paper's appendix A as
-data, plus a CPU recipe); these models only say what a valid value is, and carry no defaults for
+The numbers live in ``flashnav/presets/pipeline.yaml`` and ``{fastdsac,fastsac,fasttd3}.yaml`` (the
+paper's appendix A as data, plus the CPU recipe's departures); these models only say what a valid value is, and carry no defaults for
 anything a preset must state. ``load_hparams("fastdsac", "turtlebot2", "paper", {"batch_size": 512})``
 returns a validated, frozen model.
 """
 
 from __future__ import annotations
 
-import difflib
-from importlib import resources
-from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
-from flashnav.config import load_yaml
-
-ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
-RECIPES = ("paper", "cpu")
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+from flashnav.config import Strict, set_dotted
+from flashnav.names import ALGORITHMS, RECIPES, check_name
+from flashnav.presets import load_preset_file
 
 
-class LearnerHParams(_Strict):
+class LearnerHParams(Strict):
     """Shared training-pipeline parameters (paper table "Shared off-policy training-pipeline
     parameters" and the per-algorithm tables' common rows)."""
 
@@ -134,48 +126,41 @@ MODELS: dict[str, type[LearnerHParams]] = {
 AnyHParams = FastDSACHParams | FastSACHParams | FastTD3HParams
 
 
-def preset_path(algorithm: str) -> Path:
-    """``flashnav/presets/<algorithm>.yaml``."""
-    return Path(str(resources.files("flashnav.presets") / f"{algorithm}.yaml"))
-
-
 def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
                  overrides: dict[str, Any] | None = None) -> AnyHParams:
     """Validated hyperparameters for ``algorithm`` / ``robot`` / ``recipe`` with dotted-key overrides.
 
-    ``recipe``: ``paper`` (appendix A, GPU) or ``cpu`` (a 2-core CPU recipe). Override keys name
-    fields of the algorithm's model (``{"batch_size": 512, "betas": [0.9, 0.99]}``); an unknown key
-    is an error that suggests the closest names.
+    ``recipe``: ``paper`` (appendix A, GPU) or ``cpu`` (a 2-core CPU recipe). The values are the
+    layers of ``flashnav/presets/pipeline.yaml`` and ``<algorithm>.yaml`` (order written in
+    pipeline.yaml). Override keys name fields of the algorithm's model (``{"batch_size": 512,
+    "betas": [0.9, 0.99]}``); an unknown key is an error that suggests the closest names.
     """
-    if algorithm not in MODELS:
-        raise ValueError(f"unknown algorithm {algorithm!r}: use one of {', '.join(ALGORITHMS)}")
+    check_name("algorithm", algorithm, ALGORITHMS)
     if recipe not in RECIPES:
         raise ValueError(f"unknown recipe {recipe!r}: use one of {', '.join(RECIPES)} "
                          "(resolve 'auto' from the device before calling)")
-    path = preset_path(algorithm)
-    presets = load_yaml(path) or {}
-    robots = presets.get(recipe) or {}
-    if robot not in robots:
-        raise ValueError(f"{path.name}: no {recipe!r} recipe for robot {robot!r}; have {', '.join(robots) or 'none'}")
-    data = dict(robots[robot])
+    data = dict(recipe_values(algorithm, robot, recipe))
     for key, value in (overrides or {}).items():
-        _set_dotted(data, key, value, MODELS[algorithm])
+        set_dotted(data, key, value, known=MODELS[algorithm], what="override")
     try:
         return MODELS[algorithm].model_validate(data)
     except ValidationError as exc:
-        raise ValueError(f"{path.name} [{recipe}.{robot}] with overrides {overrides or {}}:\n{exc}") from None
+        raise ValueError(f"{algorithm}.yaml [{recipe}.{robot}] with overrides {overrides or {}}:\n{exc}") from None
 
 
-def _set_dotted(data: dict, dotted: str, value: Any, model: type[BaseModel]) -> None:
-    *parents, leaf = dotted.split(".")
-    node = data
-    for part in parents:
-        if not isinstance(node.get(part), dict):
-            raise ValueError(f"override {dotted!r}: no section {part!r}")
-        node = node[part]
-    known = set(node) | (set(model.model_fields) if not parents else set())
-    if leaf not in known:
-        close = difflib.get_close_matches(leaf, sorted(known), n=3)
-        hint = f"; did you mean {', '.join(close)}?" if close else ""
-        raise ValueError(f"override {dotted!r}: unknown hyperparameter for {model.__name__}{hint}")
-    node[leaf] = value
+def recipe_values(algorithm: str, robot: str, recipe: str) -> dict[str, Any]:
+    """The plain values of one recipe, its layers merged (no validation, no overrides)."""
+    pipeline, own = load_preset_file("pipeline"), load_preset_file(algorithm)
+    if robot not in (own.get("paper") or {}):
+        have = sorted(k for k in (own.get("paper") or {}) if k != "shared")
+        raise ValueError(f"{algorithm}.yaml: no recipe for robot {robot!r}; have {', '.join(have) or 'none'}")
+    layers = [pipeline.get("shared"), pipeline.get(robot), own["paper"].get("shared"), own["paper"][robot]]
+    if recipe != "paper":
+        section = own.get(recipe) or {}
+        if robot not in section:
+            raise ValueError(f"{algorithm}.yaml: no {recipe!r} recipe for robot {robot!r}")
+        layers += [section.get("shared"), section[robot]]
+    data: dict[str, Any] = {}
+    for layer in layers:
+        data.update(layer or {})
+    return data

@@ -23,14 +23,12 @@ from typing import Any, Callable
 import torch
 
 from flashnav.evaluate import ThresholdTracker, evaluate
-from flashnav.learn.config import THRESHOLDS, TrainConfig, resolve_device, resolve_recipe
-from flashnav.learn.hparams import load_hparams
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.maps.bundled import resolve_map
-from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
+from flashnav.spec import RunSpec, TrainConfig, resolve
 
 
 @dataclass
@@ -43,7 +41,7 @@ class TrainResult:
     cycle: dict[str, float]
     train_seconds: float
     env_steps: int
-    config: dict[str, Any]
+    spec: RunSpec
     device_name: str
     stop_reason: str
     best_success_rate: float = 0.0
@@ -68,7 +66,7 @@ class TrainResult:
             "device_name": self.device_name,
             "stop_reason": self.stop_reason,
             "best_success_rate": self.best_success_rate,
-            "config": self.config,
+            "config": self.spec.to_dict(),
         }
 
 
@@ -101,55 +99,38 @@ class _Timer:
         return 1e3 * self.total / max(self.count, 1)
 
 
-def _resolve(config: TrainConfig) -> tuple[Any, Any, str, str]:
-    device = resolve_device(config.device)
-    recipe = resolve_recipe(config.recipe, device)
-    preset = load_robot(config.robot, **config.robot_overrides())
-    hp = load_hparams(config.algorithm, preset.name, recipe, config.algo_overrides())
-    return preset, hp, device, recipe
-
-
-def resolved_config(config: TrainConfig) -> dict[str, Any]:
-    """The config with every default and the recipe's hyperparameters spelled out (config.yaml)."""
-    preset, hp, device, recipe = _resolve(config)
-    data = config.model_dump(mode="json")
-    data.update(device=device, recipe=recipe, hparams=hp.model_dump(mode="json"), robot_preset=preset.model_dump(mode="json"))
-    return data
-
-
-def train(config: TrainConfig | None = None, *, on_eval: Callable[[dict], bool | None] | None = None,
+def train(config: TrainConfig | RunSpec | None = None, *, on_eval: Callable[[dict], bool | None] | None = None,
           on_progress: Callable[[dict], None] | None = None) -> TrainResult:
-    """Train one policy; see docs/train-api.md. ``on_progress`` (optional, outside the clock) gets a
-    dict with env_steps, train_seconds and the last evaluation after every cycle."""
-    config = config or TrainConfig()
-    preset, hp, device, recipe = _resolve(config)
+    """Train one policy; see docs/train-api.md. ``config``: a TrainConfig (resolved here by
+    :func:`flashnav.spec.resolve`) or an already resolved RunSpec. ``on_progress`` (optional, outside
+    the clock) gets a dict with env_steps, train_seconds and the last evaluation after every cycle."""
+    spec = config if isinstance(config, RunSpec) else resolve(config)
     threads_before = torch.get_num_threads()
-    # one core for the learner, the other for the collector thread
-    threads = config.threads or (1 if config.overlap and device == "cpu" else None)
     try:
-        return _train(config, preset, hp, device, on_eval, on_progress, threads)
+        return _train(spec, on_eval, on_progress)
     finally:
         torch.set_num_threads(threads_before)
 
 
-def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress, threads: int | None) -> TrainResult:
-    dev = torch.device(device)
+def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
+    config, preset, hp = spec.config, spec.robot, spec.hparams
+    dev = torch.device(spec.device)
     torch.manual_seed(config.seed)
-    grid = resolve_map(config.map, preset.map)
+    grid = spec.grid if spec.grid is not None else resolve_map(config.map, preset.map)
     env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster)
     eval_env = NavVecEnv(preset, config.eval.episodes, grid=grid, device=dev, seed=config.eval.seed,
                          raycaster=config.raycaster)
-    if threads:
+    if spec.threads:
         # After the environments exist: the first numba parallel kernel of a process starts its
         # OpenMP pool, which resets the thread count torch shares with it (the first run of every
         # process used to learn on 2 threads, competing with the collector for the same cores).
-        torch.set_num_threads(threads)
-    learner = make_learner(config.algorithm, hp, ObsLayout.from_robot(preset), 2, hp.num_envs, dev, config.seed)
+        torch.set_num_threads(spec.threads)
+    layout = ObsLayout.from_robot(preset, spec.goal_distance_max)
+    learner = make_learner(config.algorithm, hp, layout, 2, hp.num_envs, dev, config.seed)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
 
-    max_env_steps = config.budget.max_env_steps or hp.total_env_steps
-    cycles = math.ceil(max_env_steps / hp.num_envs)
-    eval_every = config.eval.every or hp.eval_every
+    cycles = math.ceil(spec.max_env_steps / hp.num_envs)
+    eval_every = spec.eval_every
     overlap = config.overlap
     collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
     learning_cycles = _Timer(dev)  # cycles with updates: the paper's cycle (warm-up excluded)
@@ -239,7 +220,6 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress, t
         "effective_ms": learning_cycles.mean_ms if learning_cycles.count else cycle_t.mean_ms,
         "overlap": float(overlap),
     }
-    resolved = resolved_config(config)
     return TrainResult(
         curve=curve,
         time_to_threshold=dict(tracker.seconds),
@@ -247,8 +227,8 @@ def _train(config: TrainConfig, preset, hp, device: str, on_eval, on_progress, t
         cycle=cycle_stats,
         train_seconds=cycle_t.total,
         env_steps=env_steps,
-        config=resolved,
-        device_name=device_name(device),
+        spec=spec,
+        device_name=device_name(spec.device),
         stop_reason=stop_reason,
         best_success_rate=best_rate,
         learner=learner,
@@ -276,4 +256,4 @@ def _evaluate(learner: Learner, eval_env: NavVecEnv, config: TrainConfig, env_st
     return {"env_steps": env_steps, "train_seconds": train_seconds, "eval_index": index, **result}
 
 
-__all__ = ["train", "TrainResult", "resolved_config", "THRESHOLDS"]
+__all__ = ["train", "TrainResult"]

@@ -73,17 +73,19 @@ class ObsLayout:
         return torch.tensor((*self.goal_scale, *self.velocity_scales), dtype=torch.float32)
 
     @classmethod
-    def from_robot(cls, preset) -> "ObsLayout":
-        """Layout for a :class:`flashnav.config.RobotPreset`.
+    def from_robot(cls, preset, goal_distance_max: float) -> "ObsLayout":
+        """Layout for a :class:`flashnav.config.RobotPreset` on a map whose diagonal is
+        ``goal_distance_max`` metres (``OccupancyMap.diagonal_m``, the environment's observation bound;
+        ``RunSpec.goal_distance_max`` in training).
 
-        The goal distance is bounded by the map diagonal; velocities by the action bounds (the
-        velocity state follows the commanded velocity); ``vy`` (always 0 on Go2) reuses the v bound.
+        The goal distance is scaled by that bound; velocities by the action bounds (the velocity state
+        follows the commanded velocity); ``vy`` (always 0 on Go2) reuses the v bound.
         """
         v_max = max(abs(b) for b in preset.motion.v_bounds)
         w_max = max(abs(b) for b in preset.motion.w_bounds)
         velocity = (v_max, w_max) if preset.motion.velocity_state_dims == 2 else (v_max, v_max, w_max)
         return cls(sectors=preset.lidar.sectors, inscribed_radius=preset.footprint.inscribed_radius,
-                   max_range=preset.lidar.max_range, goal_scale=(math.hypot(*preset.map_size), math.pi),
+                   max_range=preset.lidar.max_range, goal_scale=(float(goal_distance_max), math.pi),
                    velocity_scales=velocity)
 
 

@@ -6,7 +6,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from flashnav.learn.config import THRESHOLDS
+from flashnav.names import THRESHOLDS
 
 
 class TrainProgress:

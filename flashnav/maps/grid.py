@@ -67,6 +67,12 @@ class OccupancyMap:
         return self.occupied.shape[0] * self.resolution
 
     @property
+    def diagonal_m(self) -> float:
+        """The map's diagonal, metres: no goal is farther than this. The environment's observation
+        bound and the networks' goal-distance scale both read it."""
+        return math.hypot(self.width_m, self.height_m)
+
+    @property
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) in metres."""
         ox, oy = self.origin

@@ -1,42 +1,57 @@
 """The paper's appendix as data: robot presets (appendix B) and algorithm presets (appendix A).
 
-``load_robot("turtlebot2")`` returns a validated :class:`flashnav.config.RobotPreset`.
+``load_robot("turtlebot2")`` returns a validated :class:`flashnav.config.RobotPreset`: the robot's
+own file (its platform table) laid over ``simulator.yaml`` (the shared simulator table). The learners'
+hyperparameters are read by :func:`flashnav.learn.hparams.load_hparams` from ``pipeline.yaml`` and
+``<algorithm>.yaml`` in the same way (the order is written at the top of ``pipeline.yaml``).
 """
 
 from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
-from flashnav.config import RobotPreset, load_yaml
+from pydantic import ValidationError
 
-ROBOTS = ("turtlebot2", "go2")
+from flashnav.config import RobotPreset, deep_merge, load_yaml, set_dotted
+from flashnav.names import ROBOTS
 
 
 def preset_path(name: str) -> Path:
+    """``flashnav/presets/<name>.yaml``."""
     return Path(str(resources.files(__package__) / f"{name}.yaml"))
 
 
-def load_robot(robot: "str | RobotPreset", **overrides) -> RobotPreset:
-    """A robot preset by name (``turtlebot2``, ``go2``), a YAML path, or an existing preset."""
+def load_preset_file(name: str) -> dict[str, Any]:
+    """A bundled preset file as a mapping (an empty file is an empty mapping)."""
+    data = load_yaml(preset_path(name)) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{preset_path(name)}: a preset file must be a mapping")
+    return data
+
+
+def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
+    """A robot preset by name (``turtlebot2``, ``go2``), a YAML path, or an existing preset.
+
+    ``overrides``: dotted keys into the preset (``load_robot("go2", **{"lidar.noise_std": 0.01})``);
+    an unknown key is a ValueError that names it and suggests the closest.
+    """
     if isinstance(robot, RobotPreset):
-        data = robot.model_dump()
+        data, source = robot.model_dump(), robot.name
     elif robot in ROBOTS:
-        data = load_yaml(preset_path(robot))
+        data, source = deep_merge(load_preset_file("simulator"), load_preset_file(robot)), robot
     elif str(robot).endswith((".yaml", ".yml")):
-        data = load_yaml(robot)
+        own = load_yaml(robot) or {}
+        if not isinstance(own, dict):
+            raise ValueError(f"{robot}: a robot preset must be a mapping")
+        data, source = deep_merge(load_preset_file("simulator"), own), str(robot)
     else:
         raise ValueError(f"unknown robot {robot!r}: use one of {', '.join(ROBOTS)} or a preset YAML path")
     for key, value in overrides.items():
-        _set_path(data, key, value)
-    return RobotPreset.model_validate(data)
-
-
-def _set_path(data: dict, dotted: str, value) -> None:
-    *parents, leaf = dotted.split(".")
-    node = data
-    for part in parents:
-        if not isinstance(node.get(part), dict):
-            raise KeyError(f"no section {part!r} in override {dotted!r}")
-        node = node[part]
-    node[leaf] = value
+        set_dotted(data, key, value, known=RobotPreset, what="robot override")
+    try:
+        return RobotPreset.model_validate(data)
+    except ValidationError as exc:
+        raise ValueError(f"robot preset {source!r}"
+                         + (f" with overrides {overrides}" if overrides else "") + f":\n{exc}") from None

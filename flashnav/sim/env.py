@@ -35,13 +35,12 @@ from gymnasium.vector.utils import batch_space
 from flashnav.config import RobotPreset
 from flashnav.maps.bundled import resolve_map
 from flashnav.maps.grid import OccupancyMap
+from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.collision import make_collision_checker
 from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.sampling import EpisodeSampler
-
-DEFAULT_RAYCASTER = "exact"
 
 
 def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
@@ -106,8 +105,7 @@ class NavVecEnv(VectorEnv):
         vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if p.motion.velocity_state_dims == 2 else (
             [v_lo, 0.0, w_lo], [v_hi, 0.0, w_hi])
         low = np.array([0.0] * s + [0.0, -math.pi] + vel_lo, dtype=np.float32)
-        diagonal = math.hypot(self.map.width_m, self.map.height_m)  # no goal is farther than this
-        high = np.array([p.lidar.max_range] * s + [diagonal, math.pi] + vel_hi, dtype=np.float32)
+        high = np.array([p.lidar.max_range] * s + [self.map.diagonal_m, math.pi] + vel_hi, dtype=np.float32)
         return low, high
 
     # ---- observation ------------------------------------------------------------------------------

@@ -37,8 +37,7 @@ import numpy as np
 import torch
 
 from flashnav.maps.grid import OccupancyMap
-
-RAYCASTERS = ("exact", "exact-torch", "march")
+from flashnav.names import RAYCASTERS  # defined once; re-exported here
 
 #: Occupied cells around the map in the padded fields; >= 2 so that a float64 landing point a hair
 #: outside the map (after a jump that ends on the boundary) still indexes an occupied pad cell.

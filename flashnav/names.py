@@ -1,0 +1,37 @@
+"""The names users choose from, defined once.
+
+Command-line choices, schema validation (``TrainConfig``, sweep files), the presets' loaders, the
+metrics and the report tables all import these tuples; nothing else spells the lists out.
+"""
+
+from __future__ import annotations
+
+#: Robot presets shipped in ``flashnav/presets/<name>.yaml`` (a preset YAML path works too).
+ROBOTS = ("turtlebot2", "go2")
+#: Learners, each a module of functions in ``flashnav/learn/<name>.py``.
+ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
+#: Display names of the learners (tables, figures).
+ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
+#: Hyperparameter recipes in ``flashnav/presets/<algorithm>.yaml``: ``paper`` is appendix A (GPU),
+#: ``cpu`` the departures measured for a 2-core CPU.
+RECIPES = ("paper", "cpu")
+#: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
+RECIPE_CHOICES = ("auto", *RECIPES)
+#: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
+RAYCASTERS = ("exact", "exact-torch", "march")
+DEFAULT_RAYCASTER = RAYCASTERS[0]
+#: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
+#: metric names (``time_to_90``).
+THRESHOLDS = (0.9, 0.95, 1.0)
+THRESHOLD_TAGS = ("90", "95", "100")
+
+
+def check_name(kind: str, value: str, allowed: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``allowed``, else a ValueError naming ``kind`` and the choices."""
+    if value not in allowed:
+        import difflib
+
+        close = difflib.get_close_matches(str(value), allowed, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"unknown {kind} {value!r}{hint}; use one of {', '.join(allowed)}")
+    return value

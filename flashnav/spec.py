@@ -1,0 +1,270 @@
+"""The configuration spine: what a user asks for (``TrainConfig``) -> ``resolve()`` -> what a run is
+(``RunSpec``).
+
+Every way of starting a run produces a :class:`TrainConfig`: ``flashnav train`` flags and
+``key=value`` overrides and ``--config FILE`` (:func:`config_from_cli`), a sweep trial
+(``services.sweep_schema.Sweep.train_config``), ``flashnav bench train``, or a Python call.
+:func:`resolve` then turns it, once, into a frozen :class:`RunSpec`: the robot preset with its
+overrides, the recipe's hyperparameters with theirs, the device, the map, the budget and evaluation
+with the recipe's defaults filled in. ``train()`` takes the spec; ``TrainResult.spec`` carries it;
+``config.yaml``, checkpoints, MLflow params and ``flashnav bench`` write :meth:`RunSpec.to_dict`
+and read it back with :meth:`RunSpec.from_dict`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, ValidationError, field_validator
+
+from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
+from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
+from flashnav.maps.grid import OccupancyMap
+from flashnav.names import ALGORITHMS, RAYCASTERS, RECIPE_CHOICES, ROBOTS
+from flashnav.presets import load_robot
+
+#: Prefixes of the keys in ``TrainConfig.overrides``: into the hyperparameters, into the robot preset.
+OVERRIDE_PREFIXES = ("algo.", "robot.")
+
+
+class Budget(KnownKeys):
+    """When a training run stops (whichever comes first)."""
+
+    max_train_seconds: float = Field(600.0, gt=0, description="training-clock budget, seconds")
+    max_env_steps: int | None = Field(None, gt=0, description="None = the recipe's total env steps")
+    stop_at_success: float | None = Field(1.0, ge=0, le=1, description="stop once an evaluation reaches this success rate")
+
+
+class EvalSettings(KnownKeys):
+    """The fixed evaluation set every evaluation of a run plays."""
+
+    episodes: int = Field(1024, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
+    every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
+    seed: int = Field(12345, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
+
+
+class TrainConfig(KnownKeys):
+    """One training run as asked for. Every field has a default: ``TrainConfig()`` trains FastDSAC on
+    TurtleBot2. See docs/train-api.md."""
+
+    robot: str = Field("turtlebot2", description=f"preset name ({', '.join(ROBOTS)}) or a preset YAML path")
+    algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
+    recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
+        "auto", description="hyperparameter recipe: paper (appendix A, GPU), cpu (2 CPU cores), auto by device")
+    seed: int = Field(0, description="training seed")
+    device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
+    map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")
+    raycaster: Literal[RAYCASTERS] | None = Field(  # type: ignore[valid-type]
+        None, description="None = the simulator's default (exact)")
+    overrides: dict[str, Any] = Field(
+        default_factory=dict,
+        description="dotted keys: 'algo.<hyperparameter>' (e.g. algo.batch_size) or 'robot.<preset path>' "
+                    "(e.g. robot.lidar.noise_std)")
+    budget: Budget = Field(default_factory=Budget)
+    eval: EvalSettings = Field(default_factory=EvalSettings)
+    threads: int | None = Field(None, gt=0, description="learner torch CPU threads (None = 1 beside the collector "
+                                                        "thread on a CPU, else torch's default)")
+    overlap: bool = Field(True, description="overlap collection and learning (False = the plain sequential loop)")
+
+    @field_validator("robot")
+    @classmethod
+    def _robot(cls, value: str) -> str:
+        if value not in ROBOTS and not value.endswith((".yaml", ".yml")):
+            raise ValueError(f"unknown robot {value!r}: use one of {', '.join(ROBOTS)} or a preset YAML path")
+        return value
+
+    @field_validator("device")
+    @classmethod
+    def _device(cls, value: str) -> str:
+        check_device_name(value)
+        return value
+
+    @field_validator("overrides")
+    @classmethod
+    def _prefixed(cls, v: dict[str, Any]) -> dict[str, Any]:
+        for key in v:
+            if not key.startswith(OVERRIDE_PREFIXES) or key in OVERRIDE_PREFIXES:
+                raise ValueError(f"override {key!r} must start with 'algo.' or 'robot.' and name a key after it")
+        return v
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "TrainConfig":
+        return config_from_data(_mapping(load_yaml(path), str(path)), str(path))
+
+    def algo_overrides(self) -> dict[str, Any]:
+        return {k[len("algo."):]: v for k, v in self.overrides.items() if k.startswith("algo.")}
+
+    def robot_overrides(self) -> dict[str, Any]:
+        return {k[len("robot."):]: v for k, v in self.overrides.items() if k.startswith("robot.")}
+
+
+# ---- building a TrainConfig ------------------------------------------------------------------------
+
+
+def _mapping(data: Any, source: str) -> dict[str, Any]:
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{source}: a training config must be a mapping, got {type(data).__name__}")
+    return data
+
+
+def apply_override(data: dict[str, Any], key: str, value: Any) -> None:
+    """Set one dotted ``key`` of raw TrainConfig data in place: ``algo.*`` / ``robot.*`` keys go to
+    ``overrides`` (checked when resolved, against the recipe and the preset), any other key is a
+    TrainConfig field path (``budget.max_train_seconds``), checked here."""
+    if key.startswith(OVERRIDE_PREFIXES):
+        overrides = data.setdefault("overrides", {})
+        if not isinstance(overrides, dict):
+            raise ValueError(f"overrides must be a mapping of dotted keys, got {overrides!r}")
+        overrides[key] = value
+    else:
+        set_dotted(data, key, value, known=TrainConfig, create=True)
+
+
+def config_from_data(data: dict[str, Any], source: str = "config") -> TrainConfig:
+    """Validate raw data as a TrainConfig; a ValueError lists every problem with its key path."""
+    try:
+        return TrainConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ValueError(f"{source}: {'; '.join(error_lines(exc))}") from None
+
+
+def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None = None,
+                    assignments: list[str] | tuple[str, ...] = ()) -> TrainConfig:
+    """A TrainConfig from a YAML file (optional), then flags (``None`` = not given), then ``key=value``
+    assignments, each later source winning. The one path of ``flashnav train`` and ``bench train``."""
+    data = _mapping(load_yaml(config_file), config_file) if config_file else {}
+    for name, value in (flags or {}).items():
+        if value is not None:
+            data[name] = value
+    for item in assignments:
+        apply_override(data, *parse_assignment(item))
+    return config_from_data(data, "training config")
+
+
+# ---- resolving -------------------------------------------------------------------------------------
+
+
+_DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
+
+
+def check_device_name(device: str) -> None:
+    """A ValueError naming ``device`` unless it is auto, cpu, cuda or cuda:N."""
+    if not _DEVICE.fullmatch(str(device)):
+        raise ValueError(f"device {device!r} is not one of auto, cpu, cuda, cuda:N")
+
+
+def resolve_device(device: str) -> str:
+    """``auto`` -> ``cuda`` when a GPU is visible, else ``cpu``; a CUDA device must exist."""
+    import torch
+
+    check_device_name(device)
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise ValueError(f"device {device!r} requested but CUDA is not available on this machine")
+        index = int(device.split(":")[1]) if ":" in device else 0
+        if index >= torch.cuda.device_count():
+            raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return device
+
+
+def resolve_recipe(recipe: str, device: str) -> str:
+    """``auto`` -> ``paper`` on a GPU, ``cpu`` otherwise."""
+    if recipe != "auto":
+        return recipe
+    return "paper" if device.startswith("cuda") else "cpu"
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run, resolved: every value that decides what ``train()`` does, typed. Build with
+    :func:`resolve`; serialise with :meth:`to_dict` (``config.yaml``), read back with :meth:`from_dict`."""
+
+    config: TrainConfig           # as asked for (overrides kept as given)
+    robot: RobotPreset            # the preset with its robot.* overrides applied
+    hparams: AnyHParams           # the recipe with its algo.* overrides applied
+    device: str                   # cpu, cuda, cuda:N (never auto)
+    recipe: str                   # paper or cpu (never auto)
+    goal_distance_max: float      # metres: the map's diagonal (observation bound, network scale)
+    grid: OccupancyMap | None = field(default=None, repr=False, compare=False)  # the loaded map
+
+    @property
+    def algorithm(self) -> str:
+        return self.config.algorithm
+
+    @property
+    def seed(self) -> int:
+        return self.config.seed
+
+    @property
+    def budget(self) -> Budget:
+        return self.config.budget
+
+    @property
+    def max_env_steps(self) -> int:
+        """Budget in env steps: the config's, else the recipe's total."""
+        return self.config.budget.max_env_steps or self.hparams.total_env_steps
+
+    @property
+    def eval_every(self) -> int:
+        """Vector steps between evaluations: the config's, else the recipe's."""
+        return self.config.eval.every or self.hparams.eval_every
+
+    @property
+    def threads(self) -> int | None:
+        """Learner threads: the config's; on a CPU with overlap, 1 (the collector thread has the other
+        core); else None (torch's default)."""
+        return self.config.threads or (1 if self.config.overlap and self.device == "cpu" else None)
+
+    @property
+    def robot_name(self) -> str:
+        return self.robot.name
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (YAML/JSON): the TrainConfig's fields with device and recipe resolved, plus
+        ``hparams``, ``robot_preset`` and ``goal_distance_max``."""
+        data = self.config.model_dump(mode="json")
+        data.update(device=self.device, recipe=self.recipe, hparams=self.hparams.model_dump(mode="json"),
+                    robot_preset=self.robot.model_dump(mode="json"), goal_distance_max=self.goal_distance_max)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "run config") -> "RunSpec":
+        """Read back :meth:`to_dict` (``config.yaml``, a checkpoint's config, an MLflow artifact).
+
+        Configs written before ``goal_distance_max`` was recorded take the preset's map size."""
+        data = _mapping(data, source)
+        try:
+            config = TrainConfig.model_validate({k: v for k, v in data.items() if k in TrainConfig.model_fields})
+            robot = RobotPreset.model_validate(data["robot_preset"])
+            hparams = MODELS[config.algorithm].model_validate(data["hparams"])
+        except KeyError as exc:
+            raise ValueError(f"{source}: not a resolved run config (no {exc.args[0]!r})") from None
+        except ValidationError as exc:
+            raise ValueError(f"{source}: not a valid run config:\n{exc}") from None
+        goal = data.get("goal_distance_max") or math.hypot(*robot.map_size)
+        return cls(config, robot, hparams, str(data.get("device", config.device)),
+                   str(data.get("recipe", config.recipe)), float(goal))
+
+
+def resolve(config: TrainConfig | None = None) -> RunSpec:
+    """The one place a run's configuration is resolved: device, recipe, preset, hyperparameters, map.
+
+    Raises ValueError naming the bad input (an unknown override key, a missing map, no CUDA, ...).
+    """
+    from flashnav.maps.bundled import resolve_map
+
+    config = config or TrainConfig()
+    device = resolve_device(config.device)
+    recipe = resolve_recipe(config.recipe, device)
+    robot = load_robot(config.robot, **config.robot_overrides())
+    hparams = load_hparams(config.algorithm, robot.name, recipe, config.algo_overrides())
+    grid = resolve_map(config.map, robot.map)
+    return RunSpec(config, robot, hparams, device, recipe, grid.diagonal_m, grid)
