@@ -10,37 +10,18 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-THRESHOLDS = (90, 95, 100)
+from flashnav.metrics import THRESHOLD_TAGS, bootstrap_mean_ci, over_seeds  # noqa: F401 - bootstrap_mean_ci re-exported
+
+THRESHOLDS = THRESHOLD_TAGS  # column-name tags: "90" -> best_90, "90% success"
 GROUP = ("embodiment", "algorithm", "platform")
 PAPER_CSV = Path(__file__).resolve().parent / "data" / "paper_table2.csv"
 
 # Display order and names follow the paper; unknown names sort after these, alphabetically.
 ROBOT_ORDER = {"turtlebot2": "TurtleBot2", "go2": "Go2"}
 ALGO_ORDER = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
-BOOTSTRAP_RESAMPLES = 10_000
-BOOTSTRAP_SEED = 0
 MISSING = "—"
-
-
-def bootstrap_mean_ci(values, confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES,
-                      seed: int = BOOTSTRAP_SEED) -> tuple[float, float] | None:
-    """Percentile-bootstrap interval of the mean over seeds, e.g. seconds -> (low, high) seconds.
-
-    Deterministic: a fixed-seed generator over the *sorted* values, so row order does not matter.
-    None when fewer than 2 values (an interval from one seed means nothing).
-    """
-    x = np.sort(np.asarray(values, dtype=float))
-    x = x[np.isfinite(x)]
-    if x.size < 2:
-        return None
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
-    alpha = (1.0 - confidence) / 2.0
-    low, high = np.percentile(means, [100 * alpha, 100 * (1 - alpha)])
-    return float(low), float(high)
 
 
 def _order_key(values: pd.Series, known: dict) -> pd.Series:
@@ -64,12 +45,12 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS) -> pd.DataFrame:
         row = dict(zip(GROUP, key))
         row["n"] = int(len(grp))
         for t in thresholds:
-            hit = grp.loc[grp[f"reached_{t}"].fillna(0).astype(float) >= 1.0, f"time_to_{t}"].astype(float)
-            row[f"best_{t}"] = float(hit.min()) if len(hit) else math.nan
-            row[f"mean_{t}"] = float(hit.mean()) if len(hit) else math.nan
-            row[f"reached_{t}"] = int(len(hit))
-            ci = bootstrap_mean_ci(hit.to_numpy())
-            row[f"ci_low_{t}"], row[f"ci_high_{t}"] = ci if ci else (None, None)
+            stats = over_seeds(grp[f"time_to_{t}"].astype(float).to_numpy(),
+                               reached=grp[f"reached_{t}"].fillna(0).astype(float).to_numpy())
+            row[f"best_{t}"] = stats.best if stats.k else math.nan
+            row[f"mean_{t}"] = stats.mean if stats.k else math.nan
+            row[f"reached_{t}"] = stats.k
+            row[f"ci_low_{t}"], row[f"ci_high_{t}"] = stats.ci if stats.ci else (None, None)
         rows.append(row)
     table = pd.DataFrame(rows)
     if table.empty:

@@ -10,8 +10,8 @@ import statistics
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.learn.config import THRESHOLDS
 from flashnav.learn.progress import TrainProgress
+from flashnav.metrics import THRESHOLDS, over_seeds
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -36,14 +36,9 @@ def summarise(runs: list[dict]) -> dict:
     """Best / mean seconds and env steps to each threshold over the runs that reached it, and k/S."""
     out = {"runs": len(runs)}
     for t in THRESHOLDS:
-        secs = [r["time_to_threshold"][str(t)] for r in runs if r["time_to_threshold"][str(t)] is not None]
-        steps = [r["env_steps_to_threshold"][str(t)] for r in runs if r["env_steps_to_threshold"][str(t)] is not None]
-        out[str(t)] = {
-            "reached": len(secs),
-            "best_s": min(secs) if secs else None,
-            "mean_s": statistics.fmean(secs) if secs else None,
-            "mean_env_steps": statistics.fmean(steps) if steps else None,
-        }
+        secs = over_seeds([r["time_to_threshold"][str(t)] for r in runs], interval=False)
+        steps = over_seeds([r["env_steps_to_threshold"][str(t)] for r in runs], interval=False)
+        out[str(t)] = {"reached": secs.k, "best_s": secs.best, "mean_s": secs.mean, "mean_env_steps": steps.mean}
     for k in ("collector_ms", "learner_ms", "effective_ms"):
         out[k] = statistics.fmean(r["cycle"][k] for r in runs)
     return out

@@ -8,8 +8,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from flashnav.config import load_yaml
-
-THRESHOLDS = (0.9, 0.95, 1.0)
+from flashnav.metrics import THRESHOLDS  # noqa: F401 - re-exported; defined once in flashnav.metrics
 
 
 class _Strict(BaseModel):
