@@ -5,7 +5,8 @@ What a trial reports (the metric names of docs/run-schema.md):
 * at every evaluation (``on_eval``, outside flashnav's training clock by contract): ``success_rate``,
   ``mean_return``, ``train_seconds``, ``env_steps`` (+ collision/timeout rates), ``seed``, ``final=0``;
 * once per seed, with a checkpoint: the final metrics (``time_to_90`` ... censored, never NaN/None),
-  ``seed``, ``final=1`` and the strings the MLflow writer in the driver needs (``device_name``, ...).
+  ``seed``, ``final=1`` and the strings the MLflow writer in the driver needs (``device_name``, the
+  machine; ``threads``, the learner's CPU threads where training reported them; ...).
   The checkpoint carries the resolved config, the curve CSV and an exported policy if training wrote
   one, so that the driver can log them even when the trial ran on another node; it also lists the
   seeds already done so that a retried or restored trial does not train them again.
@@ -267,6 +268,8 @@ def train_trial(config: dict, *, sweep: dict, git_commit: str = "unknown",
                 finished.append(objective.of_final(final))
             report = {**final, **info, "seed": seed, "final": 1.0,
                       "device_name": str(getattr(result, "device_name", "") or devices.device_name(device))}
+            if getattr(result, "threads", None) is not None:  # a CPU run's learner threads, beside the machine
+                report["threads"] = int(result.threads)
             if objective:
                 report["objective"] = objective.mean(finished)
             _write_seed(stage, seed, result, final, done, export=spec.export_policy)

@@ -41,6 +41,7 @@ def summarise(runs: list[dict]) -> dict:
         out[str(t)] = {"reached": secs.k, "best_s": secs.best, "mean_s": secs.mean, "mean_env_steps": steps.mean}
     for k in ("collector_ms", "learner_ms", "effective_ms"):
         out[k] = statistics.fmean(r["cycle"][k] for r in runs)
+    out["threads"] = sorted({r["threads"] for r in runs if r.get("threads") is not None})  # [] on a GPU
     return out
 
 
@@ -109,7 +110,7 @@ def _save(path: str | None, when: str, groups, runs: list[dict]) -> None:
 
 def _print(console: Console, groups, seeds: int, when: str) -> None:
     t = Table(title=f"flashnav bench train ({when}): seconds of training to success thresholds, {seeds} seeds")
-    for col in ("robot", "algo", "recipe", "device", "90% best/mean (k/S)", "95% best/mean (k/S)",
+    for col in ("robot", "algo", "recipe", "device", "threads", "90% best/mean (k/S)", "95% best/mean (k/S)",
                 "100% best/mean (k/S)", "env steps to 90%", "collector/learner/cycle ms"):
         t.add_column(col, justify="right")
     for robot, algo, recipe, device, s in groups:
@@ -118,6 +119,7 @@ def _print(console: Console, groups, seeds: int, when: str) -> None:
             c = s[str(th)]
             cells.append("-" if not c["reached"] else f"{c['best_s']:.1f} / {c['mean_s']:.1f} ({c['reached']}/{s['runs']})")
         e90 = s["0.9"]["mean_env_steps"]
-        t.add_row(robot, algo, recipe, device, *cells, "-" if e90 is None else f"{e90:,.0f}",
+        threads = ", ".join(str(n) for n in s.get("threads", [])) or "-"
+        t.add_row(robot, algo, recipe, device, threads, *cells, "-" if e90 is None else f"{e90:,.0f}",
                   f"{s['collector_ms']:.1f} / {s['learner_ms']:.1f} / {s['effective_ms']:.1f}")
     console.print(t)
