@@ -11,7 +11,7 @@ from typing import Callable
 
 import torch
 
-from flashnav.names import THRESHOLDS
+from flashnav.metrics import THRESHOLDS, reaches
 from flashnav.sim.env import NavVecEnv
 
 
@@ -79,7 +79,11 @@ def _rates(success, collision, returns, steps) -> dict[str, float]:
 
 
 class ThresholdTracker:
-    """First training time and env step at which the success rate reached each threshold."""
+    """First training time and env step at which the success rate reached each threshold.
+
+    The incremental form of :func:`flashnav.metrics.first_crossing`, fed one evaluation at a time
+    by the training loop (which stops at a success target, so it needs the crossing as it happens).
+    """
 
     def __init__(self, thresholds=THRESHOLDS):
         self.seconds: dict[float, float | None] = {t: None for t in thresholds}
@@ -89,7 +93,7 @@ class ThresholdTracker:
         """Record an evaluation; returns the thresholds reached for the first time."""
         new = []
         for t in self.seconds:
-            if self.seconds[t] is None and success_rate >= t - 1e-9:
+            if self.seconds[t] is None and reaches(success_rate, t):
                 self.seconds[t], self.env_steps[t] = train_seconds, env_steps
                 new.append(t)
         return new

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from flashnav.maps.grid import OccupancyMap  # noqa: E402
+from flashnav.metrics import THRESHOLDS  # noqa: E402
 
 OUTCOME_COLOURS = {"success": "tab:green", "collision": "tab:red", "timeout": "tab:orange", "running": "tab:blue"}
 
@@ -42,7 +43,7 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
 
 
 def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
-                       thresholds: tuple[float, ...] = (0.9, 0.95, 1.0)) -> Path:
+                       thresholds: tuple[float, ...] = THRESHOLDS) -> Path:
     """Save a PNG of evaluation success against training seconds, one line per run (``bench train``
     JSON records: ``robot``, ``algorithm``, ``seed`` and ``curve``), one panel per robot x algorithm,
     with each run's first crossing of ``thresholds`` marked."""

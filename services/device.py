@@ -1,4 +1,4 @@
-"""Which device a Tune trial trains on, and how the platform is named in tables.
+"""Which device a Tune trial trains on, and how the platform is named in tables (flashnav.machine).
 
 Since Ray 2.5x a trial that asked for ``gpu: 0`` no longer gets ``CUDA_VISIBLE_DEVICES=""``: it sees every
 GPU of its node, and ``device="auto"`` would silently put it on a GPU that another trial was given. The
@@ -10,9 +10,7 @@ trials call it.
 from __future__ import annotations
 
 import os
-import platform
 import socket
-from functools import lru_cache
 
 
 def trial_device() -> str:
@@ -31,21 +29,9 @@ def device_kind(device: str) -> str:
     return "cuda" if str(device).startswith("cuda") else "cpu"
 
 
-@lru_cache(maxsize=1)
-def cpu_model() -> str:
-    """The CPU's marketing name (``AMD EPYC 7B13``), from /proc/cpuinfo where present."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown CPU"
-
-
 def cpu_threads() -> int:
-    """Threads this process may use: torch's setting where torch is loaded, else the affinity mask."""
+    """Threads this process may use: torch's setting where torch is loaded, else the affinity mask
+    (the ``threads`` fallback when training reported none)."""
     import sys
 
     if "torch" in sys.modules:
@@ -57,13 +43,11 @@ def cpu_threads() -> int:
 
 
 def device_name(device: str) -> str:
-    """``NVIDIA H100 80GB HBM3`` or ``AMD EPYC 7B13 (2 threads)``: the fallback when training gave none."""
-    if device_kind(device) == "cuda":
-        import torch
+    """The machine, ``NVIDIA H100 80GB HBM3`` or ``AMD EPYC 7B13 (2 cores)`` (flashnav.machine's name),
+    without the thread count (the ``threads`` tag): the fallback when training gave none."""
+    from flashnav.machine import machine_name
 
-        index = int(str(device).split(":")[1]) if ":" in str(device) else 0
-        return torch.cuda.get_device_name(index)
-    return f"{cpu_model()} ({cpu_threads()} threads)"
+    return machine_name(device)
 
 
 def host_name() -> str:

@@ -1,7 +1,7 @@
 """MLflow runs -> the paper's tables and figures, and the `flashnav report` command.
 
 Data contract: docs/run-schema.md (one nested child run per Tune trial, tags robot / algorithm /
-seed / device_name, final metrics time_to_90 ... censored with reached_90 ...). Flow:
+seed / device_name (the machine) / threads, final metrics time_to_90 ... censored with reached_90 ...). Flow:
 
     load_runs (MLflow search -> normalize_runs: FINISHED only, one run per trial, typed columns)
       -> threshold_table (report_tables) -> Markdown / LaTeX / CSV
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from services.report_tables import (THRESHOLDS, comparison_table, latex_document, load_paper_table,
+from services.report_tables import (THRESHOLDS, comparison_table, latex_document, load_paper_table, split_platform,
                                     threshold_table, to_csv, to_latex, to_markdown)
 
 __all__ = ["NoRunsError", "default_tracking_uri", "normalize_runs", "load_runs", "curves", "threshold_table",
@@ -70,12 +70,15 @@ def normalize_runs(raw: pd.DataFrame) -> pd.DataFrame:
     (sweep, trial_id) the run with the latest end_time (a restored trial can leave a duplicate; runs
     without trial_id count as their own trial). Filtering before de-duplicating matters: a later
     FAILED retry must not hide the trial's FINISHED run. Columns: run_id, experiment_id, status,
-    start_time, end_time, tags by name (seed as int), final metrics by name (float, NaN if absent),
+    start_time, end_time, tags by name (seed as int; device_name the machine and threads an Int64, an
+    old-spelling name ``CPU (2 threads)`` split into both, see report_tables.split_platform),
+    final metrics by name (float, NaN if absent),
     params as `params.<dotted key>` cast to int / float / bool where every value parses.
     Counts for the provenance block are left in `.attrs`.
     """
     if raw is None or raw.empty:
-        out = pd.DataFrame(columns=["run_id", "status", "robot", "algorithm", "device_name", "seed", *FINAL_METRICS])
+        out = pd.DataFrame(columns=["run_id", "status", "robot", "algorithm", "device_name", "threads", "seed",
+                                    *FINAL_METRICS])
         out.attrs.update(n_runs=0, n_finished=0, n_not_finished=0, n_duplicates=0, n_trials=0)
         return out
     ren = {}
@@ -96,6 +99,7 @@ def normalize_runs(raw: pd.DataFrame) -> pd.DataFrame:
     finished["_sweep"] = finished["sweep"].fillna("").astype(str)
     finished = finished.sort_values(["end_time", "start_time", "run_id"], na_position="first")
     kept = finished.drop_duplicates(["_sweep", "_trial"], keep="last").drop(columns=["_trial", "_sweep"])
+    kept = split_platform(kept)
     kept["device_name"] = kept["device_name"].fillna("unknown device")
     kept["seed"] = pd.to_numeric(kept.get("seed"), errors="coerce").astype("Int64")
     for m in FINAL_METRICS:

@@ -10,7 +10,7 @@ from pathlib import Path
 import jinja2
 import pandas as pd
 
-from services.report_tables import display_rows, header_cells
+from services.report_tables import display_rows, has_threads, header_cells
 
 TEMPLATE = Path(__file__).resolve().parents[1] / "dashboards" / "report.html.j2"
 FIGURE_CAPTIONS = {
@@ -25,7 +25,7 @@ FIGURE_CAPTIONS = {
 
 def _table_context(table: pd.DataFrame, with_counts: bool) -> dict:
     groups, sub = header_cells(with_counts)
-    return {"groups": groups, "sub": sub, "per": len(sub) // len(groups),
+    return {"groups": groups, "sub": sub, "per": len(sub) // len(groups), "threads": has_threads(table),
             "rows": display_rows(table, with_counts) if not table.empty else []}
 
 

@@ -10,37 +10,19 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-THRESHOLDS = (90, 95, 100)
+from flashnav.machine import split_device_name
+from flashnav.metrics import THRESHOLD_TAGS, bootstrap_mean_ci, over_seeds  # noqa: F401 - bootstrap_mean_ci re-exported
+
+THRESHOLDS = THRESHOLD_TAGS  # column-name tags: "90" -> best_90, "90% success"
 GROUP = ("embodiment", "algorithm", "platform")
 PAPER_CSV = Path(__file__).resolve().parent / "data" / "paper_table2.csv"
 
 # Display order and names follow the paper; unknown names sort after these, alphabetically.
 ROBOT_ORDER = {"turtlebot2": "TurtleBot2", "go2": "Go2"}
 ALGO_ORDER = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
-BOOTSTRAP_RESAMPLES = 10_000
-BOOTSTRAP_SEED = 0
 MISSING = "—"
-
-
-def bootstrap_mean_ci(values, confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES,
-                      seed: int = BOOTSTRAP_SEED) -> tuple[float, float] | None:
-    """Percentile-bootstrap interval of the mean over seeds, e.g. seconds -> (low, high) seconds.
-
-    Deterministic: a fixed-seed generator over the *sorted* values, so row order does not matter.
-    None when fewer than 2 values (an interval from one seed means nothing).
-    """
-    x = np.sort(np.asarray(values, dtype=float))
-    x = x[np.isfinite(x)]
-    if x.size < 2:
-        return None
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(resamples, x.size))].mean(axis=1)
-    alpha = (1.0 - confidence) / 2.0
-    low, high = np.percentile(means, [100 * alpha, 100 * (1 - alpha)])
-    return float(low), float(high)
 
 
 def _order_key(values: pd.Series, known: dict) -> pd.Series:
@@ -48,28 +30,54 @@ def _order_key(values: pd.Series, known: dict) -> pd.Series:
     return values.map(lambda v: (rank.get(v, len(rank)), str(v)))
 
 
+def split_platform(runs: pd.DataFrame) -> pd.DataFrame:
+    """A copy with ``device_name`` = the machine and ``threads`` (Int64, NA where unknown: GPU runs).
+
+    threads comes from the ``threads`` tag, else from a name of the old spelling ``CPU (2 threads)``
+    (runs logged before the tag existed), whose suffix is split off the machine so that a machine's
+    runs form one platform whatever their thread setting. Idempotent.
+    """
+    out = runs.copy()
+    names = out["device_name"] if "device_name" in out else pd.Series(pd.NA, index=out.index, dtype=object)
+    parts = [split_device_name(None if pd.isna(v) else str(v)) for v in names]
+    out["device_name"] = pd.Series([m if m is not None else pd.NA for m, _ in parts], index=out.index, dtype=object)
+    tagged = pd.to_numeric(out["threads"], errors="coerce") if "threads" in out else \
+        pd.Series(math.nan, index=out.index)
+    parsed = pd.Series([math.nan if t is None else float(t) for _, t in parts], index=out.index)
+    out["threads"] = tagged.astype(float).fillna(parsed).round().astype("Int64")
+    return out
+
+
+def _threads_cell(values: pd.Series) -> str:
+    """Distinct thread counts of a row's runs, "1" or "1, 2"; "" where none is known (GPU runs)."""
+    return ", ".join(str(int(v)) for v in sorted(set(values.dropna().astype(int))))
+
+
 def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS) -> pd.DataFrame:
     """Best / mean seconds to each success threshold, one row per embodiment x algorithm x platform.
 
-    runs: one row per trial with columns robot, algorithm, device_name, time_to_<t> [s], reached_<t>.
-    Returns columns embodiment, algorithm, platform, n (seeds), and per threshold t:
+    runs: one row per trial with columns robot, algorithm, device_name, time_to_<t> [s], reached_<t>
+    and optionally threads (split_platform is applied: the platform is the machine).
+    Returns columns embodiment, algorithm, platform (the machine), n (seeds), and per threshold t:
     best_<t>, mean_<t> [s] (over seeds with reached_<t> == 1; NaN when none), reached_<t> (k),
     ci_low_<t>, ci_high_<t> [s] (95 % bootstrap of the mean; None when k < 2),
     bold_best_<t>, bold_mean_<t> (the lowest value among platforms of the same embodiment x algorithm;
-    ties are all bold; cells without a value are never bold).
+    ties are all bold; cells without a value are never bold), then threads (the learner thread
+    counts of the row's runs, "1, 2"; "" on GPUs).
     """
     rows = []
-    frame = runs.rename(columns={"robot": "embodiment", "device_name": "platform"})
+    frame = split_platform(runs).rename(columns={"robot": "embodiment", "device_name": "platform"})
     for key, grp in frame.groupby(list(GROUP), sort=False, dropna=False):
         row = dict(zip(GROUP, key))
         row["n"] = int(len(grp))
         for t in thresholds:
-            hit = grp.loc[grp[f"reached_{t}"].fillna(0).astype(float) >= 1.0, f"time_to_{t}"].astype(float)
-            row[f"best_{t}"] = float(hit.min()) if len(hit) else math.nan
-            row[f"mean_{t}"] = float(hit.mean()) if len(hit) else math.nan
-            row[f"reached_{t}"] = int(len(hit))
-            ci = bootstrap_mean_ci(hit.to_numpy())
-            row[f"ci_low_{t}"], row[f"ci_high_{t}"] = ci if ci else (None, None)
+            stats = over_seeds(grp[f"time_to_{t}"].astype(float).to_numpy(),
+                               reached=grp[f"reached_{t}"].fillna(0).astype(float).to_numpy())
+            row[f"best_{t}"] = stats.best if stats.k else math.nan
+            row[f"mean_{t}"] = stats.mean if stats.k else math.nan
+            row[f"reached_{t}"] = stats.k
+            row[f"ci_low_{t}"], row[f"ci_high_{t}"] = stats.ci if stats.ci else (None, None)
+        row["threads"] = _threads_cell(grp["threads"])
         rows.append(row)
     table = pd.DataFrame(rows)
     if table.empty:
@@ -141,6 +149,8 @@ def display_rows(table: pd.DataFrame, with_counts: bool = True, thresholds=THRES
     """Rows ready to print: labels, row spans for the multirow cells, and per-threshold cells.
 
     Each cell is {"text", "bold", "ci"} (ci: "[low, high]" or ""). Spans are 0 on continuation rows.
+    ``threads`` is the row's thread counts (MISSING where none is known), None for tables without them
+    (the paper's).
     """
     out = []
     for i, r in table.reset_index(drop=True).iterrows():
@@ -155,6 +165,7 @@ def display_rows(table: pd.DataFrame, with_counts: bool = True, thresholds=THRES
         out.append({"embodiment": ROBOT_ORDER.get(r["embodiment"], str(r["embodiment"])),
                     "algorithm": ALGO_ORDER.get(r["algorithm"], str(r["algorithm"])),
                     "platform": short_platform(r["platform"]), "cells": cells,
+                    "threads": (r["threads"] or MISSING) if "threads" in table else None,
                     "embodiment_span": 0, "algorithm_span": 0, "new_embodiment": False, "new_algorithm": False})
     for i, row in enumerate(out):
         e, a = table["embodiment"].iat[i], table["algorithm"].iat[i]
@@ -168,6 +179,11 @@ def display_rows(table: pd.DataFrame, with_counts: bool = True, thresholds=THRES
     return out
 
 
+def has_threads(table: pd.DataFrame) -> bool:
+    """Whether the table shows a Threads column (ours do; the paper's table has no thread counts)."""
+    return "threads" in table
+
+
 def header_cells(with_counts: bool = True, thresholds=THRESHOLDS) -> tuple[list[str], list[str]]:
     """(threshold group labels, sub-column labels)."""
     sub = ["Best", "Mean", "k/n"] if with_counts else ["Best", "Mean"]
@@ -178,14 +194,16 @@ def to_markdown(table: pd.DataFrame, with_counts: bool = True) -> str:
     """GitHub Markdown table; bold cells as **x**; the bootstrap interval after the mean."""
     groups, sub = header_cells(with_counts)
     per = len(sub) // len(groups)
-    head = ["Embodiment", "Algorithm", "Platform"] + [f"{g.split()[0]} {s}" for g in groups for s in sub[:per]]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 3 + "--:|" * len(sub)]
+    labels = ["Embodiment", "Algorithm", "Platform"] + (["Threads"] if has_threads(table) else [])
+    head = labels + [f"{g.split()[0]} {s}" for g in groups for s in sub[:per]]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(labels) + "--:|" * len(sub)]
     for row in display_rows(table, with_counts):
         cells = []
         for c in row["cells"]:
             text = f"**{c['text']}**" if c["bold"] else c["text"]
             cells.append(f"{text} {c['ci']}".strip())
-        lines.append("| " + " | ".join([row["embodiment"], row["algorithm"], row["platform"]] + cells) + " |")
+        lead = [row["embodiment"], row["algorithm"], row["platform"]] + ([row["threads"]] if row["threads"] else [])
+        lines.append("| " + " | ".join(lead + cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -201,17 +219,19 @@ def to_latex(table: pd.DataFrame, with_counts: bool = True, caption: str | None 
              label: str = "tab:flashnav_report_thresholds") -> str:
     """A booktabs + multirow `table*` like the paper's Table 2 (needs \\usepackage{booktabs,multirow})."""
     groups, sub = header_cells(with_counts)
-    per, ncol = len(sub) // len(groups), 3 + len(sub)
+    threads = has_threads(table)
+    nlead = 4 if threads else 3  # label columns before the per-threshold cells
+    per, ncol = len(sub) // len(groups), nlead + len(sub)
     if caption is None:
         caption = ("Time to success threshold over seeds: best / mean wall-clock seconds computed over "
                    "reached seeds only" + (", $k/n$ seeds reached, 95\\,\\% bootstrap interval of the mean "
                                            "in brackets" if with_counts else "") + ". Bold: fastest platform.")
-    spec = "lll" + "".join("c" * per for _ in groups)
+    spec = "l" * nlead + "".join("c" * per for _ in groups)
     head1 = " & ".join([r"\multirow{2}{*}{Embodiment}", r"\multirow{2}{*}{Algorithm}",
-                        r"\multirow{2}{*}{Platform}"]
+                        r"\multirow{2}{*}{Platform}"] + ([r"\multirow{2}{*}{Threads}"] if threads else [])
                        + [rf"\multicolumn{{{per}}}{{c}}{{{latex_escape(g)}}}" for g in groups]) + r" \\"
-    rules = " ".join(rf"\cmidrule(lr){{{4 + i * per}-{3 + (i + 1) * per}}}" for i in range(len(groups)))
-    head2 = " & & & " + " & ".join(r"$k/n$" if s == "k/n" else s for s in sub) + r" \\"
+    rules = " ".join(rf"\cmidrule(lr){{{nlead + 1 + i * per}-{nlead + (i + 1) * per}}}" for i in range(len(groups)))
+    head2 = " " + "& " * nlead + " & ".join(r"$k/n$" if s == "k/n" else s for s in sub) + r" \\"
     body = []
     for i, row in enumerate(display_rows(table, with_counts)):
         if i and row["new_embodiment"]:
@@ -227,7 +247,9 @@ def to_latex(table: pd.DataFrame, with_counts: bool = True, caption: str | None 
             text = "--" if c["text"] == MISSING else latex_escape(c["text"])
             text = rf"\textbf{{{text}}}" if c["bold"] else text
             cells.append(text + (rf"\,{{\scriptsize{latex_escape(c['ci'])}}}" if c["ci"] else ""))
-        body.append(" & ".join([emb, alg, latex_escape(row["platform"])] + cells) + r" \\")
+        tcell = "--" if row["threads"] == MISSING else latex_escape(row["threads"])
+        lead = [emb, alg, latex_escape(row["platform"])] + ([tcell] if threads else [])
+        body.append(" & ".join(lead + cells) + r" \\")
     return "\n".join([r"\begin{table*}[t]", r"\centering", rf"\caption{{{caption}}}", rf"\label{{{label}}}",
                       r"\setlength{\tabcolsep}{4pt}", rf"\begin{{tabular}}{{{spec}}}", r"\toprule", head1,
                       rules, head2, r"\midrule", *body, r"\bottomrule", r"\end{tabular}", r"\end{table*}", ""])

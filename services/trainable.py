@@ -5,7 +5,8 @@ What a trial reports (the metric names of docs/run-schema.md):
 * at every evaluation (``on_eval``, outside flashnav's training clock by contract): ``success_rate``,
   ``mean_return``, ``train_seconds``, ``env_steps`` (+ collision/timeout rates), ``seed``, ``final=0``;
 * once per seed, with a checkpoint: the final metrics (``time_to_90`` ... censored, never NaN/None),
-  ``seed``, ``final=1`` and the strings the MLflow writer in the driver needs (``device_name``, ...).
+  ``seed``, ``final=1`` and the strings the MLflow writer in the driver needs (``device_name``, the
+  machine; ``threads``, the learner's CPU threads where training reported them; ...).
   The checkpoint carries the resolved config, the curve CSV and an exported policy if training wrote
   one, so that the driver can log them even when the trial ran on another node; it also lists the
   seeds already done so that a retried or restored trial does not train them again.
@@ -29,11 +30,11 @@ from typing import Any, Callable
 import yaml
 
 from flashnav.spec import config_from_data
+from flashnav.metrics import THRESHOLD_TAGS, THRESHOLDS, censor, threshold_of, time_to_threshold
 from services import device as devices
 from services.search_space import Search
 from services.sweep_schema import Sweep
 
-THRESHOLDS = ((0.9, "90"), (0.95, "95"), (1.0, "100"))
 CURVE_KEYS = ("success_rate", "mean_return", "train_seconds", "env_steps", "collision_rate", "timeout_rate")
 MANIFEST = "manifest.json"
 logger = logging.getLogger(__name__)
@@ -61,12 +62,12 @@ def final_metrics(result: Any) -> dict[str, float]:
                           (curve[-1]["train_seconds"] if curve else 0.0))
     total_steps = float(result.env_steps if result.env_steps is not None else (curve[-1]["env_steps"] if curve else 0))
     out: dict[str, float] = {}
-    for threshold, tag in THRESHOLDS:
-        seconds = _at_threshold(result.time_to_threshold, threshold)
-        steps = _at_threshold(result.env_steps_to_threshold, threshold)
-        reached = seconds is not None
-        out[f"time_to_{tag}"] = seconds if reached else total_seconds
-        out[f"env_steps_to_{tag}"] = steps if (reached and steps is not None) else total_steps
+    for threshold, tag in zip(THRESHOLDS, THRESHOLD_TAGS):
+        # the seconds decide whether it was reached; steps follow (a missing step count is censored too)
+        seconds, reached = censor(_at_threshold(result.time_to_threshold, threshold), total_seconds)
+        steps = _at_threshold(result.env_steps_to_threshold, threshold) if reached else None
+        out[f"time_to_{tag}"] = seconds
+        out[f"env_steps_to_{tag}"] = censor(steps, total_steps)[0]
         out[f"reached_{tag}"] = 1.0 if reached else 0.0
     success = [float(point["success_rate"]) for point in curve]
     out["final_success_rate"] = success[-1] if success else 0.0
@@ -106,9 +107,8 @@ class Objective:
             rates = [p["success_rate"] for p in curve]
             return rates[-1] if self.name == "final_success_rate" else max(rates)
         key = "train_seconds" if self.name.startswith("time_to_") else "env_steps"
-        threshold = int(self.threshold_tag) / 100.0
-        hit = next((p for p in curve if p["success_rate"] >= threshold - 1e-9), None)
-        return float((hit or curve[-1])[key])
+        success, x = [p["success_rate"] for p in curve], [p[key] for p in curve]
+        return time_to_threshold(success, x, threshold_of(self.threshold_tag))[0]
 
     def mean(self, finished: list[float], running: float | None = None) -> float:
         values = finished + ([running] if running is not None else [])
@@ -258,6 +258,8 @@ def train_trial(config: dict, *, sweep: dict, git_commit: str = "unknown",
                 finished.append(objective.of_final(final))
             report = {**final, **info, "seed": seed, "final": 1.0,
                       "device_name": str(getattr(result, "device_name", "") or devices.device_name(device))}
+            if getattr(result, "threads", None) is not None:  # a CPU run's learner threads, beside the machine
+                report["threads"] = int(result.threads)
             if objective:
                 report["objective"] = objective.mean(finished)
             _write_seed(stage, seed, result, final, done, export=spec.export_policy)

@@ -27,6 +27,13 @@ def test_summarise_counts_only_seeds_that_reached():
     assert s["collector_ms"] == pytest.approx(32.0 / 3) and s["effective_ms"] == pytest.approx(65.0 / 3)
 
 
+def test_summarise_lists_the_learner_thread_counts():
+    runs = [{**_run(10.0, None, None), "threads": 2}, {**_run(None, None, None), "threads": 1},
+            {**_run(None, None, None), "threads": 2}]
+    assert summarise(runs)["threads"] == [1, 2]                  # shown beside the machine, not inside it
+    assert summarise([_run(None, None, None)])["threads"] == []  # GPU runs (and older JSON) have none
+
+
 def test_bench_train_command_writes_every_run(tmp_path, capsys):
     out = tmp_path / "bench.json"
     code = cli_main(["bench", "train", "--seeds", "2", "--recipe", "cpu", "--device", "cpu", "--budget-seconds", "1",

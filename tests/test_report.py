@@ -29,7 +29,8 @@ def _load_fixture():
 
 
 F = _load_fixture()
-H100, EPYC, R4090 = "NVIDIA H100 80GB HBM3", "AMD EPYC 7B13 (2 threads)", "NVIDIA GeForce RTX 4090"
+# the fixture's CPU runs have the old spelling "AMD EPYC 7B13 (2 threads)": the platform is the machine
+H100, EPYC, R4090 = "NVIDIA H100 80GB HBM3", "AMD EPYC 7B13", "NVIDIA GeForce RTX 4090"
 X = None  # no seed reached
 
 # By hand from fixtures/report_runs.py TRIALS, over reached seeds only: {t: (best, mean, k)}, n.
@@ -54,7 +55,7 @@ BOLD = {
     ("go2", "fasttd3", EPYC): {"best_90", "best_95", "best_100", "mean_100"},
     ("go2", "fasttd3", H100): {"mean_90", "best_95", "mean_95"},
 }
-H100_TB2_DSAC_MD = ("| TurtleBot2 | FastDSAC | H100 80GB HBM3 | 10.0 | **12.0** [10.0, 14.0] | 3/3 | **11.0** | "
+H100_TB2_DSAC_MD = ("| TurtleBot2 | FastDSAC | H100 80GB HBM3 | — | 10.0 | **12.0** [10.0, 14.0] | 3/3 | **11.0** | "
                     "**13.0** [11.0, 15.0] | 3/3 | **12.0** | **14.0** [12.0, 16.0] | 2/3 |")
 
 
@@ -127,22 +128,22 @@ def test_bootstrap_interval(table):
 def test_markdown(table):
     md = to_markdown(table)
     assert H100_TB2_DSAC_MD in md.splitlines()
-    assert "| TurtleBot2 | FastDSAC | RTX 4090 | **9.0** | 13.0 [9.0, 17.0] | 2/2 |" in md
-    assert "| Go2 | FastDSAC | AMD EPYC 7B13 (2 threads) | — | — | 0/3 | — | — | 0/3 | — | — | 0/3 |" in md
+    assert "| TurtleBot2 | FastDSAC | RTX 4090 | — | **9.0** | 13.0 [9.0, 17.0] | 2/2 |" in md
+    assert "| Go2 | FastDSAC | AMD EPYC 7B13 | 2 | — | — | 0/3 | — | — | 0/3 | — | — | 0/3 |" in md
     assert md.count("**") // 2 == sum(len(v) for v in BOLD.values())
 
 
 def test_latex(table):
     tex = to_latex(table)
-    assert r"\multirow{5}{*}{TurtleBot2} & \multirow{3}{*}{FastDSAC} & AMD EPYC 7B13 (2 threads) & 20.0 &" in tex
+    assert r"\multirow{5}{*}{TurtleBot2} & \multirow{3}{*}{FastDSAC} & AMD EPYC 7B13 & 2 & 20.0 &" in tex
     assert r"\multirow{4}{*}{Go2} & \multirow{2}{*}{FastDSAC}" in tex
-    assert (r" &  & H100 80GB HBM3 & 10.0 & \textbf{12.0}\,{\scriptsize[10.0, 14.0]} & 3/3 & \textbf{11.0} & "
+    assert (r" &  & H100 80GB HBM3 & -- & 10.0 & \textbf{12.0}\,{\scriptsize[10.0, 14.0]} & 3/3 & \textbf{11.0} & "
             r"\textbf{13.0}\,{\scriptsize[11.0, 15.0]} & 3/3 & \textbf{12.0} & "
             r"\textbf{14.0}\,{\scriptsize[12.0, 16.0]} & 2/3 \\") in tex.splitlines()
     assert r"\textbf{9.0}" in tex and r"-- & -- & 0/3 \\" in tex
     assert tex.count(r"\textbf{") == sum(len(v) for v in BOLD.values())
-    assert tex.count(r"\cmidrule(lr){2-12}") == 2 and tex.count(r"\midrule") == 2
-    assert r"\toprule" in tex and r"\bottomrule" in tex and r"\begin{tabular}{lllccccccccc}" in tex
+    assert tex.count(r"\cmidrule(lr){2-13}") == 2 and tex.count(r"\midrule") == 2
+    assert r"\toprule" in tex and r"\bottomrule" in tex and r"\begin{tabular}{llllccccccccc}" in tex
     assert latex_escape("a_b & 100% #1") == r"a\_b \& 100\% \#1"
 
 
@@ -184,6 +185,41 @@ def test_latex_compiles(tmp_path, table):
     res = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stdout[-3000:]
     assert (tmp_path / "t.pdf").stat().st_size > 1000
+
+
+# ------------------------------------------------------------------------------------ platform names
+
+def _respell(raw: pd.DataFrame, old: str, new: str, threads: dict | None = None) -> pd.DataFrame:
+    """The fixture with device_name ``old`` renamed ``new`` and, per seed, a ``threads`` tag where given."""
+    raw = raw.copy()
+    hit = raw["tags.device_name"] == old
+    raw.loc[hit, "tags.device_name"] = new
+    if threads is not None:
+        raw["tags.threads"] = None
+        for seed, n in threads.items():
+            raw.loc[hit & (raw["tags.seed"] == str(seed)), "tags.threads"] = str(n)
+    return raw
+
+
+def test_old_and_new_device_name_spellings(runs, table):
+    # old spelling (the fixture): the machine, and threads parsed from the name; GPUs have no threads
+    assert set(runs["device_name"]) == {H100, EPYC, R4090} and str(runs["threads"].dtype) == "Int64"
+    assert runs.loc[runs["device_name"] == EPYC, "threads"].tolist() == [2] * 12
+    assert runs.loc[runs["device_name"] != EPYC, "threads"].isna().all()
+    # new spelling: machine with cores, threads as a tag -> the same numbers, one row per machine
+    new = threshold_table(normalize_runs(_respell(F.raw_runs(), "AMD EPYC 7B13 (2 threads)",
+                                                  "AMD EPYC 7B13 (2 cores)", threads={0: 2, 1: 2, 2: 2})))
+    cpu = new["platform"] == "AMD EPYC 7B13 (2 cores)"
+    assert cpu.sum() == 4 and (new.loc[cpu, "threads"] == "2").all()
+    pd.testing.assert_frame_equal(new.drop(columns="platform"), table.drop(columns="platform"))
+    # a thread setting no longer splits a machine's row: 1 and 2 threads (either spelling) are one row
+    mixed = _respell(F.raw_runs(), "AMD EPYC 7B13 (2 threads)", "AMD EPYC 7B13 (2 threads)")
+    mixed.loc[(mixed["tags.device_name"] == "AMD EPYC 7B13 (2 threads)") & (mixed["tags.seed"] == "1"),
+              "tags.device_name"] = "AMD EPYC 7B13 (1 threads)"
+    got = threshold_table(normalize_runs(mixed))
+    pd.testing.assert_frame_equal(got.drop(columns="threads"), table.drop(columns="threads"))
+    assert got.loc[got["platform"] == EPYC, "threads"].tolist() == ["1, 2"] * 4
+    assert "| TurtleBot2 | FastDSAC | AMD EPYC 7B13 | 1, 2 | 20.0 |" in to_markdown(got)
 
 
 # ------------------------------------------------------------------------------------ figures / html

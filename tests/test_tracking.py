@@ -195,3 +195,14 @@ def test_callback_pickles_without_client_or_open_runs(store):
     clone = pickle.loads(pickle.dumps(callback))
     assert clone._client is None and clone._open == {}
     assert clone.parent_run_id == store.run_id and clone.tags == {"recipe": "cpu"}
+
+
+def test_threads_tag_beside_the_machine(store):
+    callback = store.callback("unit", {})
+    tr = trial("th_00000")
+    final = final_metrics(fake_result(0))
+    callback.on_trial_result(0, [], tr, {**final, "device_name": "Test CPU (2 cores)", "threads": 1,
+                                         "seed": 0, "final": 1.0})
+    callback.on_trial_complete(0, [], tr)
+    (run,) = children(store)
+    assert run.data.tags["device_name"] == "Test CPU (2 cores)" and run.data.tags["threads"] == "1"

@@ -130,10 +130,11 @@ def test_overlapped_cpu_learner_runs_on_one_thread_from_the_first_run():
             f"cfg = TrainConfig.model_validate(dict(device='cpu', recipe='cpu', overrides={TINY!r},\n"
             "    budget={'max_env_steps': 256, 'stop_at_success': None}, eval={'episodes': 8}))\n"
             "r = train(cfg, on_progress=lambda m: seen.append(torch.get_num_threads()))\n"
-            "print(json.dumps({'during': sorted(set(seen)), 'name': r.device_name, 'after': torch.get_num_threads()}))\n")
+            "print(json.dumps({'during': sorted(set(seen)), 'name': r.device_name, 'threads': r.threads,\n"
+            "                  'after': torch.get_num_threads()}))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                          env={**__import__("os").environ, "OMP_NUM_THREADS": "2"})
     assert out.returncode == 0, out.stderr
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["during"] == [1] and got["name"].endswith("(1 threads)"), got
+    assert got["during"] == [1] and got["threads"] == 1 and got["name"].endswith(" cores)"), got
     assert got["after"] == 2, got  # restored for the caller

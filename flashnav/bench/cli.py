@@ -52,9 +52,12 @@ def run_sim(args) -> int:
     seconds = args.seconds
     if args.quick:
         robots, sizes, seconds = ["turtlebot2"], [64], 0.5
-    machine = sim.machine_description(args.device)
+    from flashnav.machine import learner_threads
+
+    machine, threads = sim.machine_description(args.device), learner_threads(args.device)
     when = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
-    console.print(f"[bold]flashnav bench sim[/] {when} on {machine}; each row >= {seconds} s of whole env steps")
+    on = f"{machine}, {threads} torch threads" if threads else machine
+    console.print(f"[bold]flashnav bench sim[/] {when} on {on}; each row >= {seconds} s of whole env steps")
     rows, accuracy = [], []
     for robot in robots:
         for n in sizes:
@@ -77,7 +80,7 @@ def run_sim(args) -> int:
     _print_tables(console, rows, accuracy, peer)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"machine": machine, "date": when, "argv": sys.argv, "rows": rows,
+            json.dump({"machine": machine, "threads": threads, "date": when, "argv": sys.argv, "rows": rows,
                        "accuracy": accuracy, "irsim": peer}, f, indent=2)
     return 0
 

@@ -10,8 +10,9 @@ import statistics
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.names import ALGORITHMS, RECIPE_CHOICES, ROBOTS, THRESHOLDS
+from flashnav.names import ALGORITHMS, RECIPE_CHOICES, ROBOTS
 from flashnav.learn.progress import TrainProgress
+from flashnav.metrics import THRESHOLDS, over_seeds
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -36,16 +37,12 @@ def summarise(runs: list[dict]) -> dict:
     """Best / mean seconds and env steps to each threshold over the runs that reached it, and k/S."""
     out = {"runs": len(runs)}
     for t in THRESHOLDS:
-        secs = [r["time_to_threshold"][str(t)] for r in runs if r["time_to_threshold"][str(t)] is not None]
-        steps = [r["env_steps_to_threshold"][str(t)] for r in runs if r["env_steps_to_threshold"][str(t)] is not None]
-        out[str(t)] = {
-            "reached": len(secs),
-            "best_s": min(secs) if secs else None,
-            "mean_s": statistics.fmean(secs) if secs else None,
-            "mean_env_steps": statistics.fmean(steps) if steps else None,
-        }
+        secs = over_seeds([r["time_to_threshold"][str(t)] for r in runs], interval=False)
+        steps = over_seeds([r["env_steps_to_threshold"][str(t)] for r in runs], interval=False)
+        out[str(t)] = {"reached": secs.k, "best_s": secs.best, "mean_s": secs.mean, "mean_env_steps": steps.mean}
     for k in ("collector_ms", "learner_ms", "effective_ms"):
         out[k] = statistics.fmean(r["cycle"][k] for r in runs)
+    out["threads"] = sorted({r["threads"] for r in runs if r.get("threads") is not None})  # [] on a GPU
     return out
 
 
@@ -117,7 +114,7 @@ def _save(path: str | None, when: str, groups, runs: list[dict]) -> None:
 
 def _print(console: Console, groups, seeds: int, when: str) -> None:
     t = Table(title=f"flashnav bench train ({when}): seconds of training to success thresholds, {seeds} seeds")
-    for col in ("robot", "algo", "recipe", "device", "90% best/mean (k/S)", "95% best/mean (k/S)",
+    for col in ("robot", "algo", "recipe", "device", "threads", "90% best/mean (k/S)", "95% best/mean (k/S)",
                 "100% best/mean (k/S)", "env steps to 90%", "collector/learner/cycle ms"):
         t.add_column(col, justify="right")
     for robot, algo, recipe, device, s in groups:
@@ -126,6 +123,7 @@ def _print(console: Console, groups, seeds: int, when: str) -> None:
             c = s[str(th)]
             cells.append("-" if not c["reached"] else f"{c['best_s']:.1f} / {c['mean_s']:.1f} ({c['reached']}/{s['runs']})")
         e90 = s["0.9"]["mean_env_steps"]
-        t.add_row(robot, algo, recipe, device, *cells, "-" if e90 is None else f"{e90:,.0f}",
+        threads = ", ".join(str(n) for n in s.get("threads", [])) or "-"
+        t.add_row(robot, algo, recipe, device, threads, *cells, "-" if e90 is None else f"{e90:,.0f}",
                   f"{s['collector_ms']:.1f} / {s['learner_ms']:.1f} / {s['effective_ms']:.1f}")
     console.print(t)

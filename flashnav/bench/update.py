@@ -140,7 +140,9 @@ def run_bench_update(args) -> int:
         torch.set_num_threads(args.threads)
     console = Console()
     machine, when = machine_description(device), dt.datetime.now().strftime("%Y-%m-%d %H:%M")
-    console.print(f"[bold]flashnav bench update[/] {when} on {machine}: {args.robot} / {args.algo} / "
+    threads = args.threads if device == "cpu" else None  # the learner's torch threads, set above
+    on = f"{machine}, {threads} torch threads" if threads else machine
+    console.print(f"[bold]flashnav bench update[/] {when} on {on}: {args.robot} / {args.algo} / "
                   f"recipe {recipe}, >= {args.seconds:g} s per way after {args.warmup} warm-up updates")
     rows = []
     for way in ways:
@@ -157,6 +159,6 @@ def run_bench_update(args) -> int:
     console.print(t)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"machine": machine, "date": when, "robot": args.robot, "algo": args.algo, "recipe": recipe,
-                       "device": device, "rows": rows}, f, indent=2)
+            json.dump({"machine": machine, "threads": threads, "date": when, "robot": args.robot, "algo": args.algo,
+                       "recipe": recipe, "device": device, "rows": rows}, f, indent=2)
     return 0

@@ -45,6 +45,7 @@ class TrainResult:
     device_name: str
     stop_reason: str
     best_success_rate: float = 0.0
+    threads: int | None = None  # the learner's torch CPU threads (None on a GPU); device_name is the machine
     learner: Learner | None = field(default=None, repr=False)
     best_policy: torch.nn.Module | None = field(default=None, repr=False)
 
@@ -64,6 +65,7 @@ class TrainResult:
             "train_seconds": self.train_seconds,
             "env_steps": self.env_steps,
             "device_name": self.device_name,
+            "threads": self.threads,
             "stop_reason": self.stop_reason,
             "best_success_rate": self.best_success_rate,
             "config": self.spec.to_dict(),
@@ -71,10 +73,17 @@ class TrainResult:
 
 
 def device_name(device: str) -> str:
-    """The platform as reports show it: the GPU's name, or the CPU model and thread count."""
-    from flashnav.bench.sim import machine_description
+    """The machine as reports show it: the GPU's name, or the CPU model and core count (no threads)."""
+    from flashnav.machine import machine_name
 
-    return machine_description(device)
+    return machine_name(device)
+
+
+def learner_threads(device: str) -> int | None:
+    """The learner's torch CPU threads (None on a GPU), recorded beside device_name, not inside it."""
+    from flashnav.machine import learner_threads as threads_now
+
+    return threads_now(device)
 
 
 class _Timer:
@@ -229,6 +238,7 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
         env_steps=env_steps,
         spec=spec,
         device_name=device_name(spec.device),
+        threads=learner_threads(spec.device),  # read before train() restores the caller's thread count
         stop_reason=stop_reason,
         best_success_rate=best_rate,
         learner=learner,

@@ -1,0 +1,82 @@
+"""The platform a run trained on, named in one place: the machine, and apart from it the thread count.
+
+* machine: the GPU's name (``NVIDIA H100 80GB HBM3``), or the CPU model and the cores this process
+  may use (``AMD EPYC 7B13 (2 cores)``). This is the ``device_name`` of a run and the report's
+  platform: a property of the hardware, so tables group by it.
+* threads: the torch CPU threads the learner used (an int on a CPU run; None on a GPU), a tuning
+  knob that is recorded beside the machine, never inside its name.
+
+Runs written before the split spelled both in one string, ``AMD EPYC 7B13 (2 threads)``;
+:func:`split_device_name` reads either spelling. torch is imported lazily (GPU names and thread
+counts only), so readers such as the report stay light.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import re
+from functools import lru_cache
+
+_OLD_SPELLING = re.compile(r"^(?P<machine>.*?)\s*\((?P<threads>\d+) threads?\)$")
+
+
+@lru_cache(maxsize=1)
+def cpu_model() -> str:
+    """The CPU's marketing name (``AMD EPYC 7B13``), from /proc/cpuinfo where present."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
+
+
+def cpu_cores() -> int:
+    """Logical CPUs this process may run on (its affinity mask: a container's share, not the host's)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def _is_gpu(device: str) -> bool:
+    return str(device).startswith("cuda")
+
+
+def machine_name(device: str = "cpu") -> str:
+    """``NVIDIA H100 80GB HBM3`` for a CUDA device, else ``<cpu model> (<cores> cores)``."""
+    if _is_gpu(device):
+        import torch
+
+        if torch.cuda.is_available():
+            return torch.cuda.get_device_name(torch.device(device))
+    return f"{cpu_model()} ({cpu_cores()} cores)"
+
+
+def learner_threads(device: str = "cpu") -> int | None:
+    """torch's CPU thread count now (call it while the learner's setting holds); None on a GPU."""
+    if _is_gpu(device):
+        return None
+    import torch
+
+    return int(torch.get_num_threads())
+
+
+def split_device_name(name: str | None) -> tuple[str | None, int | None]:
+    """``device_name`` of either spelling -> (machine, threads parsed from it, or None).
+
+    ``"AMD EPYC 7B13 (2 threads)"`` (before the split) -> ``("AMD EPYC 7B13", 2)``;
+    ``"AMD EPYC 7B13 (2 cores)"`` and GPU names come back unchanged with None; None stays None.
+    """
+    if name is None:
+        return None, None
+    match = _OLD_SPELLING.match(str(name))
+    if match is None or not match["machine"]:
+        return str(name), None
+    return match["machine"], int(match["threads"])
+
+
+__all__ = ["cpu_model", "cpu_cores", "machine_name", "learner_threads", "split_device_name"]
