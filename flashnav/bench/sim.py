@@ -8,12 +8,12 @@ observation, sparse reset of finished slots) driven by uniformly random actions.
 
 from __future__ import annotations
 
-import platform
 import time
 from dataclasses import asdict, dataclass
 
 import torch
 
+from flashnav.platform import cpu_model, machine_description  # noqa: F401 (bench's callers read them here)
 from flashnav.sim.env import make_env
 from flashnav.sim.raycast import error_stats, make_raycaster, random_free_poses
 
@@ -75,20 +75,3 @@ def accuracy(robot: str, raycaster: str, device: str, num_poses: int = 256, seed
     other = make_raycaster(raycaster, env.map, env.beam_angles, env.preset.lidar.max_range, env.device,
                            env.preset.lidar.march_step)(poses)
     return {"robot": robot, "raycaster": raycaster, **error_stats(other, exact)}
-
-
-def machine_description(device: str = "cpu") -> str:
-    if device.startswith("cuda") and torch.cuda.is_available():
-        return torch.cuda.get_device_name(torch.device(device))
-    return f"{cpu_model()} ({torch.get_num_threads()} threads)"
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()

@@ -74,7 +74,7 @@ class TrainResult:
 
 def device_name(device: str) -> str:
     """The platform as reports show it: the GPU's name, or the CPU model and thread count."""
-    from flashnav.bench.sim import machine_description
+    from flashnav.platform import machine_description  # a leaf module: learn never imports bench
 
     return machine_description(device)
 
