@@ -48,7 +48,7 @@ def run_demo(args) -> int:
     seconds = time.perf_counter() - start
     counts = {k: outcome.count(k) for k in ("success", "collision", "timeout")}
     print(f"oracle: {counts} over {args.envs} episodes ({seconds:.1f} s, planning included)")
-    out = draw_trajectories(env.map, [np.array(p) for p in paths], goals, outcome, args.out,
+    out = draw_trajectories(env.frame_map, [np.array(p) for p in paths], goals, outcome, args.out,
                             title=f"{env.preset.name}: oracle controller, {counts['success']}/{args.envs} reached")
     print(f"trajectories: {out}")
     return 0

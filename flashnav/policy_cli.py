@@ -158,10 +158,10 @@ def run_render(args) -> int:
     counts = {k: outcomes.count(k) for k in ("success", "collision", "timeout")}
     title = (f"{env.preset.name} / {_map_label(args, env)}: {Path(args.policy).name}, "
              f"{counts['success']}/{env.num_envs} reached, {counts['collision']} collided")
-    out = draw_trajectories(env.map, paths, result["goals"], outcomes, args.out, title=title)
+    out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title)
     print(f"{counts} over {env.num_envs} episodes; trajectories: {out}")
     if args.gif:
-        gif = write_gif(env.map, result, env.preset.footprint.circumscribed_radius, Path(args.out).with_suffix(".gif"))
+        gif = write_gif(env.frame_map, result, env.preset.footprint.circumscribed_radius, Path(args.out).with_suffix(".gif"))
         print(f"animation: {gif}")
     return 0
 

@@ -18,7 +18,11 @@ OUTCOME_COLOURS = {"success": "tab:green", "collision": "tab:red", "timeout": "t
 
 def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.ndarray, outcomes: list[str],
                       out: str | Path, title: str = "") -> Path:
-    """Save a PNG of the map with each path ([T, 2] metres), its start, goal and outcome colour."""
+    """Save a PNG of the map with each path ([T, 2] metres), its start, goal and outcome colour.
+
+    Paths and goals are in ``grid``'s coordinates: for an environment's state (``env.pose``,
+    ``env.goal``, in its simulator frame) pass ``env.frame_map``, which is ``env.map`` itself unless
+    the map lies far from the world origin (then re-centred on it, see :mod:`flashnav.sim.env`)."""
     xmin, ymin, xmax, ymax = grid.bounds
     fig, ax = plt.subplots(figsize=(7, 7 * (ymax - ymin) / (xmax - xmin) + 0.4), dpi=110)
     ax.imshow(grid.occupied, origin="lower", extent=(xmin, xmax, ymin, ymax), cmap="Greys", vmin=0, vmax=1.4,

@@ -1,7 +1,7 @@
 """Run a sweep: sweep YAML -> Ray Tune (seed grid, or one Optuna study per robot x algorithm) -> MLflow.
 
 The driver behind ``flashnav sweep run`` (the command line and ``flashnav sweep submit`` live in
-services.sweep_cli; ``python -m services.sweep run|submit ...`` is the same command line where the
+services.sweep_cli; ``python -m services.sweep_cli run|submit ...`` is the same command line where the
 console script is missing): in-process Ray on this machine by default, the cluster named by ``--address`` /
 RAY_ADDRESS otherwise (inside ``ray job submit`` Ray sets RAY_ADDRESS). Where things go, all resolved
 to absolute paths here before anything is shipped to a worker:
@@ -299,7 +299,6 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = Fa
 
 
 if __name__ == "__main__":
-    # Re-enter through the package module so that nothing Ray pickles refers to `__main__`.
-    from services.sweep_cli import main as _main
-
-    sys.exit(_main())
+    # The command line lives in services.sweep_cli, which imports this module; importing it back from
+    # here would close an import cycle. Fail loudly rather than run nothing.
+    sys.exit("the sweep command line moved: python -m services.sweep_cli run|submit ... (or flashnav sweep)")

@@ -2,7 +2,7 @@
 
     flashnav sweep run SWEEP.yaml [--address ADDR] [--resume] [--dry-run] [--set KEY=VALUE ...]
     flashnav sweep submit SWEEP.yaml [--address http://HEAD:8265] [--no-wait] [--resume] [--set ...]
-    python -m services.sweep run|submit ...            (where the console script is missing)
+    python -m services.sweep_cli run|submit ...        (where the console script is missing)
     ray job submit --address http://HEAD:8265 --working-dir . -- flashnav sweep run sweeps/tb2_10seed.yaml
 
 ``run`` calls services.sweep.run_sweep (the driver); ``submit`` uploads the working dir and runs that
@@ -44,7 +44,7 @@ def submit_sweep(path: str | Path, *, address: str | None = None, resume: bool =
         raise SweepError(f"{path} is outside the working dir {Path.cwd()}: only that is uploaded") from None
     address = address or os.environ.get("RAY_API_SERVER_ADDRESS") or stack.jobs_address()
     stack.align_client_auth()
-    command = (["python", "-m", "services.sweep"] if module else ["flashnav", "sweep"]) + ["run", relative.as_posix()]
+    command = (["python", "-m", "services.sweep_cli"] if module else ["flashnav", "sweep"]) + ["run", relative.as_posix()]
     command += ["--resume"] if resume else []
     for assignment in sets or []:
         command += ["--set", assignment]
@@ -93,7 +93,7 @@ def _add_commands(sub) -> None:
     submit.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                         help="environment variable for the job driver (e.g. MLFLOW_TRACKING_URI=http://HEAD:5000)")
     submit.add_argument("--no-wait", action="store_true", help="return once submitted")
-    submit.add_argument("--module", action="store_true", help="entrypoint `python -m services.sweep` (no console script)")
+    submit.add_argument("--module", action="store_true", help="entrypoint `python -m services.sweep_cli` (no console script)")
     submit.set_defaults(func=_cmd_submit)
 
 
@@ -128,7 +128,12 @@ def register_cli(subparsers) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.sweep", description=HELP)
+    parser = argparse.ArgumentParser(prog="python -m services.sweep_cli", description=HELP)
     _add_commands(parser.add_subparsers(dest="sweep_command", metavar="{run,submit}", required=True))
     args = parser.parse_args(argv)
     return args.func(args)
+
+
+if __name__ == "__main__":
+    # Ray pickles only what services.sweep defines, imported above as a package module, never `__main__`
+    sys.exit(main())

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+from flashnav.maps.fields import cone_field, safe_field
 from flashnav.maps.grid import OccupancyMap
-from flashnav.sim.raycast import RAYCASTERS, error_stats, make_raycaster, random_free_poses, safe_field
+from flashnav.sim.raycast import RAYCASTERS, error_stats, make_raycaster, random_free_poses
 from flashnav.sim.raycast_torch import TorchExactRaycaster
 
 TOL = 1e-9  # metres, 'touching' tolerance of the reference (the kernels use 1e-9 cells)
@@ -236,11 +237,11 @@ def test_safe_field_is_a_lower_bound():
 
 def test_isotropic_fallback_for_large_maps(monkeypatch):
     # maps over MAX_CONE_CELLS use one sector (the isotropic field): same exact results
-    from flashnav.sim import raycast_numba
+    from flashnav.maps import fields
 
-    monkeypatch.setattr(raycast_numba, "MAX_CONE_CELLS", 1)
+    monkeypatch.setattr(fields, "MAX_CONE_CELLS", 1)
     grid = cluttered_map(31, origin=(0.3, 0.1))
-    assert raycast_numba.cone_field(grid, 2).shape[0] == 1
+    assert cone_field(grid, 2).shape[0] == 1
     rng = np.random.default_rng(31)
     pose = random_free_poses(grid, 40, 8).double().numpy()
     angles = rng.uniform(-math.pi, math.pi, 50)
@@ -250,8 +251,6 @@ def test_isotropic_fallback_for_large_maps(monkeypatch):
 
 def test_directional_field_is_a_lower_bound():
     # from any point of a cell, a ray in sector s travels at least the field's value before a hit
-    from flashnav.sim.raycast_numba import cone_field
-
     grid = cluttered_map(41, shape=(40, 50))
     field = cone_field(grid, 2)
     sectors = field.shape[0]

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import cached_property
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
+
+from flashnav.maps import fields
 
 MAX_CELLS = 1 << 28  # 268 M cells (~256 MiB as bool): larger maps are refused with a clear error
 
@@ -92,38 +92,36 @@ class OccupancyMap:
             self._cache[key] = out
         return self._cache[key]
 
-    # ---- derived once per map ---------------------------------------------------------------------
-    @cached_property
-    def centre_distance(self) -> np.ndarray:
-        """[H, W] float64 metres: Euclidean distance from each cell centre to the nearest occupied
-        cell centre, the outside of the map counting as occupied (0 on occupied cells)."""
-        free = np.pad(~self.occupied, 1, constant_values=False)
-        d = ndimage.distance_transform_edt(free)[1:-1, 1:-1] * self.resolution
-        d.setflags(write=False)
-        return d
+    def shifted(self, by: tuple[float, float]) -> "OccupancyMap":
+        """The same map with its origin moved by ``-by`` metres (float64): world coordinates ``w``
+        become ``w - by``. The copy shares this map's cache of derived fields (they depend only on
+        the cells), so re-centring costs nothing. ``shifted(self.origin)`` is the map frame, origin
+        (0, 0), where float32 coordinates keep their precision however far the map is from (0, 0)."""
+        out = OccupancyMap(self.occupied, self.resolution, (self.origin[0] - by[0], self.origin[1] - by[1]),
+                           self.name, self.source)
+        object.__setattr__(out, "_cache", self._cache)
+        return out
 
-    @cached_property
+    # ---- derived once per map (computed and cached in flashnav.maps.fields) -----------------------
+    @property
+    def centre_distance(self) -> np.ndarray:
+        """[H, W] float64 metres: see :func:`flashnav.maps.fields.centre_distance`."""
+        return fields.centre_distance(self)
+
+    @property
     def clearance(self) -> np.ndarray:
-        """[H, W] float64 metres: a lower bound on the distance from each cell centre to the nearest
-        occupied cell square (or the map boundary); exact to within (sqrt(2) - 1) / 2 cells."""
-        c = np.maximum(self.centre_distance - self.resolution * math.sqrt(0.5), 0.0)
-        c[self.occupied] = 0.0
-        c.setflags(write=False)
-        return c
+        """[H, W] float64 metres: see :func:`flashnav.maps.fields.clearance`."""
+        return fields.clearance(self)
 
     def free_space(self, radius: float) -> np.ndarray:
         """[H, W] bool: cells whose centre is farther than ``radius`` metres from any obstacle."""
-        return self.clearance > radius
+        return fields.free_space(self, radius)
 
     def components(self, radius: float) -> tuple[np.ndarray, int]:
         """Connected components (4-connected) of ``free_space(radius)``: (labels [H, W] int32, count).
         Label 0 is 'not free'. Two cells with the same label can be joined by a path along which a
         disc of ``radius`` never touches an obstacle."""
-        key = ("components", round(radius, 9))
-        if key not in self._cache:
-            labels, count = ndimage.label(self.free_space(radius))
-            self._cache[key] = (labels.astype(np.int32), int(count))
-        return self._cache[key]
+        return fields.components(self, radius)
 
     def check_free_space(self, radius: float, what: str = "the robot") -> None:
         """Raise a clear error if no cell can hold a disc of ``radius`` metres."""

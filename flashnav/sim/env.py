@@ -20,6 +20,13 @@ Reaching the horizon without a terminal event is a truncation. Finished slots ar
 step (Gymnasium's SAME_STEP autoreset): ``info["final_obs"]`` holds the observation *before* the
 reset for every slot (equal to ``obs`` where nothing finished) and ``info["_final_obs"]`` marks the
 slots that finished, so ``info["final_obs"]`` is always the correct next observation for replay.
+
+Frames: the state tensors (``pose``, ``goal``) are float32 metres in the *simulator frame*, world
+coordinates minus ``frame_origin`` (float64). That is (0, 0) - world coordinates as they are - for
+maps within FRAME_LIMIT_M of the world origin (every bundled map), else the map's origin, so a map
+at UTM coordinates (500000, 4000000) or at 1e12 m simulates exactly like the same map at (0, 0)
+instead of losing the float32 precision of its coordinates. ``set_state`` takes world coordinates
+(give float64 for far maps); ``world_pose`` / ``world_goal`` return them in float64.
 """
 
 from __future__ import annotations
@@ -41,6 +48,18 @@ from flashnav.sim.collision import make_collision_checker
 from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.sampling import EpisodeSampler
+
+#: Maps whose coordinates all stay below this (metres, in magnitude) are simulated in world
+#: coordinates: float32 spacing there is at most 2**-13 m (0.12 mm, 1/400 of a 5 cm cell), and
+#: existing maps keep their bit-exact trajectories. Farther maps are re-centred on their origin.
+FRAME_LIMIT_M = 1024.0
+
+
+def sim_frame(grid: OccupancyMap) -> tuple[float, float]:
+    """The world (x, y) of the simulator frame's origin, metres float64 (see the module docstring)."""
+    if max(abs(b) for b in grid.bounds) <= FRAME_LIMIT_M:
+        return (0.0, 0.0)
+    return grid.origin
 
 
 def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
@@ -72,11 +91,14 @@ class NavVecEnv(VectorEnv):
         lidar = preset.lidar
         self.raycaster_name = raycaster or DEFAULT_RAYCASTER
         self.beam_angles = beam_angles(lidar.fov_deg, lidar.beams).to(self.device)
+        # all geometry runs on the map in the simulator frame (the same cells and cached fields)
+        self.frame_origin = sim_frame(grid)
+        self.frame_map = grid if self.frame_origin == (0.0, 0.0) else grid.shifted(self.frame_origin)
         self._cast = make_raycaster(
-            self.raycaster_name, grid, self.beam_angles, lidar.max_range, self.device, lidar.march_step
+            self.raycaster_name, self.frame_map, self.beam_angles, lidar.max_range, self.device, lidar.march_step
         )
-        self._collides = make_collision_checker(preset.footprint, grid, self.device)
-        self.sampler = EpisodeSampler(grid, preset, self.device)
+        self._collides = make_collision_checker(preset.footprint, self.frame_map, self.device)
+        self.sampler = EpisodeSampler(self.frame_map, preset, self.device)
         self.obs_dim = preset.obs_dim
 
         low, high = self._obs_bounds()
@@ -86,8 +108,8 @@ class NavVecEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
 
         n, f32 = num_envs, dict(device=self.device, dtype=torch.float32)
-        self.pose = torch.zeros(n, 3, **f32)  # x, y (m), yaw (rad)
-        self.goal = torch.zeros(n, 2, **f32)  # m
+        self.pose = torch.zeros(n, 3, **f32)  # x, y (m, simulator frame), yaw (rad)
+        self.goal = torch.zeros(n, 2, **f32)  # m, simulator frame
         self.velocity = torch.zeros(n, 2, **f32)  # executed (v m/s, w rad/s)
         self.steps = torch.zeros(n, dtype=torch.int32, device=self.device)
         self.goal_distance = torch.zeros(n, **f32)
@@ -169,12 +191,34 @@ class NavVecEnv(VectorEnv):
         return self.obs.clone(), {}
 
     def set_state(self, pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        """Place every robot at ``pose`` [N, 3] (x, y m, yaw rad) with ``goal`` [N, 2] (m); zero its
-        velocity and step counter; return the recomputed observation [N, obs_dim]."""
+        """Place every robot at ``pose`` [N, 3] (x, y m world, yaw rad) with ``goal`` [N, 2] (m world;
+        float64 keeps the precision of far maps); zero its velocity and step counter; return the
+        recomputed observation [N, obs_dim]."""
+        pose, goal = self._world_to_frame(pose, goal)
         pose = torch.as_tensor(pose, device=self.device, dtype=torch.float32).reshape(self.num_envs, 3)
         goal = torch.as_tensor(goal, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
         self._place(torch.arange(self.num_envs, device=self.device), pose, goal)
         return self.obs.clone()
+
+    def _world_to_frame(self, pose, goal):
+        """World (pose [N, 3], goal [N, 2]) -> the simulator frame, in float64 (unchanged, not even
+        converted, when the frame is the world's)."""
+        if self.frame_origin == (0.0, 0.0):
+            return pose, goal
+        off = torch.tensor(self.frame_origin, dtype=torch.float64, device=self.device)
+        pose = torch.as_tensor(pose, dtype=torch.float64, device=self.device).reshape(self.num_envs, 3)
+        pose = torch.cat([pose[:, :2] - off, pose[:, 2:]], dim=1)
+        goal = torch.as_tensor(goal, dtype=torch.float64, device=self.device).reshape(self.num_envs, 2) - off
+        return pose, goal
+
+    def world_pose(self) -> torch.Tensor:
+        """[N, 3] float64: the current poses in world coordinates (x, y m, yaw rad)."""
+        off = torch.tensor([*self.frame_origin, 0.0], dtype=torch.float64, device=self.device)
+        return self.pose.double() + off
+
+    def world_goal(self) -> torch.Tensor:
+        """[N, 2] float64: the current goals in world coordinates (m)."""
+        return self.goal.double() + torch.tensor(self.frame_origin, dtype=torch.float64, device=self.device)
 
     def step(self, actions):
         """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped)."""

@@ -55,7 +55,8 @@ class OracleController:
         # paths keep away from walls where they can: cells within `comfort` of the margin cost more
         cost = 1.0 + 4.0 * np.clip((radius + comfort - grid.clearance) / comfort, 0.0, 1.0)
         self.graph = grid_graph(self.free, grid.resolution, cost)
-        self.res, self.origin, self.shape = grid.resolution, grid.origin, grid.shape
+        # the env's pose and goal are in its simulator frame: index cells with that frame's origin
+        self.res, self.origin, self.shape = grid.resolution, env.frame_map.origin, grid.shape
         self.steps_ahead = max(1, int(round(lookahead / grid.resolution)))
         self.fields: np.ndarray | None = None
 

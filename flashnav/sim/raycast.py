@@ -31,74 +31,18 @@ Raycasters (:data:`RAYCASTERS`)
 from __future__ import annotations
 
 import math
-import weakref
 
 import numpy as np
 import torch
 
+from flashnav.maps.fields import cone_field, safe_field
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import RAYCASTERS  # defined once; re-exported here
+from flashnav.sim import raycast_torch
+from flashnav.sim.raycast_base import JUMP_MIN_CELLS, PAD, Raycaster
 
-#: Occupied cells around the map in the padded fields; >= 2 so that a float64 landing point a hair
-#: outside the map (after a jump that ends on the boundary) still indexes an occupied pad cell.
-PAD = 2
-#: The numba kernel jumps through free space only where the field allows at least this many cells;
-#: nearer to walls DDA steps (~2 ns each) are cheaper than a jump, which restarts the traversal
-#: (float -> cell conversions) and loads a cell that is often not in cache. Measured on the 2-core
-#: CPU: 3 to 8 are equally good, 1 is ~15 % slower.
-JUMP_MIN_CELLS = 3.0
-
-_FIELDS: "weakref.WeakKeyDictionary[OccupancyMap, np.ndarray]" = weakref.WeakKeyDictionary()
-
-
-def safe_field(grid: OccupancyMap) -> np.ndarray:
-    """[H + 2 PAD, W + 2 PAD] float32, cells: -1 on occupied cells (the pad included), else S(c), the
-    exact distance from the closed cell square c to the nearest occupied square or the map boundary,
-    i.e. a lower bound on the clearance of any point in c (see
-    :func:`flashnav.sim.raycast_numba.iso_field`). It is tighter than ``centre_distance - sqrt(2) res``
-    by up to 0.41 cells next to axis-aligned walls. Rounded *down* to float32; computed once per map.
-    """
-    field = _FIELDS.get(grid)
-    if field is None:
-        from flashnav.sim.raycast_numba import iso_field
-
-        occ = grid.padded(PAD)
-        s64 = iso_field(occ)
-        s32 = s64.astype(np.float32)
-        s32 = np.where(s32 > s64, np.nextafter(s32, np.float32(0)), s32).astype(np.float32)
-        s32[occ] = -1.0
-        s32.setflags(write=False)
-        field = _FIELDS[grid] = s32
-    return field
-
-
-class Raycaster:
-    """Callable ``pose [N, 3] float32 (x m, y m, yaw rad) -> ranges [N, K] float32 metres``.
-
-    Attributes: name, grid, beam_angles ([K] float32 rad, relative to the heading, on ``device``),
-    max_range (metres), device.
-    """
-
-    name = "base"
-
-    def __init__(self, grid: OccupancyMap, beam_angles: torch.Tensor, max_range: float, device) -> None:
-        if not (max_range > 0 and math.isfinite(max_range)):
-            raise ValueError(f"max_range must be a positive number of metres, got {max_range}")
-        self.grid = grid
-        self.device = torch.device(device)
-        self.beam_angles = torch.as_tensor(beam_angles, dtype=torch.float32).reshape(-1).to(self.device)
-        self.max_range = float(max_range)
-
-    def _check(self, pose: torch.Tensor) -> None:
-        if pose.ndim != 2 or pose.shape[1] != 3:
-            raise ValueError(f"pose must be [N, 3] (x, y, yaw), got shape {tuple(pose.shape)}")
-
-    def __call__(self, pose: torch.Tensor) -> torch.Tensor:
-        raise NotImplementedError
-
-    def __repr__(self) -> str:
-        return (f"{type(self).__name__}(name={self.name!r}, beams={self.beam_angles.numel()}, "
-                f"max_range={self.max_range}, device={self.device}, grid={self.grid!r})")
+__all__ = ["RAYCASTERS", "NumbaExactRaycaster", "Raycaster", "error_stats", "make_raycaster",
+           "random_free_poses"]
 
 
 class NumbaExactRaycaster(Raycaster):
@@ -111,7 +55,7 @@ class NumbaExactRaycaster(Raycaster):
         from flashnav.sim import raycast_numba  # imported lazily: the first import may JIT-compile
 
         self._kernel = raycast_numba.cast_exact
-        self._field = raycast_numba.cone_field(grid, PAD)
+        self._field = cone_field(grid, PAD)
         a = self.beam_angles.cpu().double().numpy()
         self._angles, self._cos_a, self._sin_a = a, np.cos(a), np.sin(a)
         self._torch = None
@@ -120,9 +64,7 @@ class NumbaExactRaycaster(Raycaster):
         self._check(pose)
         if pose.device.type != "cpu":
             if self._torch is None:
-                from flashnav.sim.raycast_torch import TorchExactRaycaster
-
-                self._torch = TorchExactRaycaster(self.grid, self.beam_angles, self.max_range, pose.device)
+                self._torch = raycast_torch.TorchExactRaycaster(self.grid, self.beam_angles, self.max_range, pose.device)
             return self._torch(pose)
         # float32 contiguous CPU poses reach the kernel as a zero-copy numpy view
         p = pose.detach().to(torch.float32).contiguous().numpy()
@@ -144,8 +86,6 @@ def make_raycaster(name: str, grid: OccupancyMap, beam_angles: torch.Tensor, max
         device: where poses and ranges live.
         march_step: metres, only for ``"march"``.
     """
-    from flashnav.sim import raycast_torch
-
     device = torch.device(device)
     if name == "exact":
         if device.type == "cpu":

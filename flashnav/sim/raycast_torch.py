@@ -5,7 +5,7 @@ exact-torch works on an active set of rays (compacted every round). After checki
 origin touching an occupied closed cell gives 0), each round:
 1. jumps ``jumps_per_round`` times by the directional safe distance of the cell containing p(t) in
    the ray's sector, minus DELTA, where it is at least ``JUMP_MIN_CELLS`` (the field of
-   :func:`flashnav.sim.raycast_numba.cone_field`); landing points are clear of every obstacle;
+   :func:`flashnav.maps.fields.cone_field`); landing points are clear of every obstacle;
 2. checks the point p(t): any occupied closed cell containing it ends the ray at t;
 3. enumerates the next ``chunk_lines`` vertical and horizontal grid-line crossings as [R, M] tensors
    (no sorting needed): at a crossing of line X the ray enters column X (or X - 1 going left), in the
@@ -22,10 +22,11 @@ import math
 
 import torch
 
-from flashnav.sim.raycast import PAD, Raycaster
-from flashnav.sim.raycast_numba import AXIS_SNAP, DELTA, EPS, cone_field
+from flashnav.maps.fields import cone_field
+from flashnav.sim.raycast_base import AXIS_SNAP, DELTA, EPS, PAD, Raycaster
 
-#: A round costs a few dozen tensor ops whatever it does, so jump wherever the field allows a cell.
+#: A round costs a few dozen tensor ops whatever it does, so jump wherever the field allows a cell
+#: (the numba kernel's threshold, raycast_base.JUMP_MIN_CELLS, suits its per-ray loop instead).
 JUMP_MIN_CELLS = 1.0
 
 

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from flashnav.config import RobotPreset
+from flashnav.maps.fields import component_cells
 from flashnav.maps.grid import OccupancyMap
 
 GOAL_CANDIDATES = 32  # goal candidates drawn per start; the first inside the distance band wins
@@ -25,31 +26,21 @@ MIN_COMPONENT_CELLS = 16  # smaller pockets of free space are never used for sta
 
 
 class EpisodeSampler:
-    """Draws (pose [n, 3], goal [n, 2]) pairs for ``n`` environment slots."""
+    """Draws (pose [n, 3], goal [n, 2]) pairs for ``n`` environment slots, in ``grid``'s
+    coordinates (the environment passes its re-centred map, so they are in the simulator's frame)."""
 
     def __init__(self, grid: OccupancyMap, preset: RobotPreset, device: torch.device):
         ep = preset.episode
         jitter_margin = grid.resolution * math.sqrt(0.5)
         self.radius = preset.footprint.circumscribed_radius + ep.start_clearance
         grid.check_free_space(self.radius + jitter_margin, what=f"the {preset.name} footprint at its start clearance")
-        labels, count = grid.components(self.radius + jitter_margin)
-        sizes = np.bincount(labels.ravel(), minlength=count + 1)
-        sizes[0] = 0
-        keep = sizes >= MIN_COMPONENT_CELLS
-        if not keep.any():
-            keep = sizes == sizes.max()
-        rows, cols = np.nonzero(keep[labels])
-        comp = labels[rows, cols]
-        order = np.argsort(comp, kind="stable")  # cells of one component are contiguous
-        rows, cols, comp = rows[order], cols[order], comp[order]
-        _, first, counts = np.unique(comp, return_index=True, return_counts=True)
-        per_cell_first = np.repeat(first, counts)
-        per_cell_count = np.repeat(counts, counts)
+        rows, cols, per_cell_first, per_cell_count = component_cells(
+            grid, self.radius + jitter_margin, MIN_COMPONENT_CELLS)
         cx, cy = grid.cell_centres(rows, cols)
         f32 = dict(device=device, dtype=torch.float32)
         self.centres = torch.as_tensor(np.stack([cx, cy], axis=1), **f32)  # [M, 2] metres
-        self.comp_first = torch.as_tensor(per_cell_first, device=device, dtype=torch.long)  # [M]
-        self.comp_count = torch.as_tensor(per_cell_count, device=device, dtype=torch.float32)  # [M]
+        self.comp_first = torch.tensor(per_cell_first, device=device, dtype=torch.long)  # [M]
+        self.comp_count = torch.tensor(per_cell_count, device=device, dtype=torch.float32)  # [M]
         self.num_cells = len(rows)
         self.resolution = grid.resolution
         self.d_min, self.d_max = ep.min_goal_distance, ep.max_goal_distance
