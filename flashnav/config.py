@@ -127,16 +127,59 @@ class RobotPreset(Strict):
         return self.lidar.sectors + 2 + self.motion.velocity_state_dims
 
 
+class DuplicateKeyError(yaml.YAMLError):
+    """A mapping names the same key twice (plain YAML keeps the last one silently)."""
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses duplicate mapping keys: in a sweep or a config a repeated key
+    is almost always an edit gone wrong, and the silent last-one-wins would run something else."""
+
+    def construct_mapping(self, node, deep=False):
+        first: dict[Any, yaml.Node] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # '<<: *base' overrides by design
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                seen = first.setdefault(key, key_node)
+            except TypeError:  # an unhashable key: the base class raises its own clear error
+                continue
+            if seen is not key_node:
+                raise DuplicateKeyError(f"duplicate key {key!r} at line {key_node.start_mark.line + 1} "
+                                        f"(first at line {seen.start_mark.line + 1})")
+        return super().construct_mapping(node, deep)
+
+
+def yaml_error_line(exc: yaml.YAMLError) -> str:
+    """A YAML error as one line (PyYAML's own text spans several, with a caret drawing)."""
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem:
+        mark = exc.problem_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        return f"{exc.problem}{where}"
+    return " ".join(str(exc).split())
+
+
+def parse_yaml(text: str, source: str = "<string>") -> Any:
+    """YAML text -> Python data with :class:`UniqueKeyLoader`; a ValueError names ``source``."""
+    try:
+        return yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{source}: not valid YAML: {yaml_error_line(exc)}") from None
+
+
 def load_yaml(path: str | Path) -> Any:
-    """Load YAML safely (never yaml.load); a clear error names the file."""
+    """Load YAML safely (a SafeLoader that refuses duplicate keys); a clear error names the file."""
     path = Path(path)
     try:
-        with open(path, encoding="utf-8") as f:
-            return yaml.safe_load(f)
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such file") from None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML: {exc}") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a folder, not a YAML file") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+    return parse_yaml(text, str(path))
 
 
 def dump_yaml(data: Any, path: str | Path) -> None:

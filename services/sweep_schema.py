@@ -21,6 +21,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from flashnav.config import UniqueKeyLoader, yaml_error_line
 from services.schema_base import ROBOTS, Strict, SweepError, known_algorithms
 from services.search_space import Search
 
@@ -228,7 +229,10 @@ def apply_sets(data: dict, assignments: list[str]) -> dict:
         if "=" not in assignment:
             raise SweepError(f"--set {assignment!r}: expected KEY.PATH=VALUE")
         path, raw = assignment.split("=", 1)
-        value = yaml.safe_load(raw)
+        try:
+            value = yaml.load(raw, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+        except yaml.YAMLError as exc:
+            raise SweepError(f"--set {assignment!r}: the value is not valid YAML: {yaml_error_line(exc)}") from None
         parts = path.strip().split(".")
         node = data
         i = 0
@@ -251,11 +255,12 @@ def load_sweep(path: str | Path, sets: list[str] | None = None) -> Sweep:
     """Read, override and validate a sweep file; raises :class:`SweepError` with every problem."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        # duplicate keys are refused: with plain safe_load the last `seeds:` would win silently
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=UniqueKeyLoader)  # noqa: S506 - SafeLoader subclass
     except FileNotFoundError:
         raise SweepError(f"{path}: no such sweep file") from None
     except yaml.YAMLError as exc:
-        raise SweepError(f"{path}: not valid YAML: {exc}") from None
+        raise SweepError(f"{path}: not valid YAML: {yaml_error_line(exc)}") from None
     if not isinstance(data, dict):
         raise SweepError(f"{path}: a sweep is a mapping of keys, got {type(data).__name__}")
     apply_sets(data, sets or [])
