@@ -40,7 +40,11 @@ def split_override(item: str) -> tuple[str, Any]:
     key, sep, raw = item.partition("=")
     if not sep or not key:
         raise ValueError(f"override {item!r} is not key=value")
-    return key, yaml.safe_load(raw)
+    try:
+        return key, yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        from flashnav.config import yaml_error_line
+        raise ValueError(f"override {item!r}: the value is not valid YAML ({yaml_error_line(exc)})") from None
 
 
 def build_config(args) -> TrainConfig:
@@ -66,18 +70,23 @@ def build_config(args) -> TrainConfig:
 
 
 def run_train(args) -> int:
-    from flashnav.learn.loop import train
+    from flashnav.learn.loop import resolved_config, train
+    from flashnav.maps.bundled import resolve_map
+    from flashnav.outputs import check_output_dir
 
     console = Console()
     config = build_config(args)
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     robot_name = Path(config.robot).stem
-    out = Path(args.out or f"runs/train/{robot_name}-{config.algorithm}-s{config.seed}-{stamp}")
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(args.out or f"runs/train/{robot_name}-{config.algorithm}-s{config.seed}-{stamp}", "--out")
+    # Device, robot, hyperparameters and map are resolved before the minutes of training (train()
+    # resolves them again, consuming no randomness): a bad one fails now and leaves no folder behind.
+    resolve_map(config.map, resolved_config(config)["robot_preset"]["map"])
     console.print(f"[bold]flashnav train[/] {robot_name} / {config.algorithm}, seed {config.seed} -> {out}")
     with TrainProgress(console) as progress:
         result = train(config, on_eval=progress.on_eval, on_progress=progress.on_progress)
 
+    out.mkdir(parents=True, exist_ok=True)  # only now: a failed run leaves no empty folder
     _write_artefacts(result, out)
     _summary(console, result, out)
     return 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, Literal
 
@@ -70,13 +71,28 @@ class TrainConfig(_Strict):
         return {k[len("robot."):]: v for k, v in self.overrides.items() if k.startswith("robot.")}
 
 
+#: the device names a run accepts (``cuda:N`` picks the N-th GPU)
+DEVICE_NAMES = "auto, cpu, cuda, cuda:N"
+_DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
+
+
 def resolve_device(device: str) -> str:
+    """``auto`` -> ``cuda`` where a GPU is visible, else ``cpu``; other names are checked here, before
+    any folder or tensor is made, so a typo or a missing GPU fails at once with a clear ValueError."""
     import torch
 
+    if not isinstance(device, str) or not _DEVICE.fullmatch(device):
+        raise ValueError(f"device {device!r} is not one of {DEVICE_NAMES}")
     if device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device {device!r} requested but CUDA is not available on this machine")
+    if device.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise ValueError(f"device {device!r} requested but CUDA is not available on this machine "
+                             f"(torch {torch.__version__} sees no GPU); use cpu")
+        index, count = int(device.partition(":")[2] or 0), torch.cuda.device_count()
+        if index >= count:
+            raise ValueError(f"device {device!r} requested but this machine has {count} GPU(s) "
+                             f"(cuda:0 .. cuda:{count - 1})")
     return device
 
 
