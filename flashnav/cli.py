@@ -53,10 +53,29 @@ def build_parser() -> argparse.ArgumentParser:
         prog="flashnav",
         description="Train deployable 2D-LiDAR navigation policies in seconds.",
     )
+    parser.add_argument("--debug", action="store_true",
+                        help="on an error, show the full traceback instead of the one-line message")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_library_commands(sub)
     _add_plugin_commands(sub)
     return parser
+
+
+#: what a user can cause with a bad input or a bad environment (a wrong value, a missing or unwritable
+#: file, a misspelt key): one line on stderr and exit status 2. Anything else is a bug and keeps its
+#: traceback.
+USER_ERRORS = (ValueError, OSError, KeyError)
+
+
+def error_line(exc: BaseException) -> str:
+    """The error as one line: pydantic's multi-line report becomes ``loc: message; ...``."""
+    from pydantic import ValidationError
+
+    if isinstance(exc, ValidationError):
+        problems = [f"{'.'.join(str(p) for p in e['loc']) or '<top>'}: {e['msg']}" for e in exc.errors()]
+        return f"invalid {exc.title}: " + "; ".join(problems)
+    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return " ".join(text.split()) or type(exc).__name__
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,9 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except (ValueError, FileNotFoundError, KeyError) as exc:
-        # user errors (a bad map, a misspelt key, ...): one clear line, no traceback
-        print(f"flashnav {args.command}: error: {exc}", file=sys.stderr)
+    except USER_ERRORS as exc:
+        if args.debug:
+            raise
+        print(f"flashnav {args.command}: error: {error_line(exc)}", file=sys.stderr)
         return 2
 
 

@@ -157,16 +157,59 @@ class RobotPreset(Strict):
         return self.lidar.sectors + 2 + self.motion.velocity_state_dims
 
 
+class DuplicateKeyError(yaml.YAMLError):
+    """A mapping names the same key twice (plain YAML keeps the last one silently)."""
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses duplicate mapping keys: in a sweep or a config a repeated key
+    is almost always an edit gone wrong, and the silent last-one-wins would run something else."""
+
+    def construct_mapping(self, node, deep=False):
+        first: dict[Any, yaml.Node] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # '<<: *base' overrides by design
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                seen = first.setdefault(key, key_node)
+            except TypeError:  # an unhashable key: the base class raises its own clear error
+                continue
+            if seen is not key_node:
+                raise DuplicateKeyError(f"duplicate key {key!r} at line {key_node.start_mark.line + 1} "
+                                        f"(first at line {seen.start_mark.line + 1})")
+        return super().construct_mapping(node, deep)
+
+
+def yaml_error_line(exc: yaml.YAMLError) -> str:
+    """A YAML error as one line (PyYAML's own text spans several, with a caret drawing)."""
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem:
+        mark = exc.problem_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        return f"{exc.problem}{where}"
+    return " ".join(str(exc).split())
+
+
+def parse_yaml(text: str, source: str = "<string>") -> Any:
+    """YAML text -> Python data with :class:`UniqueKeyLoader`; a ValueError names ``source``."""
+    try:
+        return yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{source}: not valid YAML: {yaml_error_line(exc)}") from None
+
+
 def load_yaml(path: str | Path) -> Any:
-    """Load YAML safely (never yaml.load); a clear error names the file."""
+    """Load YAML safely (a SafeLoader that refuses duplicate keys); a clear error names the file."""
     path = Path(path)
     try:
-        with open(path, encoding="utf-8") as f:
-            return yaml.safe_load(f)
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such file") from None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML: {exc}") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a folder, not a YAML file") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+    return parse_yaml(text, str(path))
 
 
 def dump_yaml(data: Any, path: str | Path) -> None:
@@ -184,15 +227,15 @@ def parse_assignment(item: str, what: str = "override") -> tuple[str, Any]:
     if not sep or not key:
         raise ValueError(f"{what} {item!r} is not key=value")
     try:
-        return key, yaml.safe_load(raw)
+        return key, yaml.load(raw, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
-        problem = str(exc).splitlines()[0]
-        raise ValueError(f"{what} {item!r}: the value is not valid YAML ({problem})") from None
+        raise ValueError(f"{what} {item!r}: the value is not valid YAML ({yaml_error_line(exc)})") from None
 
 
-def set_dotted(data: dict, dotted: str, value: Any, *, known: Any = None, create: bool = False,
+def set_dotted(data: dict, dotted: str | list[str], value: Any, *, known: Any = None, create: bool = False,
                what: str = "override") -> None:
-    """Set ``data["a"]["b"]["c"] = value`` for ``dotted = "a.b.c"``, in place.
+    """Set ``data["a"]["b"]["c"] = value`` for ``dotted = "a.b.c"`` (or the parts ``["a", "b", "c"]``,
+    where a part may itself hold dots: a key of a map of dotted keys), in place.
 
     ``known``: the names allowed at the leaf's level when it is not in ``data`` yet (a set of names,
     or a pydantic model class whose fields are allowed at the top level); ``create``: make missing
@@ -202,7 +245,9 @@ def set_dotted(data: dict, dotted: str, value: Any, *, known: Any = None, create
     """
     import difflib
 
-    *parents, leaf = dotted.split(".")
+    parts = dotted.split(".") if isinstance(dotted, str) else list(dotted)
+    dotted = ".".join(parts)
+    *parents, leaf = parts
     if not all(parents) or not leaf:
         raise ValueError(f"{what} {dotted!r}: empty name in the dotted key")
     node = data

@@ -267,7 +267,12 @@ def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
 def _parse_metadata(path: Path, text: str | bytes | None) -> dict[str, Any]:
     if not text:
         raise ValueError(f"{path}: no FlashNav metadata ({METADATA_KEY}); export it with flashnav.export.export_policy")
-    meta = json.loads(text)
+    try:
+        meta = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"{path}: FlashNav metadata ({METADATA_KEY}) is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("obs_dim"), int):
+        raise ValueError(f"{path}: FlashNav metadata ({METADATA_KEY}) lacks an integer obs_dim")
     version = meta.get("format_version")
     if not isinstance(version, int) or version > POLICY_FORMAT_VERSION:
         raise ValueError(f"{path}: policy format version {version!r} is not supported "
@@ -277,9 +282,15 @@ def _parse_metadata(path: Path, text: str | bytes | None) -> dict[str, Any]:
 
 def _load_torchscript(path: Path, device: torch.device | str):
     extra = {METADATA_KEY: ""}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        module = torch.jit.load(str(path), map_location=device, _extra_files=extra)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            module = torch.jit.load(str(path), map_location=device, _extra_files=extra)
+    except RuntimeError as exc:  # torch reports a corrupt or foreign file as a RuntimeError
+        if _is_checkpoint(path):
+            raise ValueError(f"{path}: a FlashNav training checkpoint, not an exported policy; evaluate the "
+                             "policy.pt or policy.onnx that flashnav train writes next to it") from None
+        raise ValueError(f"{path}: not a readable TorchScript policy ({_first_sentence(exc)})") from None
     meta = _parse_metadata(path, extra[METADATA_KEY])
     module.eval()
     device = torch.device(device)
@@ -296,7 +307,10 @@ def _load_onnx(path: Path):
         import onnxruntime as ort
     except ImportError:
         raise ImportError("running policy.onnx needs onnxruntime: pip install 'flashnav[export]'") from None
-    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    try:
+        session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime's own exception types (InvalidProtobuf, Fail, ...): a bad file
+        raise ValueError(f"{path}: not a readable ONNX policy ({_first_sentence(exc)})") from None
     meta = _parse_metadata(path, session.get_modelmeta().custom_metadata_map.get(METADATA_KEY))
 
     def run(obs: torch.Tensor) -> torch.Tensor:
@@ -305,6 +319,21 @@ def _load_onnx(path: Path):
         return torch.from_numpy(action).to(obs.device)
 
     return run, meta
+
+
+def _first_sentence(exc: BaseException) -> str:
+    """The gist of a runtime's error (torch appends a paragraph of advice about corrupt checkpoints)."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text.split(". ")[0].rstrip(".")
+
+
+def _is_checkpoint(path: Path) -> bool:
+    """Whether ``path`` is a :func:`save_checkpoint` file (read with weights_only: runs no code)."""
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # any unreadable file is simply not a checkpoint here
+        return False
+    return isinstance(payload, dict) and "format_version" in payload and "learner" in payload
 
 
 # ---- checkpoints ---------------------------------------------------------------------------------

@@ -25,7 +25,7 @@ GIF_FRAME_MS = 100
 def register_cli(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate an exported policy (policy.pt / policy.onnx) on solvable episodes")
     _common_args(p, episodes=1024)
-    p.add_argument("--device", default="cpu", help="simulator device (cpu, cuda, ...); ONNX always runs on CPU")
+    p.add_argument("--device", default="cpu", help="simulator device (cpu, cuda, cuda:N, auto); ONNX always runs on CPU")
     p.add_argument("--json", default=None, metavar="FILE", help="write the rates to this JSON file")
     p.set_defaults(func=run_eval)
 
@@ -50,10 +50,15 @@ def load_policy_and_env(args, device: str = "cpu"):
     the policy checked against the robot, one env per episode. Shared with `flashnav bench eval`."""
     from flashnav.config import RobotPreset
     from flashnav.export import load_policy
+    from flashnav.spec import resolve_device
     from flashnav.sim.env import make_env
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    try:
+        device = resolve_device(device)
+    except ValueError as exc:
+        raise ValueError(f"--device: {exc}") from None
     policy, meta = load_policy(args.policy, robot=args.robot)
     if args.robot is not None:
         robot = args.robot
@@ -74,7 +79,10 @@ def run_eval(args) -> int:
     from rich.table import Table
 
     from flashnav.evaluate import evaluate
+    from flashnav.outputs import check_output_file
 
+    if args.json:  # before the evaluation, which may take minutes
+        check_output_file(args.json, "--json")
     policy, meta, env = load_policy_and_env(args, args.device)
     start = time.perf_counter()
     result = evaluate(policy, env, seed=args.seed)
@@ -149,8 +157,12 @@ def rollout(policy, env, seed: int) -> dict:
 
 
 def run_render(args) -> int:
+    from flashnav.outputs import check_output_file
     from flashnav.viz import draw_trajectories
 
+    check_output_file(args.out, "--out")
+    if args.gif:
+        check_output_file(Path(args.out).with_suffix(".gif"), "--gif")
     policy, meta, env = load_policy_and_env(args)
     result = rollout(policy, env, args.seed)
     poses, length, outcomes = result["poses"], result["length"], result["outcomes"]

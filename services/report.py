@@ -32,6 +32,13 @@ FINAL_METRICS = [f"{kind}_{t}" for t in THRESHOLDS for kind in ("time_to", "env_
 CURVE_METRICS = ("success_rate", "mean_return", "train_seconds")
 FORMATS = ("md", "tex", "csv", "html", "png", "svg")
 _INT = re.compile(r"^[+-]?\d+$")
+#: tracking-URI schemes an MlflowClient opens (a SQLAlchemy dialect suffix, postgresql+psycopg2, is allowed)
+URI_SCHEMES = ("", "file", "sqlite", "http", "https", "postgresql", "mysql", "mssql", "databricks")
+#: seconds an MLflow server gets to answer its health check; MLflow itself retries a dead server
+#: for minutes (7 retries with backoff, 120 s per request), which looks like a hang
+PROBE_TIMEOUT_S = 5.0
+#: MLflow's HTTP settings for `flashnav report` (set only where the user has not set them)
+HTTP_ENV = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "30", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2"}
 
 
 class NoRunsError(LookupError):
@@ -46,6 +53,36 @@ def default_tracking_uri() -> str:
 
 def _redact(uri: str) -> str:
     return re.sub(r"//[^/@]+@", "//***@", uri)   # never print credentials embedded in a server URI
+
+
+def check_tracking_uri(uri: str, timeout: float = PROBE_TIMEOUT_S) -> None:
+    """ValueError naming the (redacted) URI for a scheme MLflow cannot open, or an http(s) server that
+    does not answer its health check within ``timeout`` seconds."""
+    import urllib.error
+    import urllib.parse
+    import urllib.request
+
+    parsed = urllib.parse.urlparse(uri)
+    scheme = parsed.scheme.split("+")[0].lower()
+    if len(scheme) == 1:  # a Windows drive letter (C:\runs), a plain path to MLflow
+        scheme = ""
+    if scheme not in URI_SCHEMES:
+        raise ValueError(f"tracking URI {_redact(uri)}: unsupported scheme {parsed.scheme!r} (use sqlite:///FILE, "
+                         "http(s)://HOST:PORT, file:///DIR, postgresql://..., mysql://...)")
+    if scheme not in ("http", "https"):
+        return
+    # credentials stay out of the probe URL (urllib cannot parse user:password@host anyway)
+    probe = parsed._replace(netloc=parsed.netloc.rpartition("@")[2], path=parsed.path.rstrip("/") + "/health",
+                            query="", fragment="").geturl()
+    try:
+        with urllib.request.urlopen(probe, timeout=timeout):
+            pass
+    except urllib.error.HTTPError:
+        pass  # something answered (an auth proxy, an older server): MLflow reports what follows
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", None) or exc
+        raise ValueError(f"no MLflow server answers at {_redact(uri)} within {timeout:g} s ({reason}); "
+                         "start one (flashnav services up) or fix --tracking-uri") from None
 
 
 def _cast_param(col: pd.Series) -> pd.Series:
@@ -148,6 +185,7 @@ def load_runs(tracking_uri: str | None = None, experiment: str | list[str] | Non
     from mlflow import MlflowClient
 
     uri = tracking_uri or default_tracking_uri()
+    check_tracking_uri(uri)
     experiments = [experiment] if isinstance(experiment, str) else list(experiment or [])
     sweeps = list(sweeps or [])
     if uri.startswith("sqlite:///") and ":memory:" not in uri and not Path(uri[len("sqlite:///"):]).exists():
@@ -293,12 +331,22 @@ def write_report(tracking_uri: str | None, out_dir: str | Path, experiment: str 
 
 
 def _cli(args) -> int:
+    from mlflow.exceptions import MlflowException
+
+    from flashnav.outputs import check_output_dir
+
     formats = tuple(f.strip() for f in args.format.split(",") if f.strip())
     uri = args.tracking_uri or default_tracking_uri()
+    for key, value in HTTP_ENV.items():  # a server that dies mid-report fails in seconds, not minutes
+        os.environ.setdefault(key, value)
     try:
+        check_output_dir(args.out, "--out")
         written = write_report(uri, args.out, experiment=args.experiment, sweeps=args.sweeps, formats=formats)
-    except (NoRunsError, ValueError) as err:
-        print(f"flashnav report: {err}", file=sys.stderr)
+    except (NoRunsError, ValueError, MlflowException) as err:
+        if getattr(args, "debug", False):
+            raise
+        message = " ".join(str(getattr(err, "message", err)).split())
+        print(f"flashnav report: error: {message}", file=sys.stderr)
         return 2
     for name, path in written.items():
         print(f"{name:20s} {path}")

@@ -21,6 +21,7 @@ import yaml
 from pydantic import Field, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from flashnav.config import UniqueKeyLoader, parse_assignment, set_dotted, yaml_error_line
 from flashnav.names import ROBOTS
 from flashnav.spec import Budget, TrainConfig
 from services.schema_base import Strict, SweepError, known_algorithms
@@ -189,31 +190,23 @@ def format_errors(error: ValidationError, source: str) -> str:
 
 
 def apply_sets(data: dict, assignments: list[str]) -> dict:
-    """Apply ``KEY.PATH=VALUE`` overrides (VALUE parsed as YAML) to raw sweep data, in place.
+    """Apply ``KEY.PATH=VALUE`` overrides (VALUE parsed as YAML) to raw sweep data, in place, through
+    the project's one dotted setter (:func:`flashnav.config.set_dotted`).
 
     Under ``overrides`` / ``search.parameters`` (and their per-algorithm maps) the rest of the path is
     one dotted config key: ``overrides.algo.batch_size=512`` sets the key ``algo.batch_size``.
     """
     for assignment in assignments:
-        if "=" not in assignment:
-            raise SweepError(f"--set {assignment!r}: expected KEY.PATH=VALUE")
-        path, raw = assignment.split("=", 1)
-        value = yaml.safe_load(raw)
-        parts = path.strip().split(".")
-        node = data
-        i = 0
-        while i < len(parts) - 1:
-            part = parts[i]
-            if part in _DOTTED_MAPS or (i > 0 and parts[i - 1] in _PER_ALGORITHM_MAPS):
-                node = node.setdefault(part, {})
-                parts = parts[: i + 1] + [".".join(parts[i + 1 :])]
-                i += 1
-                break
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise SweepError(f"--set {assignment!r}: {'.'.join(parts[: i + 1])} is not a section")
-            i += 1
-        node[parts[i]] = value
+        try:
+            path, value = parse_assignment(assignment, "--set")
+            parts = path.split(".")
+            for i, part in enumerate(parts[:-1]):
+                if part in _DOTTED_MAPS or (i > 0 and parts[i - 1] in _PER_ALGORITHM_MAPS):
+                    parts = parts[: i + 1] + [".".join(parts[i + 1:])]
+                    break
+            set_dotted(data, parts, value, create=True, what="--set")
+        except ValueError as exc:
+            raise SweepError(str(exc)) from None
     return data
 
 
@@ -221,11 +214,12 @@ def load_sweep(path: str | Path, sets: list[str] | None = None) -> Sweep:
     """Read, override and validate a sweep file; raises :class:`SweepError` with every problem."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        # duplicate keys are refused: with plain safe_load the last `seeds:` would win silently
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=UniqueKeyLoader)  # noqa: S506 - SafeLoader subclass
     except FileNotFoundError:
         raise SweepError(f"{path}: no such sweep file") from None
     except yaml.YAMLError as exc:
-        raise SweepError(f"{path}: not valid YAML: {exc}") from None
+        raise SweepError(f"{path}: not valid YAML: {yaml_error_line(exc)}") from None
     if not isinstance(data, dict):
         raise SweepError(f"{path}: a sweep is a mapping of keys, got {type(data).__name__}")
     apply_sets(data, sets or [])

@@ -229,11 +229,23 @@ def test_missing_required_key_is_named(tmp_path, key):
     (dict(resolution="fine"), "'resolution' must be a finite number"),
     (dict(origin="[0.0, 0.0]"), r"'origin' must be \[x, y, yaw\]"),
     (dict(origin="[0.0, .nan, 0.0]"), "'origin' must be finite"),
+    # a robot would span 3e8 cells: the collision grid once asked numpy for 568 PiB
+    (dict(resolution="1.0e-9"), r"'resolution' 1e-09 m per pixel is finer than 0.001 m"),
+    # finite, but float32 poses overflow and float64 cannot place 0.05 m cells out there
+    (dict(origin="[1.0e+308, 1.0e+308, 0]"), r"'origin' \[1e\+308, 1e\+308, 0.0\] is too far out for 0.05 m cells"),
+    (dict(origin="[1.0e+15, 0.0, 0]"), r"'origin' .* too far out .* steps of 0.125 m"),
     (dict(negate=0.5), "'negate' must be 0 or 1"),
 ])
 def test_bad_values_are_named(tmp_path, overrides, match):
     with pytest.raises(ValueError, match=r"map\.yaml: .*" + match):
         load_ros_map(write_map(tmp_path, [[254, 0]], **overrides))
+
+
+@pytest.mark.parametrize("origin", ["[-1.0e+6, 4.0e+6, 0.0]", "[1.0e+12, 1.0e+12, 0.0]"])
+def test_far_but_representable_origins_load(tmp_path, origin):
+    # UTM-sized and larger origins stay legal: the float64 step there is far below a 0.05 m cell
+    grid = load_ros_map(write_map(tmp_path, [[254, 0]], origin=origin))
+    assert grid.origin == tuple(float(v) for v in origin.strip("[]").split(",")[:2])
 
 
 def test_image_key_must_be_a_name(tmp_path):

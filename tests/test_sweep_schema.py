@@ -123,7 +123,7 @@ def test_apply_sets_dotted_override_keys():
     assert data["overrides"] == {"algo.batch_size": 512}
     assert data["seeds"] == [0, 1, 2]
     assert data["search"]["algorithm_parameters"]["fastsac"] == {"algo.alpha_init": {"loguniform": [0.001, 0.1]}}
-    with pytest.raises(SweepError, match="expected KEY.PATH=VALUE"):
+    with pytest.raises(SweepError, match="is not key=value"):
         apply_sets({}, ["budget.max_train_seconds"])
 
 
@@ -137,6 +137,20 @@ def test_load_sweep_file_errors(tmp_path):
     bad.write_text("- a list\n")
     with pytest.raises(SweepError, match="a mapping of keys"):
         load_sweep(bad)
+
+
+def test_duplicate_keys_are_refused(tmp_path):
+    # plain safe_load keeps the last `seeds:` silently: a 10-seed sweep would run one seed
+    path = tmp_path / "dup.yaml"
+    path.write_text("name: t\nrobots: [turtlebot2]\nalgorithms: [fastdsac]\nseeds: 10\nseeds: 1\n")
+    with pytest.raises(SweepError, match=r"dup\.yaml: not valid YAML: duplicate key 'seeds' at line 5 \(first at line 4\)"):
+        load_sweep(path)
+    path.write_text("name: t\nrobots: [turtlebot2]\nalgorithms: [fastdsac]\nseeds: 2\n"
+                    "overrides:\n  algo.batch_size: 256\n  algo.batch_size: 512\n")
+    with pytest.raises(SweepError, match="duplicate key 'algo.batch_size' at line 7"):
+        load_sweep(path)
+    with pytest.raises(SweepError, match=r"--set 'overrides=\{a: 1, a: 2\}'.*duplicate key 'a'"):
+        apply_sets({}, ["overrides={a: 1, a: 2}"])
 
 
 def test_yaml_round_trip():

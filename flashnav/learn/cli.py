@@ -44,18 +44,20 @@ def config_from_args(args) -> TrainConfig:
 
 def run_train(args) -> int:
     from flashnav.learn.loop import train
+    from flashnav.outputs import check_output_dir
 
     console = Console()
     spec = resolve(config_from_args(args))  # every bad input fails here, before anything is written
     config = spec.config
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(args.out or f"runs/train/{spec.robot_name}-{config.algorithm}-s{config.seed}-{stamp}")
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(args.out or f"runs/train/{spec.robot_name}-{config.algorithm}-s{config.seed}-{stamp}",
+                           "--out")
     console.print(f"[bold]flashnav train[/] {spec.robot_name} / {config.algorithm} ({spec.recipe} recipe, "
                   f"{spec.device}), seed {config.seed} -> {out}")
     with TrainProgress(console) as progress:
         result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress)
 
+    out.mkdir(parents=True, exist_ok=True)  # only now: a failed run leaves no empty folder
     _write_artefacts(result, out)
     _summary(console, result, out)
     return 0

@@ -61,6 +61,12 @@ SAVE_OCCUPIED, SAVE_FREE = 0, 254  # what Nav2's map_saver writes for occupied /
 SAVE_OCCUPIED_THRESH, SAVE_FREE_THRESH = 0.65, 0.25
 UNKNOWN_GREY = 205  # the grey ROS / Nav2 map savers write for unknown cells
 _CHUNK_PIXELS = 1 << 22  # classify big images in row blocks to bound the float64 temporaries
+#: finest accepted resolution, metres per pixel: a robot spans (size / resolution) cells in the
+#: collision and distance grids, so 1e-9 m asks for petabytes; no LiDAR map is finer than a millimetre.
+MIN_RESOLUTION = 1e-3
+#: a cell must span at least this many float64 steps at the map's coordinates, or cell positions
+#: round (1e308 as an origin overflows; 1e12 m still leaves 0.05 m cells ~400 steps)
+MIN_STEPS_PER_CELL = 8
 
 
 def load_ros_map(yaml_path: str | Path) -> OccupancyMap:
@@ -87,6 +93,7 @@ def load_ros_map(yaml_path: str | Path) -> OccupancyMap:
             f"negate {int(meta['negate'])}, free_thresh {meta['free_thresh']}, occupied_thresh "
             f"{meta['occupied_thresh']} (is negate inverted?)"
         )
+    _check_extent(yaml_path, meta, free.shape)
     ox, oy, _ = meta["origin"]
     return OccupancyMap(
         occupied=~free[::-1], resolution=meta["resolution"], origin=(ox, oy), name=yaml_path.stem, source=yaml_path
@@ -155,6 +162,9 @@ def _read_yaml(yaml_path: Path) -> dict[str, Any]:
     resolution = _number(doc, "resolution", yaml_path)
     if resolution <= 0:
         raise ValueError(f"{yaml_path}: 'resolution' must be > 0 metres per pixel, got {resolution}")
+    if resolution < MIN_RESOLUTION:
+        raise ValueError(f"{yaml_path}: 'resolution' {resolution} m per pixel is finer than {MIN_RESOLUTION} m: "
+                         "a robot would span an absurd number of cells (is the value in metres?)")
 
     origin = doc["origin"]
     if not isinstance(origin, (list, tuple)) or len(origin) != 3 or not all(_is_number(v) for v in origin):
@@ -196,6 +206,19 @@ def _read_yaml(yaml_path: Path) -> dict[str, Any]:
         raise ValueError(f"{yaml_path}: 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
     return dict(image=image, resolution=resolution, origin=origin, negate=negate,
                 occupied_thresh=occ_t, free_thresh=free_t, mode=mode)
+
+
+def _check_extent(yaml_path: Path, meta: dict[str, Any], shape: tuple[int, int]) -> None:
+    """The map's far corner must be finite and cells wide enough for float64 at that magnitude."""
+    res, (ox, oy, _) = meta["resolution"], meta["origin"]
+    extent = (shape[1] * res, shape[0] * res)
+    if not all(math.isfinite(v) for v in extent):
+        raise ValueError(f"{yaml_path}: 'resolution' {res} makes the {shape[1]} x {shape[0]} pixel map infinitely large")
+    far = max(abs(ox) + extent[0], abs(oy) + extent[1])
+    step = math.ulp(far) if math.isfinite(far) else math.inf
+    if step * MIN_STEPS_PER_CELL > res:
+        raise ValueError(f"{yaml_path}: 'origin' {list(meta['origin'])} is too far out for {res} m cells: "
+                         f"coordinates near {far:.3g} m are only representable in steps of {step:.3g} m")
 
 
 def _is_number(v: Any) -> bool:

@@ -88,6 +88,7 @@ class NavVecEnv(VectorEnv):
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.preset, self.map, self.num_envs = preset, grid, num_envs
         self.device = torch.device(device)
+        _check_map_scale(grid, preset)
         lidar = preset.lidar
         self.raycaster_name = raycaster or DEFAULT_RAYCASTER
         self.beam_angles = beam_angles(lidar.fov_deg, lidar.beams).to(self.device)
@@ -186,18 +187,37 @@ class NavVecEnv(VectorEnv):
         if mask is None:
             idx = torch.arange(self.num_envs, device=self.device)
         else:
-            idx = torch.as_tensor(mask, device=self.device, dtype=torch.bool).nonzero().squeeze(1)
+            mask = torch.as_tensor(mask, device=self.device)
+            if mask.shape != (self.num_envs,) or mask.dtype != torch.bool:
+                raise ValueError(f"options['reset_mask'] must be a bool tensor of shape [num_envs] = "
+                                 f"[{self.num_envs}], got {mask.dtype} {list(mask.shape)}")
+            idx = mask.nonzero().squeeze(1)
         self._reset_slots(idx)
         return self.obs.clone(), {}
 
     def set_state(self, pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """Place every robot at ``pose`` [N, 3] (x, y m world, yaw rad) with ``goal`` [N, 2] (m world;
         float64 keeps the precision of far maps); zero its velocity and step counter; return the
-        recomputed observation [N, obs_dim]."""
+        recomputed observation [N, obs_dim].
+
+        Raises ValueError naming ``pose`` / ``goal`` for another shape, a NaN or infinite value, or a
+        goal outside the map's extent (it could never be reached)."""
+        n = self.num_envs
+        pose = self._batch(pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
+        goal = self._batch(goal, "goal", (n, 2), "x, y m", torch.float64)
+        xmin, ymin, xmax, ymax = self.map.bounds  # world coordinates, checked before the frame shift
+        tol = self.map.resolution  # float32 goals on the map's edge may round a hair outside it
+        gx, gy = goal[:, 0], goal[:, 1]
+        outside = (gx < xmin - tol) | (gx > xmax + tol) | (gy < ymin - tol) | (gy > ymax + tol)
+        ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any()
+        if not bool(ok):  # one host sync for all checks; the details only on failure
+            _check_finite(pose, "pose")
+            _check_finite(goal, "goal")
+            row = int(outside.nonzero()[0, 0])
+            raise ValueError(f"goal[{row}] = {goal[row].tolist()} lies outside the map {self.map.name!r} "
+                             f"(x in [{xmin:g}, {xmax:g}] m, y in [{ymin:g}, {ymax:g}] m)")
         pose, goal = self._world_to_frame(pose, goal)
-        pose = torch.as_tensor(pose, device=self.device, dtype=torch.float32).reshape(self.num_envs, 3)
-        goal = torch.as_tensor(goal, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
-        self._place(torch.arange(self.num_envs, device=self.device), pose, goal)
+        self._place(torch.arange(n, device=self.device), pose.float(), goal.float())
         return self.obs.clone()
 
     def _world_to_frame(self, pose, goal):
@@ -221,8 +241,11 @@ class NavVecEnv(VectorEnv):
         return self.goal.double() + torch.tensor(self.frame_origin, dtype=torch.float64, device=self.device)
 
     def step(self, actions):
-        """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped)."""
-        actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32).reshape(self.num_envs, 2)
+        """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped); another shape or a
+        NaN / infinite value is a ValueError naming ``actions``."""
+        actions = self._batch(actions, "actions", (self.num_envs, 2), "num_envs, 2")
+        if not bool(torch.isfinite(actions).all()):  # the one host sync the checks cost per step
+            _check_finite(actions, "actions")
         t = self._advance(slice(None), actions)
         done = t["terminated"] | t["truncated"]
         info = {
@@ -243,9 +266,27 @@ class NavVecEnv(VectorEnv):
         slot's first episode counts and finished slots need not be simulated any further.
 
         Returns [k] tensors for those slots: obs [k, obs_dim], reward, terminated, truncated, success,
-        collision, episode_steps, episode_return (the same semantics as :meth:`step`)."""
-        actions = torch.as_tensor(actions, device=self.device, dtype=torch.float32).reshape(-1, 2)
+        collision, episode_steps, episode_return (the same semantics as :meth:`step`). ``idx`` outside
+        [0, N), not 1-D integer, or ``actions`` of another shape or not finite: a ValueError."""
+        idx = torch.as_tensor(idx, device=self.device)
+        if idx.ndim != 1 or idx.dtype.is_floating_point or idx.dtype == torch.bool or idx.is_complex():
+            raise ValueError(f"idx must be a 1-D integer tensor of slot indices, got {idx.dtype} {list(idx.shape)}")
+        actions = self._batch(actions, "actions", (idx.numel(), 2), "len(idx), 2")
+        ok = torch.isfinite(actions).all() & ((idx >= 0) & (idx < self.num_envs)).all()
+        if not bool(ok):  # one host sync for both checks; the details only on failure
+            _check_finite(actions, "actions")
+            bad = idx[(idx < 0) | (idx >= self.num_envs)]
+            raise ValueError(f"idx holds slot {int(bad[0])}, outside [0, {self.num_envs}) (num_envs = {self.num_envs})")
         return self._advance(idx, actions)
+
+    def _batch(self, value, name: str, shape: tuple[int, int], layout: str,
+               dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """``value`` as ``dtype`` on the env's device, exactly ``shape``: no reshape, so [2, N] or a flat
+        [2N] is an error rather than a silent scramble of the rows."""
+        t = torch.as_tensor(value, device=self.device, dtype=dtype)
+        if tuple(t.shape) != shape:
+            raise ValueError(f"{name} must have shape [{layout}] = {list(shape)}, got {list(t.shape)}")
+        return t
 
     def _advance(self, sel, actions: torch.Tensor) -> dict[str, torch.Tensor]:
         """One transition of the slots ``sel`` (``slice(None)`` for all, else [k] long indices):
@@ -280,6 +321,28 @@ class NavVecEnv(VectorEnv):
     def __repr__(self) -> str:
         return (f"NavVecEnv({self.preset.name}, num_envs={self.num_envs}, map={self.map.name!r}, "
                 f"device={self.device}, raycaster={self.raycaster_name!r})")
+
+
+def _check_finite(value: torch.Tensor, name: str) -> None:
+    """ValueError naming ``name`` and the first row holding a NaN or an infinity (if any)."""
+    rows = (~torch.isfinite(value)).any(dim=1).nonzero()
+    if rows.numel():
+        row = int(rows[0, 0])
+        raise ValueError(f"{name}[{row}] = {value[row].tolist()} is not finite (NaN or inf)")
+
+
+def _check_map_scale(grid: OccupancyMap, preset: RobotPreset) -> None:
+    """Refuse a map so fine for the robot that the collision grid (padded by the footprint's size in
+    cells, as collision.py does) would exceed the map size limit: a clear error, not a huge allocation."""
+    from flashnav.maps import grid as grid_module
+
+    pad = math.ceil(2 * preset.footprint.circumscribed_radius / grid.resolution) + 2
+    h, w = grid.shape
+    cells = (h + 2 * pad) * (w + 2 * pad)
+    if cells > grid_module.MAX_CELLS:
+        raise ValueError(f"map {grid.name!r}: resolution {grid.resolution} m is too fine for {preset.name}'s "
+                         f"{preset.footprint.circumscribed_radius} m footprint: its collision grid would need "
+                         f"{cells:.3g} cells (limit {grid_module.MAX_CELLS})")
 
 
 def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=None,

@@ -1,0 +1,174 @@
+"""Every `flashnav` command answers a bad input with exit status 2 and one stderr line that names the
+input, prints no traceback (unless `--debug`), leaves no half-made output and never hangs.
+
+Each case here used to end in a traceback, a silent wrong result or a minutes-long wait.
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from flashnav.cli import main
+from flashnav.export import export_policy, save_checkpoint
+from flashnav.learn.networks import Actor, ObsLayout
+from flashnav.maps.bundled import __file__ as _bundled_file
+from flashnav.presets import load_robot
+
+MAPS = Path(_bundled_file).parent / "data"
+
+
+def fails(capsys, *argv: str) -> str:
+    """Run `flashnav ARGV` in-process; assert exit 2, one stderr line, no traceback; return the line."""
+    code = main(list(argv))
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2, err
+    assert "Traceback" not in err
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """policy.pt, policy.onnx and checkpoint.pt of a random TurtleBot2 actor."""
+    preset = load_robot("turtlebot2")
+    actor = Actor(ObsLayout.from_robot(preset, 10.0 * 2 ** 0.5), 2, (32, 32), 3, torch.Generator().manual_seed(0))
+    out = tmp_path_factory.mktemp("run")
+    export_policy(actor, preset, out)
+    save_checkpoint(out / "checkpoint.pt", {"actor": actor.state_dict()}, {"algorithm": "fastdsac"})
+    return out
+
+
+# ---- train: checked before the folder is made or a step is trained ---------------------------------
+def test_train_out_is_an_existing_file(tmp_path, capsys):
+    (tmp_path / "taken").write_text("x")
+    line = fails(capsys, "train", "--out", str(tmp_path / "taken"))
+    assert line.startswith("flashnav train: error: --out ") and "is a file, not a folder" in line
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--device", "tpu9"], "device 'tpu9' is not one of auto, cpu, cuda, cuda:N"),
+    (["algo.batch_size=[1"], "override 'algo.batch_size=[1': the value is not valid YAML"),
+    (["algo.batch_sise=512"], "batch_sise"),
+    (["--map", "nowhere.yaml"], "nowhere.yaml"),
+])
+def test_train_validation_errors_leave_no_folder(tmp_path, capsys, argv, named):
+    out = tmp_path / "run"
+    assert named in fails(capsys, "train", "--out", str(out), *argv)
+    assert not out.exists()
+
+
+def test_train_on_cuda_without_cuda(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    line = fails(capsys, "train", "--device", "cuda:1", "--out", str(tmp_path / "run"))
+    assert "device 'cuda:1' requested but CUDA is not available" in line and not (tmp_path / "run").exists()
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    with pytest.raises(ValueError, match="tpu9"):
+        main(["--debug", "train", "--device", "tpu9", "--out", str(tmp_path / "run")])
+
+
+# ---- eval / render -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("name, says", [("policy.pt", "not a readable TorchScript policy"),
+                                        ("policy.onnx", "not a readable ONNX policy")])
+def test_eval_of_random_bytes(tmp_path, capsys, name, says):
+    path = tmp_path / name
+    path.write_bytes(np.random.default_rng(0).bytes(2000))
+    line = fails(capsys, "eval", str(path))
+    assert f"flashnav eval: error: {path}: {says}" in line
+
+
+def test_eval_of_a_training_checkpoint_says_so(run_dir, capsys):
+    line = fails(capsys, "eval", str(run_dir / "checkpoint.pt"))
+    assert "checkpoint.pt: a FlashNav training checkpoint, not an exported policy" in line
+
+
+def test_eval_json_is_checked_before_evaluating(run_dir, tmp_path, capsys, monkeypatch):
+    import flashnav.policy_cli as policy_cli
+
+    def never(*a, **k):
+        raise AssertionError("the evaluation ran before --json was checked")
+
+    monkeypatch.setattr(policy_cli, "load_policy_and_env", never)
+    line = fails(capsys, "eval", str(run_dir / "policy.pt"), "--json", str(tmp_path))
+    assert f"--json {tmp_path}: is a folder" in line
+
+
+def test_eval_on_cuda_without_cuda(run_dir, capsys, monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    line = fails(capsys, "eval", str(run_dir / "policy.pt"), "--episodes", "2", "--device", "cuda")
+    assert "--device: device 'cuda' requested but CUDA is not available" in line
+
+
+def test_eval_device_name_is_checked(run_dir, capsys):
+    assert "device 'tpu9' is not one of" in fails(capsys, "eval", str(run_dir / "policy.pt"), "--device", "tpu9")
+
+
+def test_render_out_under_a_file(run_dir, tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    out = tmp_path / "file" / "x.png"  # as /dev/null/x.png: the parent is not a folder
+    line = fails(capsys, "render", str(run_dir / "policy.pt"), "--episodes", "2", "--out", str(out))
+    assert f"--out {out}: cannot be created because {tmp_path / 'file'} is a file" in line
+
+
+# ---- map YAML values that used to allocate petabytes or overflow -------------------------------------
+@pytest.mark.parametrize("field, value, says", [
+    ("resolution", "1.0e-9", "'resolution' 1e-09 m per pixel is finer than"),
+    ("origin", "[1.0e+308, 1.0e+308, 0]", "'origin' [1e+308, 1e+308, 0.0] is too far out"),
+])
+def test_eval_on_an_absurd_map(run_dir, tmp_path, capsys, field, value, says):
+    shutil.copy(MAPS / "turtlebot2.pgm", tmp_path)
+    text = (MAPS / "turtlebot2.yaml").read_text()
+    lines = [f"{field}: {value}" if line.startswith(f"{field}:") else line for line in text.splitlines()]
+    (tmp_path / "bad.yaml").write_text("\n".join(lines) + "\n")
+    line = fails(capsys, "eval", str(run_dir / "policy.pt"), "--episodes", "2", "--map", str(tmp_path / "bad.yaml"))
+    assert f"{tmp_path / 'bad.yaml'}: {says}" in line
+
+
+# ---- report: bad or dead tracking URIs ---------------------------------------------------------------
+@pytest.fixture(autouse=True)
+def _restore_mlflow_env(monkeypatch):
+    """`flashnav report` sets MLflow's HTTP timeout variables for its process; undo that here."""
+    from services.report import HTTP_ENV
+
+    for key, value in HTTP_ENV.items():
+        monkeypatch.setenv(key, value)
+
+
+def test_report_unsupported_tracking_uri(tmp_path, capsys):
+    line = fails(capsys, "report", "--tracking-uri", "bogus://nowhere", "--out", str(tmp_path / "r"))
+    assert "tracking URI bogus://nowhere: unsupported scheme 'bogus'" in line
+
+
+def test_report_dead_server_fails_fast(tmp_path, capsys):
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    start = time.monotonic()
+    line = fails(capsys, "report", "--tracking-uri", f"http://127.0.0.1:{port}", "--out", str(tmp_path / "r"))
+    assert f"no MLflow server answers at http://127.0.0.1:{port}" in line
+    assert time.monotonic() - start < 20  # MLflow's own retries took minutes
+    assert not (tmp_path / "r").exists()
+
+
+def test_report_out_is_a_file(tmp_path, capsys):
+    (tmp_path / "taken").write_text("x")
+    line = fails(capsys, "report", "--tracking-uri", f"sqlite:///{tmp_path}/none.db", "--out", str(tmp_path / "taken"))
+    assert "--out" in line and "is a file, not a folder" in line
+
+
+# ---- sweep files: a repeated key used to win silently ------------------------------------------------
+def test_sweep_with_a_duplicate_key(tmp_path, capsys):
+    path = tmp_path / "dup.yaml"
+    path.write_text("name: t\nrobots: [turtlebot2]\nalgorithms: [fastdsac]\nseeds: 10\nseeds: 1\n")
+    assert main(["sweep", "run", str(path), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert "duplicate key 'seeds' at line 5 (first at line 4)" in err and "Traceback" not in err
