@@ -11,21 +11,20 @@ import sys
 from importlib.metadata import entry_points
 
 
-def _add_library_commands(sub: argparse._SubParsersAction) -> None:
-    from flashnav.bench import cli as bench_cli
-    from flashnav import demo
+#: Top-level modules of the optional ``services`` extra: a plugin command whose import fails on one of
+#: these is shown as unavailable (with the install hint); any other ImportError is a bug and raises.
+_SERVICE_EXTRAS = ("ray", "mlflow", "optuna", "pandas")
 
-    from flashnav import policy_cli
+
+def _add_library_commands(sub: argparse._SubParsersAction) -> None:
+    from flashnav import demo, policy_cli
+    from flashnav.bench import cli as bench_cli
+    from flashnav.learn import cli as learn_cli
 
     demo.register_cli(sub)
     bench_cli.register_cli(sub)
     policy_cli.register_cli(sub)
-    try:
-        from flashnav.learn import cli as learn_cli
-    except ImportError as exc:  # the learning half is optional at import time, never silently
-        _unavailable(sub, "train", exc)
-    else:
-        learn_cli.register_cli(sub)
+    learn_cli.register_cli(sub)
 
 
 def _unavailable(sub: argparse._SubParsersAction, name: str, exc: BaseException) -> None:
@@ -42,7 +41,9 @@ def _add_plugin_commands(sub: argparse._SubParsersAction) -> None:
     for ep in entry_points(group="flashnav.commands"):
         try:
             register = ep.load()
-        except ImportError as exc:
+        except ModuleNotFoundError as exc:
+            if (exc.name or "").split(".")[0] not in _SERVICE_EXTRAS:
+                raise  # the project's own code is broken: say so, never hide it as "unavailable"
             _unavailable(sub, ep.name, f"{exc} (install the extra: pip install 'flashnav[services]')")
             continue
         register(sub)

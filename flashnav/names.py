@@ -8,6 +8,8 @@ from __future__ import annotations
 
 #: Robot presets shipped in ``flashnav/presets/<name>.yaml`` (a preset YAML path works too).
 ROBOTS = ("turtlebot2", "go2")
+#: Display names of the robots (tables, figures), in the paper's order.
+ROBOT_LABELS = {"turtlebot2": "TurtleBot2", "go2": "Go2"}
 #: Learners, each a module of functions in ``flashnav/learn/<name>.py``.
 ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
 #: Display names of the learners (tables, figures).

@@ -14,14 +14,15 @@ import pandas as pd
 
 from flashnav.machine import split_device_name
 from flashnav.metrics import THRESHOLD_TAGS, bootstrap_mean_ci, over_seeds  # noqa: F401 - bootstrap_mean_ci re-exported
+from flashnav.names import ALGORITHM_LABELS, ROBOT_LABELS
 
 THRESHOLDS = THRESHOLD_TAGS  # column-name tags: "90" -> best_90, "90% success"
 GROUP = ("embodiment", "algorithm", "platform")
 PAPER_CSV = Path(__file__).resolve().parent / "data" / "paper_table2.csv"
 
 # Display order and names follow the paper; unknown names sort after these, alphabetically.
-ROBOT_ORDER = {"turtlebot2": "TurtleBot2", "go2": "Go2"}
-ALGO_ORDER = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
+ROBOT_ORDER = ROBOT_LABELS  # robot name -> label; the dict's order is the tables' row order
+ALGO_ORDER = ALGORITHM_LABELS
 MISSING = "—"
 
 

@@ -7,12 +7,11 @@ importing each other.
 from __future__ import annotations
 
 from flashnav.config import Strict  # noqa: F401  (the sweep schema's base: one strict model for the project)
-from flashnav.names import ALGORITHMS
+from flashnav.names import ALGORITHMS, THRESHOLD_TAGS
 
 # Objective name -> Optuna direction. Time/steps are censored (the run's total where not reached).
 OBJECTIVES = {
-    "time_to_90": "min", "time_to_95": "min", "time_to_100": "min",
-    "env_steps_to_90": "min", "env_steps_to_95": "min", "env_steps_to_100": "min",
+    **{f"{kind}_{tag}": "min" for kind in ("time_to", "env_steps_to") for tag in THRESHOLD_TAGS},
     "final_success_rate": "max", "best_success_rate": "max",
 }
 

@@ -32,10 +32,8 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     from flashnav.bench import update as bench_update
 
     bench_update.register_cli(bsub)
-    try:
-        from flashnav.bench import train as bench_train
-    except ImportError:
-        return
+    from flashnav.bench import train as bench_train
+
     bench_train.register_cli(bsub)
 
 

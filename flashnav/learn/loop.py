@@ -27,6 +27,7 @@ from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.maps.bundled import resolve_map
+from flashnav.metrics import reaches
 from flashnav.sim.env import NavVecEnv
 from flashnav.spec import RunSpec, TrainConfig, resolve
 
@@ -213,7 +214,7 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
                 stop_reason = "callback"
                 break
             target = config.budget.stop_at_success
-            if target is not None and last_eval["success_rate"] >= target - 1e-9:
+            if target is not None and reaches(last_eval["success_rate"], target):
                 stop_reason = "success"
                 break
             if out_of_time:

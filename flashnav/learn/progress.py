@@ -6,7 +6,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from flashnav.names import THRESHOLDS
+from flashnav.metrics import THRESHOLDS, reaches
 
 
 class TrainProgress:
@@ -51,7 +51,7 @@ class TrainProgress:
         self.state["last_eval"] = m
         prefix = f"{self.label} " if self.label else ""
         for t in THRESHOLDS:
-            if self.thresholds[t] is None and m["success_rate"] >= t - 1e-9:
+            if self.thresholds[t] is None and reaches(m["success_rate"], t):
                 self.thresholds[t] = m["train_seconds"]
                 if not self.eval_lines:
                     self._live.console.print(f"{prefix}{int(t * 100)}% success at {m['train_seconds']:.1f} s "
