@@ -1,17 +1,22 @@
 """Learners (FastTD3, FastSAC, FastDSAC) through the common interface, and their hyperparameters."""
 
 import math
+import types
+from pathlib import Path
 
 import pytest
 import torch
 
+from flashnav.export import load_checkpoint
 from flashnav.learn import c51, fastdsac, fastsac, fasttd3
 from flashnav.learn.hparams import load_hparams
-from flashnav.learn.learners import make_learner
+from flashnav.learn.learners import MODULES, make_learner
 from flashnav.learn.networks import ObsLayout, gaussian_head
+from flashnav.learn.protocol import AlgorithmModule, protocol_mismatches
 from flashnav.learn.replay import Transition
+from flashnav.names import ALGORITHMS
 
-ALGORITHMS = ("fasttd3", "fastsac", "fastdsac")
+LEGACY = Path(__file__).parent / "fixtures" / "legacy_learners"
 LAYOUT = ObsLayout(sectors=30, inscribed_radius=0.2, max_range=20.0, goal_scale=(15.0, math.pi),
                    velocity_scales=(0.5, math.pi / 4))
 N, A, B = 8, 2, 32
@@ -95,13 +100,14 @@ def test_act_stays_in_bounds_and_uses_the_collector_copy(algorithm):
     assert all(torch.equal(a, b) for a, b in zip(params(lrn.state.collector), params(lrn.state.actor)))
 
 
-@pytest.mark.parametrize("algorithm,key", [("fasttd3", "collection_noise"), ("fastdsac", "scale_range")])
-def test_episode_end_resamples_only_finished_envs(algorithm, key):
+@pytest.mark.parametrize("algorithm,key,field", [("fasttd3", "collection_noise", "noise_std"),
+                                                 ("fastdsac", "scale_range", "dem_scale")])
+def test_episode_end_resamples_only_finished_envs(algorithm, key, field):
     lrn = learner(algorithm)
-    before = lrn.state.explore_scale.clone()
+    before = getattr(lrn.state.algo, field).clone()
     done = torch.tensor([True, False, True, False, False, False, False, True])
     lrn.on_episode_end(done)
-    after = lrn.state.explore_scale
+    after = getattr(lrn.state.algo, field)
     lo, hi = getattr(lrn.hp, key)
     assert torch.equal(after[~done], before[~done]) and not torch.equal(after[done], before[done])
     assert after.min() >= lo and after.max() <= hi
@@ -116,11 +122,11 @@ def test_terminated_transitions_do_not_bootstrap():
     batch = batch._replace(reward=torch.linspace(-9, 9, B))
     lrn = learner("fasttd3")
     target, value = fasttd3.compute_target(lrn.state, batch)
-    torch.testing.assert_close(c51.expected_value(target, lrn.state.atoms), batch.reward, rtol=0, atol=1e-4)
+    torch.testing.assert_close(c51.expected_value(target, lrn.state.algo.atoms), batch.reward, rtol=0, atol=1e-4)
     lrn = learner("fastsac")
     target, _ = fastsac.compute_target(lrn.state, batch)
     for k in range(2):
-        torch.testing.assert_close(c51.expected_value(target[k], lrn.state.atoms), batch.reward, rtol=0, atol=1e-4)
+        torch.testing.assert_close(c51.expected_value(target[k], lrn.state.algo.atoms), batch.reward, rtol=0, atol=1e-4)
     lrn = learner("fastdsac")
     y, y_hat = fastdsac.compute_target(lrn.state, batch)
     torch.testing.assert_close(y, 0.4 * batch.reward)
@@ -177,18 +183,18 @@ def test_dsac_loss_weight_uses_running_std():
 
 def test_dsac_running_std_initialised_from_first_batch_then_ema():
     lrn = learner("fastdsac")
-    assert (lrn.state.running_std < 0).all()
+    assert (lrn.state.algo.running_std < 0).all()
     batch = random_batch(0)
     with torch.no_grad():
         _, std = gaussian_head(lrn.state.critic(batch.obs, batch.action))
     lrn.update(batch)
-    torch.testing.assert_close(lrn.state.running_std, std.mean(-1))
-    first = lrn.state.running_std.clone()
+    torch.testing.assert_close(lrn.state.algo.running_std, std.mean(-1))
+    first = lrn.state.algo.running_std.clone()
     batch2 = random_batch(1)
     with torch.no_grad():
         _, std2 = gaussian_head(lrn.state.critic(batch2.obs, batch2.action))
     lrn.update(batch2)
-    torch.testing.assert_close(lrn.state.running_std, 0.995 * first + 0.005 * std2.mean(-1))
+    torch.testing.assert_close(lrn.state.algo.running_std, 0.995 * first + 0.005 * std2.mean(-1))
 
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
@@ -219,6 +225,51 @@ def test_state_dict_round_trip_continues_identically(algorithm):
     assert torch.equal(a.act(obs), b.act(obs))
     with pytest.raises(ValueError):
         learner("fastsac").load_state_dict(learner("fasttd3").state_dict())
+
+
+def test_state_dict_groups_the_algorithm_state_and_names_what_is_missing():
+    data = learner("fastdsac").state_dict()
+    assert set(data["algo"]) == {"temperature", "running_std", "dem_scale"}
+    assert set(data["algo"]["temperature"]) == {"log_alpha", "opt", "target_entropy"}
+    assert not {"log_alpha", "running_std", "explore_scale"} & set(data)  # nothing left flat
+    del data["algo"]["temperature"]["opt"]
+    with pytest.raises(KeyError, match=r"\['algo'\]\['temperature'\] lacks opt"):
+        learner("fastdsac").load_state_dict(data)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_checkpoint_of_the_flat_layout_loads_and_continues_identically(algorithm):
+    """A checkpoint written by the code before ``state.algo`` (tests/fixtures/legacy_learners/make.py):
+    the loaded learner acts and updates exactly as the old learner did next."""
+    payload = load_checkpoint(LEGACY / f"{algorithm}.pt")
+    saved, probe = payload["learner"], payload["extra"]["probe"]
+    assert "algo" not in saved and {"atoms", "log_alpha"} & set(saved)  # the old, flat layout indeed
+    hp = load_hparams(algorithm, "turtlebot2", "cpu", probe["overrides"])
+    lrn = make_learner(algorithm, hp, LAYOUT, A, 4, "cpu", seed=99)
+    lrn.load_state_dict(saved)
+    assert lrn.num_updates == 3
+    assert torch.equal(lrn.act(probe["obs"]), probe["action"])
+    metrics = lrn.update(Transition(*probe["batch"]))
+    assert set(metrics) == set(probe["metrics"])
+    for key, value in probe["metrics"].items():
+        assert torch.equal(metrics[key], value), key
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_each_algorithm_module_satisfies_the_protocol(algorithm):
+    module = MODULES[algorithm]
+    assert module.__name__ == f"flashnav.learn.{algorithm}"
+    assert isinstance(module, AlgorithmModule) and protocol_mismatches(module) == []
+
+
+def test_protocol_check_fails_for_a_missing_or_misnamed_function():
+    partial = types.ModuleType("partial")
+    partial.init_state, partial.act, partial.update = fasttd3.init_state, fasttd3.act, fasttd3.update
+    assert not isinstance(partial, AlgorithmModule)
+    assert protocol_mismatches(partial) == ["on_episode_end: missing"]
+    partial.on_episode_end = lambda state, dones: None
+    assert protocol_mismatches(partial) == ["on_episode_end: parameters ['state', 'dones'], "
+                                            "expected ['state', 'done']"]
 
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)

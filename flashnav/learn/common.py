@@ -76,8 +76,9 @@ def uniform(shape: Sequence[int], low: float, high: float, gen: torch.Generator,
 
 def state_to_dict(state: Any) -> dict[str, Any]:
     """Checkpointable snapshot of a learner state dataclass: modules and optimisers as state dicts,
-    tensors cloned, generators as their RNG state, plain numbers as they are. Lists and dicts
-    (cached parameter lists, last metrics) are derived data and are skipped. Everything is copied:
+    tensors cloned, generators as their RNG state, plain numbers as they are, nested dataclasses
+    (the per-algorithm state, its temperature) as nested dicts. Lists and dicts (cached parameter
+    lists, last metrics) are derived data and are skipped. Everything is copied:
     ``Optimizer.load_state_dict`` keeps the given tensors when dtype and device match, so an
     uncopied in-memory round trip would leave two learners sharing Adam moments."""
     out: dict[str, Any] = {}
@@ -91,16 +92,22 @@ def state_to_dict(state: Any) -> dict[str, Any]:
             out[field.name] = value.get_state()
         elif isinstance(value, (int, float, bool)):
             out[field.name] = value
+        elif dataclasses.is_dataclass(value):
+            out[field.name] = state_to_dict(value)
     return out
 
 
-def load_state_from_dict(state: Any, data: dict[str, Any]) -> None:
+def _required(value: Any) -> bool:
+    return isinstance(value, (nn.Module, torch.optim.Optimizer, torch.Tensor)) or dataclasses.is_dataclass(value)
+
+
+def load_state_from_dict(state: Any, data: dict[str, Any], where: str = "learner state dict") -> None:
     """Inverse of :func:`state_to_dict`, in place (parameters keep their identity, so optimisers and
-    cached parameter lists stay valid)."""
-    missing = [f.name for f in dataclasses.fields(state) if f.name not in data
-               and isinstance(getattr(state, f.name), (nn.Module, torch.optim.Optimizer, torch.Tensor))]
+    cached parameter lists stay valid). A missing module, optimiser, tensor or nested state is a
+    KeyError naming it (``where`` prefixes the message)."""
+    missing = [f.name for f in dataclasses.fields(state) if f.name not in data and _required(getattr(state, f.name))]
     if missing:
-        raise KeyError(f"learner state dict lacks {', '.join(missing)}")
+        raise KeyError(f"{where} lacks {', '.join(missing)}")
     for field in dataclasses.fields(state):
         if field.name not in data:
             continue
@@ -114,17 +121,22 @@ def load_state_from_dict(state: Any, data: dict[str, Any]) -> None:
             value.set_state(saved)
         elif isinstance(value, (int, float, bool)):
             setattr(state, field.name, type(value)(saved))
+        elif dataclasses.is_dataclass(value):
+            load_state_from_dict(value, saved, f"{where}[{field.name!r}]")
 
 
 @dataclasses.dataclass
 class LearnerState:
-    """Everything one learner owns. Fields an algorithm does not use stay ``None``.
+    """The core every learner owns; ``algo`` holds its algorithm's own state (a dataclass of the
+    algorithm module, e.g. :class:`flashnav.learn.fasttd3.TD3State`).
 
-    ``explore_scale [N, 1]``: FastTD3 per-env noise std sigma_e, FastDSAC per-env DEM scale s_e.
-    ``atoms [K]``: C51 support (FastTD3, FastSAC). ``log_alpha []``: entropy temperature (FastSAC,
-    FastDSAC). ``running_std [2]``: FastDSAC per-critic EMA of the batch-mean critic std (-1 until
-    the first update). ``num_updates``: critic updates so far (host int: the actor schedule is
-    decided without reading the device).
+    ``collector``: the actor's weight copy used for collection (synced by the loop).
+    ``critic`` / ``critic_target``: twin critics, one batched network each.
+    ``collect_gen`` / ``update_gen``: RNG streams of collection (exploration noise, per-env scales)
+    and of updates (target and actor samples), on the learner's device.
+    ``num_updates``: critic updates so far (host int: the actor schedule is decided without
+    reading the device). ``*_params``: cached parameter lists (foreach Polyak, grad clipping).
+    ``last_actor_metrics``: the last actor step's metrics, repeated between actor steps.
     """
 
     hp: Any
@@ -136,12 +148,7 @@ class LearnerState:
     critic_opt: torch.optim.Optimizer
     collect_gen: torch.Generator
     update_gen: torch.Generator
-    explore_scale: torch.Tensor | None = None
-    atoms: torch.Tensor | None = None
-    log_alpha: torch.Tensor | None = None
-    alpha_opt: torch.optim.Optimizer | None = None
-    target_entropy: float = 0.0
-    running_std: torch.Tensor | None = None
+    algo: Any = None
     num_updates: int = 0
     critic_params: list = dataclasses.field(default_factory=list)
     target_params: list = dataclasses.field(default_factory=list)
@@ -151,6 +158,28 @@ class LearnerState:
     @property
     def device(self) -> torch.device:
         return self.collect_gen.device
+
+
+@dataclasses.dataclass
+class Temperature:
+    """A learned entropy temperature (FastSAC, FastDSAC): ``log_alpha []`` (requires grad), its
+    optimiser, and the target entropy (nats; e.g. ``-0.5 A``)."""
+
+    log_alpha: torch.Tensor
+    opt: torch.optim.Optimizer
+    target_entropy: float
+
+    @property
+    def alpha(self) -> torch.Tensor:
+        """``[]`` detached ``exp(log_alpha)``."""
+        return self.log_alpha.detach().exp()
+
+    def step(self, log_prob: torch.Tensor) -> torch.Tensor:
+        """One step on ``-alpha (log pi + H_target)`` for ``log_prob [B]`` (detached here);
+        returns the detached loss."""
+        loss = -(self.log_alpha.exp() * (log_prob.detach() + self.target_entropy)).mean()
+        optimizer_step(loss, self.opt, [self.log_alpha], 0.0)
+        return loss.detach()
 
 
 def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_out: int,
@@ -175,12 +204,11 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     )
 
 
-def add_temperature(state: LearnerState, alpha_init: float, alpha_lr: float, target_entropy: float) -> None:
+def make_temperature(state: LearnerState, alpha_init: float, alpha_lr: float, target_entropy: float) -> Temperature:
     """Learned entropy temperature: ``log_alpha`` from ``alpha_init``, its own AdamW (no weight
     decay: decay would pull log alpha towards 0, i.e. alpha towards 1)."""
-    state.log_alpha = torch.tensor(float(np.log(alpha_init)), device=state.device, requires_grad=True)
-    state.alpha_opt = adamw([state.log_alpha], alpha_lr, state.hp.betas, 0.0)
-    state.target_entropy = float(target_entropy)
+    log_alpha = torch.tensor(float(np.log(alpha_init)), device=state.device, requires_grad=True)
+    return Temperature(log_alpha, adamw([log_alpha], alpha_lr, state.hp.betas, 0.0), float(target_entropy))
 
 
 def finish_update(state: LearnerState, critic_metrics: dict, actor_step) -> dict:

@@ -5,16 +5,19 @@ Critic k outputs mean mu_k and std sigma_k = softplus(raw). Targets come from th
 substitution), the sample target a clamped sample ``mu' + clamp(zeta, -3, 3) sigma'``; with CDQ
 both use the target critic with the smaller mean. Rewards are scaled by ``reward_scale``. The loss
 is the variance-based gradient adjustment of DSAC-T (see :func:`critic_loss`).
+Functions over a :class:`flashnav.learn.common.LearnerState` whose ``algo`` is a :class:`DSACState`.
 Shapes: N envs, B batch, A actions.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.nn.functional as F
 
-from flashnav.learn.common import (LearnerState, add_temperature, build_state, finish_update, optimizer_step,
-                                   resample_where, uniform)
+from flashnav.learn.common import (LearnerState, Temperature, build_state, finish_update, make_temperature,
+                                   optimizer_step, resample_where, uniform)
 from flashnav.learn.hparams import FastDSACHParams
 from flashnav.learn.networks import ObsLayout, bounded_log_std, dem_log_weights, gaussian_head, squashed_gaussian
 from flashnav.learn.replay import Transition
@@ -25,14 +28,26 @@ ZETA_CLIP = 3.0
 STD_EPS = 1e-6
 
 
+@dataclass
+class DSACState:
+    """FastDSAC's own state. ``temperature``: the learned entropy temperature alpha.
+    ``running_std [2]``: per-critic EMA m_k of the batch-mean critic std (scaled-return units;
+    -1 until the first update). ``dem_scale [N, 1]``: each env's DEM collection scale s_e,
+    resampled when its episode ends."""
+
+    temperature: Temperature
+    running_std: torch.Tensor
+    dem_scale: torch.Tensor
+
+
 def init_state(hp: FastDSACHParams, layout: ObsLayout, action_dim: int, num_envs: int,
                device: torch.device | str, seed: int) -> LearnerState:
     """Networks, optimisers, alpha (target entropy ``-ratio * A``), running std ``[2]`` (-1 = unset),
     and each env's DEM collection scale s_e ``[N, 1]``."""
     state = build_state(hp, layout, action_dim, actor_heads=3, critic_out=2, device=device, seed=seed)
-    add_temperature(state, hp.alpha_init, hp.alpha_lr, -hp.target_entropy_ratio * action_dim)
-    state.running_std = torch.full((2,), -1.0, device=state.device)
-    state.explore_scale = uniform((num_envs, 1), *hp.scale_range, state.collect_gen, state.device)
+    temperature = make_temperature(state, hp.alpha_init, hp.alpha_lr, -hp.target_entropy_ratio * action_dim)
+    state.algo = DSACState(temperature=temperature, running_std=torch.full((2,), -1.0, device=state.device),
+                           dem_scale=uniform((num_envs, 1), *hp.scale_range, state.collect_gen, state.device))
     zero = torch.zeros((), device=state.device)
     state.last_actor_metrics = {"actor_loss": zero, "actor_grad_norm": zero, "alpha_loss": zero,
                                 "entropy": zero}
@@ -59,13 +74,13 @@ def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastDSACHParams, gen: 
 def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
     """Exploration action ``[N, A]`` from the collector's copy, DEM allocation sharpened/flattened
     by each env's scale s_e."""
-    action, _ = sample(state.collector, obs, state.hp, state.collect_gen, state.explore_scale)
+    action, _ = sample(state.collector, obs, state.hp, state.collect_gen, state.algo.dem_scale)
     return action.clamp(-1.0, 1.0)
 
 
 def on_episode_end(state: LearnerState, done: torch.Tensor) -> None:
     """Resample s_e ~ U[scale_range] for the envs whose episode ended (``done [N]`` bool)."""
-    resample_where(state.explore_scale, done, *state.hp.scale_range, state.collect_gen)
+    resample_where(state.algo.dem_scale, done, *state.hp.scale_range, state.collect_gen)
 
 
 @torch.no_grad()
@@ -88,7 +103,7 @@ def compute_target(state: LearnerState, batch: Transition) -> tuple[torch.Tensor
     else:
         mean_q, sample_q = next_mu.mean(dim=0), next_sample.mean(dim=0)
     reward = hp.reward_scale * batch.reward
-    entropy = state.log_alpha.exp() * next_log_prob
+    entropy = state.algo.temperature.alpha * next_log_prob
     discount = hp.gamma * bootstrap
     return reward + discount * (mean_q - entropy), reward + discount * (sample_q - entropy)
 
@@ -119,12 +134,13 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
     mu, std = gaussian_head(state.critic(batch.obs, batch.action))                         # [2, B]
     with torch.no_grad():
         batch_std = std.mean(dim=-1)
-        ema = torch.lerp(state.running_std, batch_std, hp.std_ema)
-        state.running_std.copy_(torch.where(state.running_std < 0, batch_std, ema))
-    loss = critic_loss(mu, std, target, target_sample, state.running_std, hp.huber_delta)
+        running_std = state.algo.running_std
+        ema = torch.lerp(running_std, batch_std, hp.std_ema)
+        running_std.copy_(torch.where(running_std < 0, batch_std, ema))
+    loss = critic_loss(mu, std, target, target_sample, running_std, hp.huber_delta)
     grad_norm = optimizer_step(loss, state.critic_opt, state.critic_params, hp.max_grad_norm)
     return {"critic_loss": loss.detach(), "q_mean": mu.detach().mean(), "q_std_mean": std.detach().mean(),
-            "target_q_mean": target.mean(), "running_std": state.running_std.clone(), "critic_grad_norm": grad_norm}
+            "target_q_mean": target.mean(), "running_std": running_std.clone(), "critic_grad_norm": grad_norm}
 
 
 def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
@@ -134,16 +150,15 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
     action, log_prob = sample(state.actor, batch.obs, hp, state.update_gen)
     q_mu, _ = gaussian_head(state.critic(batch.obs, action, detach_params=True))            # [2, B]
     q = q_mu.min(dim=0).values if hp.cdq else q_mu.mean(dim=0)
-    loss = (state.log_alpha.detach().exp() * log_prob - q).mean()
+    loss = (state.algo.temperature.alpha * log_prob - q).mean()
     grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, hp.max_grad_norm)
-    alpha_loss = -(state.log_alpha.exp() * (log_prob.detach() + state.target_entropy)).mean()
-    optimizer_step(alpha_loss, state.alpha_opt, [state.log_alpha], 0.0)
-    return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm, "alpha_loss": alpha_loss.detach(),
+    alpha_loss = state.algo.temperature.step(log_prob)
+    return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm, "alpha_loss": alpha_loss,
             "entropy": -log_prob.detach().mean()}
 
 
 def update(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
     """One critic update (+ actor and temperature every ``policy_frequency``-th) + Polyak."""
     metrics = finish_update(state, update_critic(state, batch), lambda s: update_actor(s, batch))
-    metrics["alpha"] = state.log_alpha.detach().exp()
+    metrics["alpha"] = state.algo.temperature.alpha
     return metrics

@@ -3,27 +3,40 @@
 Reference behaviour (notes): the entropy bonus is folded into the reward, each critic regresses to
 its *own* target critic's projected distribution (no min), the actor maximises the mean of the two
 critics, and the temperature is stepped after every critic update.
+Functions over a :class:`flashnav.learn.common.LearnerState` whose ``algo`` is a :class:`SACState`.
 Shapes: N envs, B batch, A actions, K atoms.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.nn.functional as F
 
 from flashnav.learn import c51
-from flashnav.learn.common import LearnerState, add_temperature, build_state, finish_update, optimizer_step
+from flashnav.learn.common import LearnerState, Temperature, build_state, finish_update, make_temperature, optimizer_step
 from flashnav.learn.hparams import FastSACHParams
 from flashnav.learn.networks import ObsLayout, bounded_log_std, squashed_gaussian
 from flashnav.learn.replay import Transition
+
+
+@dataclass
+class SACState:
+    """FastSAC's own state. ``atoms [K]``: the C51 support (return units). ``temperature``: the
+    learned entropy temperature alpha (target entropy ``-ratio * A``)."""
+
+    atoms: torch.Tensor
+    temperature: Temperature
 
 
 def init_state(hp: FastSACHParams, layout: ObsLayout, action_dim: int, num_envs: int,
                device: torch.device | str, seed: int) -> LearnerState:
     """Networks, optimisers, the C51 support, and alpha with target entropy ``-ratio * A``."""
     state = build_state(hp, layout, action_dim, actor_heads=2, critic_out=hp.num_atoms, device=device, seed=seed)
-    state.atoms = c51.support(hp.v_min, hp.v_max, hp.num_atoms, state.device)
-    add_temperature(state, hp.alpha_init, hp.alpha_lr, -hp.target_entropy_ratio * action_dim)
+    state.algo = SACState(atoms=c51.support(hp.v_min, hp.v_max, hp.num_atoms, state.device),
+                          temperature=make_temperature(state, hp.alpha_init, hp.alpha_lr,
+                                                       -hp.target_entropy_ratio * action_dim))
     zero = torch.zeros((), device=state.device)
     state.last_actor_metrics = {"actor_loss": zero, "actor_grad_norm": zero}
     return state
@@ -58,9 +71,9 @@ def compute_target(state: LearnerState, batch: Transition) -> tuple[torch.Tensor
     hp = state.hp
     bootstrap = 1.0 - batch.terminated
     next_action, next_log_prob = sample(state.actor, batch.next_obs, hp, state.update_gen)
-    soft_reward = batch.reward - hp.gamma * bootstrap * state.log_alpha.exp() * next_log_prob
+    soft_reward = batch.reward - hp.gamma * bootstrap * state.algo.temperature.alpha * next_log_prob
     next_probs = F.softmax(state.critic_target(batch.next_obs, next_action), dim=-1)
-    return c51.project(next_probs, soft_reward, bootstrap, hp.gamma, state.atoms), next_log_prob
+    return c51.project(next_probs, soft_reward, bootstrap, hp.gamma, state.algo.atoms), next_log_prob
 
 
 def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
@@ -70,11 +83,10 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
     logits = state.critic(batch.obs, batch.action)
     loss = -(target * F.log_softmax(logits, dim=-1)).sum(-1).mean(-1).sum()
     grad_norm = optimizer_step(loss, state.critic_opt, state.critic_params, state.hp.max_grad_norm)
-    alpha_loss = -(state.log_alpha.exp() * (next_log_prob + state.target_entropy)).mean()
-    optimizer_step(alpha_loss, state.alpha_opt, [state.log_alpha], 0.0)
-    q = c51.expected_value(F.softmax(logits.detach(), dim=-1), state.atoms)
+    alpha_loss = state.algo.temperature.step(next_log_prob)
+    q = c51.expected_value(F.softmax(logits.detach(), dim=-1), state.algo.atoms)
     return {"critic_loss": loss.detach(), "q_mean": q.mean(), "critic_grad_norm": grad_norm,
-            "alpha": state.log_alpha.detach().exp(), "alpha_loss": alpha_loss.detach(),
+            "alpha": state.algo.temperature.alpha, "alpha_loss": alpha_loss,
             "entropy": -next_log_prob.mean()}
 
 
@@ -82,8 +94,8 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
     """Minimise ``alpha log pi(a|s) - mean(Q1, Q2)`` at reparameterised ``a ~ pi(.|s)``."""
     action, log_prob = sample(state.actor, batch.obs, state.hp, state.update_gen)
     logits = state.critic(batch.obs, action, detach_params=True)
-    q = c51.expected_value(F.softmax(logits, dim=-1), state.atoms).mean(dim=0)
-    loss = (state.log_alpha.detach().exp() * log_prob - q).mean()
+    q = c51.expected_value(F.softmax(logits, dim=-1), state.algo.atoms).mean(dim=0)
+    loss = (state.algo.temperature.alpha * log_prob - q).mean()
     grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, state.hp.max_grad_norm)
     return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm}
 

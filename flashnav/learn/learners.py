@@ -10,21 +10,38 @@ for i in range(hp.updates_per_step):
     metrics = learner.update(batches.at(i))   # dict of detached 0-d / small device tensors
 learner.policy                            # DeterministicActor: obs -> tanh(mu), for eval/export
 ```
-The algorithm is data (a name selecting a module of functions), not a subclass.
+The algorithm is data (a name from :data:`flashnav.names.ALGORITHMS` selecting the module
+``flashnav.learn.<name>``, which satisfies :class:`~flashnav.learn.protocol.AlgorithmModule`), not a
+subclass. ``learner.state`` is the shared core (:class:`~flashnav.learn.common.LearnerState`);
+``learner.state.algo`` the algorithm's own state (e.g. :class:`~flashnav.learn.fastdsac.DSACState`).
 """
 
 from __future__ import annotations
 
-from types import ModuleType
+import importlib
 from typing import Any
 
 import torch
 
-from flashnav.learn import common, fastdsac, fastsac, fasttd3
+from flashnav.learn import common
 from flashnav.learn.networks import DeterministicActor, ObsLayout
+from flashnav.learn.protocol import AlgorithmModule
 from flashnav.learn.replay import Transition
+from flashnav.names import ALGORITHMS
 
-ALGORITHMS: dict[str, ModuleType] = {"fasttd3": fasttd3, "fastsac": fastsac, "fastdsac": fastdsac}
+#: name -> algorithm module, for every name in :data:`flashnav.names.ALGORITHMS`.
+MODULES: dict[str, AlgorithmModule] = {name: importlib.import_module(f"flashnav.learn.{name}") for name in ALGORITHMS}
+
+#: Checkpoints written before the per-algorithm state existed (no ``"algo"`` key) kept the
+#: algorithm's fields flat beside the core's: old key -> path inside ``state_dict()["algo"]``.
+_LEGACY_ALGO_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
+    "fasttd3": {"atoms": ("atoms",), "explore_scale": ("noise_std",)},
+    "fastsac": {"atoms": ("atoms",), "log_alpha": ("temperature", "log_alpha"), "alpha_opt": ("temperature", "opt"),
+                "target_entropy": ("temperature", "target_entropy")},
+    "fastdsac": {"log_alpha": ("temperature", "log_alpha"), "alpha_opt": ("temperature", "opt"),
+                 "target_entropy": ("temperature", "target_entropy"), "running_std": ("running_std",),
+                 "explore_scale": ("dem_scale",)},
+}
 
 
 class Learner:
@@ -33,7 +50,7 @@ class Learner:
     def __init__(self, algorithm: str, state: common.LearnerState):
         self.algorithm = algorithm
         self.state = state
-        self._ops = ALGORITHMS[algorithm]
+        self._ops = MODULES[algorithm]
         self.policy = DeterministicActor(state.actor)
 
     @property
@@ -67,23 +84,46 @@ class Learner:
         return self._ops.update(self.state, batch)
 
     def state_dict(self) -> dict[str, Any]:
+        """``{"algorithm", <core fields>, "algo": {<algorithm fields>}}``: modules and optimisers as
+        state dicts, tensors, RNG states; plain data only (see :func:`flashnav.export.save_checkpoint`)."""
         return {"algorithm": self.algorithm, **common.state_to_dict(self.state)}
 
     def load_state_dict(self, data: dict[str, Any]) -> None:
+        """Inverse of :meth:`state_dict`, in place; also reads the flat layout of older checkpoints."""
         if data.get("algorithm") != self.algorithm:
             raise ValueError(f"state dict is for {data.get('algorithm')!r}, this learner is {self.algorithm!r}")
-        common.load_state_from_dict(self.state, data)
+        common.load_state_from_dict(self.state, upgrade_state_dict(data))
+
+
+def upgrade_state_dict(data: dict[str, Any]) -> dict[str, Any]:
+    """A learner state dict in the current layout: one from before the per-algorithm state (its
+    algorithm's fields flat beside the core's, see ``_LEGACY_ALGO_KEYS``) is regrouped under
+    ``"algo"``; a current one is returned as it is. Fields the algorithm never used (e.g. FastTD3's
+    ``target_entropy``) are dropped."""
+    if "algo" in data:
+        return data
+    legacy_keys = {key for keys in _LEGACY_ALGO_KEYS.values() for key in keys}
+    out = {k: v for k, v in data.items() if k not in legacy_keys}
+    algo: dict[str, Any] = {}
+    for old, path in _LEGACY_ALGO_KEYS.get(data.get("algorithm"), {}).items():
+        if old in data:
+            node = algo
+            for key in path[:-1]:
+                node = node.setdefault(key, {})
+            node[path[-1]] = data[old]
+    out["algo"] = algo
+    return out
 
 
 def make_learner(algorithm: str, hp, layout: ObsLayout, action_dim: int, num_envs: int,
                  device: torch.device | str = "cpu", seed: int = 0) -> Learner:
     """Build a learner. ``hp`` is the algorithm's model from :func:`flashnav.learn.hparams.load_hparams`;
     ``num_envs`` sizes the per-env exploration state (it may differ from ``hp.num_envs``)."""
-    if algorithm not in ALGORITHMS:
+    if algorithm not in MODULES:
         raise ValueError(f"unknown algorithm {algorithm!r}: use one of {', '.join(ALGORITHMS)}")
     if getattr(hp, "algorithm", None) != algorithm:
         raise TypeError(f"hyperparameters are for {getattr(hp, 'algorithm', type(hp).__name__)!r}, not {algorithm!r}")
     if layout.obs_dim <= 0 or action_dim <= 0 or num_envs <= 0:
         raise ValueError("make_learner needs obs_dim, action_dim and num_envs > 0")
-    state = ALGORITHMS[algorithm].init_state(hp, layout, action_dim, num_envs, torch.device(device), seed)
+    state = MODULES[algorithm].init_state(hp, layout, action_dim, num_envs, torch.device(device), seed)
     return Learner(algorithm, state)
