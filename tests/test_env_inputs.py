@@ -13,15 +13,9 @@ import torch
 from flashnav.maps import grid as grid_module
 from flashnav.maps.grid import OccupancyMap
 from flashnav.sim.env import make_env
+from test_env import open_room  # the same empty room as the env tests
 
 N = 4
-
-
-def open_room(size_m: float = 10.0, res: float = 0.05) -> OccupancyMap:
-    n = int(round(size_m / res))
-    occ = np.zeros((n, n), dtype=bool)
-    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = True
-    return OccupancyMap(occ, res, name="room")
 
 
 @pytest.fixture(scope="module")
