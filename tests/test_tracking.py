@@ -31,7 +31,8 @@ def fake_result(seed: int = 0, reach: bool = True):
               "algo": {"batch_size": 512, "updates_per_step": 8}, "budget": {"max_train_seconds": 20.0}}
     result = types.SimpleNamespace(curve=curve, time_to_threshold=times, env_steps_to_threshold=steps,
                                    cycle={"collector_ms": 1.5, "learner_ms": 2.5, "effective_ms": 2.5},
-                                   train_seconds=4.0, env_steps=4000, config=config, device_name="Test CPU (2 threads)")
+                                   train_seconds=4.0, env_steps=4000, device_name="Test CPU (2 threads)",
+                                   spec=types.SimpleNamespace(to_dict=lambda: config))
     result.to_dict = lambda: {"curve": curve, "time_to_threshold": {str(k): v for k, v in times.items()}}
     return result
 
