@@ -195,15 +195,11 @@ def _localise(path: str | None) -> str | None:
 
 
 def _provenance() -> dict[str, str]:
+    import torch
+
     import flashnav
 
-    try:
-        import torch
-
-        torch_version = torch.__version__
-    except ImportError:
-        torch_version = "none"
-    return {"flashnav_version": flashnav.__version__, "torch_version": torch_version, "host": devices.host_name()}
+    return {"flashnav_version": flashnav.__version__, "torch_version": torch.__version__, "host": devices.host_name()}
 
 
 def train_trial(config: dict, *, sweep: dict, git_commit: str = "unknown",

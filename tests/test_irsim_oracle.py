@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import torch
 
-irsim = pytest.importorskip("irsim")
-mpimg = pytest.importorskip("matplotlib.image")
+irsim = pytest.importorskip("irsim")  # the optional `bench` extra (ir-sim): its absence is a documented skip
+import matplotlib.image as mpimg  # noqa: E402
 
 from flashnav.maps.grid import OccupancyMap  # noqa: E402
 from flashnav.sim.raycast import make_raycaster, random_free_poses  # noqa: E402

@@ -281,7 +281,6 @@ def test_cli_missing_store(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
-    pytest.importorskip("mlflow")
     uri = f"sqlite:///{tmp_path_factory.mktemp('mlflow')}/mlflow.db"
     F.log_to_mlflow(uri)
     return uri

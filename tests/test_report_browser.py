@@ -26,7 +26,8 @@ def _fixture():
 def test_index_html_screenshot(tmp_path):
     if not CHROMIUM.exists():
         pytest.skip("headless screenshot needs /usr/bin/chromium (Debian package `chromium`), not installed")
-    Image = pytest.importorskip("PIL.Image")
+    from PIL import Image
+
     F = _fixture()
     written = build_report(normalize_runs(F.raw_runs()), F.curve_frame(), tmp_path / "report", formats=("html",))
     shot = tmp_path / "shot.png"

@@ -52,8 +52,6 @@ def _cli(command: list[str], cwd: Path, env: dict[str, str], timeout: int) -> su
 
 
 def test_quickstart_sweep_report_and_page(tmp_path):
-    pytest.importorskip("ray.tune")
-    pytest.importorskip("mlflow")
     project = tmp_path / "project"
     (project / "sweeps").mkdir(parents=True)
     shutil.copy(ROOT / "sweeps" / "quickstart.yaml", project / "sweeps" / "quickstart.yaml")
