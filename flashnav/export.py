@@ -1,4 +1,4 @@
-"""Deployable policies (TorchScript, ONNX) and training checkpoints.
+"""Deployable policies (TorchScript, ONNX); training checkpoints are flashnav/checkpoint.py.
 
 A deployed policy is one self-contained graph from the *raw* observation to the robot command, so a
 robot-side runtime needs no FlashNav code and no knowledge of the input scaling:
@@ -10,10 +10,6 @@ robot-side runtime needs no FlashNav code and no knowledge of the input scaling:
 paths = export_policy(learner.policy, preset, "runs/tb2")   # policy.pt, policy.onnx, policy.json
 policy, meta = load_policy("runs/tb2/policy.onnx")           # obs tensor [N, D] -> action tensor [N, 2]
 ```
-
-Checkpoints are plain payloads (tensors, dicts, lists, str, int, float, bool, None) written with
-``torch.save`` and read with ``torch.load(weights_only=True)``: loading a checkpoint never runs code
-from the file.
 """
 
 from __future__ import annotations
@@ -21,7 +17,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import os
 import warnings
 from pathlib import Path
 from typing import Any, Callable
@@ -30,15 +25,12 @@ import torch
 from torch import nn
 
 import flashnav
+from flashnav.checkpoint import is_checkpoint
 from flashnav.config import RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
 
 #: Version of the exported-policy metadata (bumped when its layout changes).
 POLICY_FORMAT_VERSION = 1
-#: Version of the checkpoint payload; load_checkpoint accepts exactly these.
-CHECKPOINT_FORMAT_VERSION = 1
-SUPPORTED_CHECKPOINT_VERSIONS = (1,)
-CHECKPOINT_KEYS = ("format_version", "flashnav_version", "learner", "config", "extra")
 #: ONNX opset: well inside what onnxruntime >= 1.18 implements, and every op used here exists in it.
 ONNX_OPSET = 17
 #: Name of the metadata entry in policy.pt (``_extra_files``) and in policy.onnx (``metadata_props``).
@@ -287,7 +279,7 @@ def _load_torchscript(path: Path, device: torch.device | str):
             warnings.simplefilter("ignore", DeprecationWarning)
             module = torch.jit.load(str(path), map_location=device, _extra_files=extra)
     except RuntimeError as exc:  # torch reports a corrupt or foreign file as a RuntimeError
-        if _is_checkpoint(path):
+        if is_checkpoint(path):
             raise ValueError(f"{path}: a FlashNav training checkpoint, not an exported policy; evaluate the "
                              "policy.pt or policy.onnx that flashnav train writes next to it") from None
         raise ValueError(f"{path}: not a readable TorchScript policy ({_first_sentence(exc)})") from None
@@ -325,82 +317,3 @@ def _first_sentence(exc: BaseException) -> str:
     """The gist of a runtime's error (torch appends a paragraph of advice about corrupt checkpoints)."""
     text = " ".join(str(exc).split()) or type(exc).__name__
     return text.split(". ")[0].rstrip(".")
-
-
-def _is_checkpoint(path: Path) -> bool:
-    """Whether ``path`` is a :func:`save_checkpoint` file (read with weights_only: runs no code)."""
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception:  # any unreadable file is simply not a checkpoint here
-        return False
-    return isinstance(payload, dict) and "format_version" in payload and "learner" in payload
-
-
-# ---- checkpoints ---------------------------------------------------------------------------------
-def save_checkpoint(path: str | Path, learner_state: dict, config: Any, extra: dict | None = None) -> Path:
-    """Write a training checkpoint: ``{format_version, flashnav_version, learner, config, extra}``.
-
-    ``learner_state``: e.g. ``Learner.state_dict()`` (tensors, state dicts, RNG states as uint8
-    tensors); ``config``: a dict or a pydantic model (dumped to plain data); ``extra``: anything
-    plain (env steps, timings, ...). Everything must be a tensor, dict, list, tuple, str, int,
-    float, bool or None, so the file loads with ``weights_only=True``; anything else is a TypeError
-    here, naming where it sits, rather than an unreadable checkpoint later. The file is written to
-    a temporary name and renamed, so an interrupted save never leaves a truncated checkpoint.
-    """
-    if hasattr(config, "model_dump"):
-        config = config.model_dump(mode="json")
-    payload = {"format_version": CHECKPOINT_FORMAT_VERSION, "flashnav_version": flashnav.__version__,
-               "learner": learner_state, "config": config, "extra": dict(extra or {})}
-    _check_plain(payload, "checkpoint")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
-    return path
-
-
-def _check_plain(value: Any, where: str) -> None:
-    if isinstance(value, (torch.Tensor, str, int, float, bool, type(None))):
-        return
-    if isinstance(value, dict):
-        for key, item in value.items():
-            if not isinstance(key, (str, int)):
-                raise TypeError(f"{where}: key {key!r} is a {type(key).__name__}; checkpoint keys must be str or int")
-            _check_plain(item, f"{where}.{key}")
-    elif isinstance(value, (list, tuple)):
-        for i, item in enumerate(value):
-            _check_plain(item, f"{where}[{i}]")
-    else:
-        raise TypeError(f"{where} is a {type(value).__name__}; a checkpoint holds only tensors, dicts, lists, "
-                        "str, int, float, bool and None (convert it, e.g. model_dump() or state_dict())")
-
-
-def load_checkpoint(path: str | Path, map_location: torch.device | str | None = "cpu") -> dict[str, Any]:
-    """Read a checkpoint written by :func:`save_checkpoint` (``weights_only=True``: no code runs).
-
-    Returns the payload dict (``format_version``, ``flashnav_version``, ``learner``, ``config``, ``extra``).
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: not a FlashNav checkpoint, a format version this FlashNav does not read (the
-            message names the file, the found and the supported versions), or a missing key.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such checkpoint file")
-    try:
-        payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # pickle errors, zip errors, disallowed globals: all mean "not ours"
-        raise ValueError(f"{path}: not a readable FlashNav checkpoint ({type(exc).__name__}: {exc})") from None
-    if not isinstance(payload, dict) or "format_version" not in payload:
-        raise ValueError(f"{path}: not a FlashNav checkpoint (no format_version)")
-    found, supported = payload["format_version"], SUPPORTED_CHECKPOINT_VERSIONS
-    if isinstance(found, bool) or not isinstance(found, int) or found not in supported:
-        newer = " (written by a newer FlashNav?)" if isinstance(found, int) and found > max(supported) else ""
-        raise ValueError(f"{path}: checkpoint format_version {found!r} is not supported{newer}; "
-                         f"this FlashNav {flashnav.__version__} reads format_version {', '.join(map(str, supported))}")
-    missing = [k for k in CHECKPOINT_KEYS if k not in payload]
-    if missing:
-        raise ValueError(f"{path}: checkpoint (format_version {found}) lacks {', '.join(missing)}")
-    return payload

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from flashnav.export import (CHECKPOINT_FORMAT_VERSION, DeployablePolicy, export_policy, load_checkpoint,
-                             load_policy, sample_observations, save_checkpoint)
+from flashnav.checkpoint import CHECKPOINT_FORMAT_VERSION, load_checkpoint, save_checkpoint
+from flashnav.export import DeployablePolicy, export_policy, load_policy, sample_observations
 from flashnav.learn.networks import Actor, DeterministicActor, ObsLayout
 from flashnav.presets import load_robot
 from flashnav.sim.motion import action_to_velocity

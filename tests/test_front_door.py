@@ -16,7 +16,8 @@ import pytest
 import torch
 
 from flashnav.cli import main
-from flashnav.export import export_policy, save_checkpoint
+from flashnav.checkpoint import save_checkpoint
+from flashnav.export import export_policy
 from flashnav.learn.networks import Actor, ObsLayout
 from flashnav.maps.bundled import __file__ as _bundled_file
 from flashnav.presets import load_robot

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from flashnav.export import load_checkpoint
+from flashnav.checkpoint import load_checkpoint
 from flashnav.learn import c51, fastdsac, fastsac, fasttd3
 from flashnav.learn.hparams import load_hparams
 from flashnav.learn.learners import MODULES, make_learner

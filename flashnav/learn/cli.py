@@ -64,7 +64,8 @@ def run_train(args) -> int:
 
 
 def _write_artefacts(result, out: Path) -> None:
-    from flashnav.export import export_policy, save_checkpoint
+    from flashnav.checkpoint import save_checkpoint
+    from flashnav.export import export_policy
 
     config = result.spec.to_dict()
     dump_yaml(config, out / "config.yaml")

@@ -85,7 +85,7 @@ class Learner:
 
     def state_dict(self) -> dict[str, Any]:
         """``{"algorithm", <core fields>, "algo": {<algorithm fields>}}``: modules and optimisers as
-        state dicts, tensors, RNG states; plain data only (see :func:`flashnav.export.save_checkpoint`)."""
+        state dicts, tensors, RNG states; plain data only (see :func:`flashnav.checkpoint.save_checkpoint`)."""
         return {"algorithm": self.algorithm, **common.state_to_dict(self.state)}
 
     def load_state_dict(self, data: dict[str, Any]) -> None:
