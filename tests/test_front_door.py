@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from flashnav.cli import main
 from flashnav.checkpoint import save_checkpoint
+from flashnav.cli import main
 from flashnav.export import export_policy
 from flashnav.learn.networks import Actor, ObsLayout
 from flashnav.maps.bundled import __file__ as _bundled_file
