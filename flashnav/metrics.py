@@ -167,3 +167,11 @@ def bootstrap_mean_ci(values, confidence: float = 0.95, resamples: int = BOOTSTR
 __all__ = ["THRESHOLDS", "THRESHOLD_TAGS", "TOLERANCE", "BOOTSTRAP_RESAMPLES", "BOOTSTRAP_SEED", "SeedStats",
            "tag_of", "threshold_of", "reaches", "first_crossing", "censor", "time_to_threshold",
            "reached_values", "over_seeds", "bootstrap_mean_ci"]
+
+
+def within_budget(values: Sequence[float | None], budget: float | None, reached: Sequence | None = None) -> int:
+    """How many runs reached a threshold at or below ``budget`` (env steps or seconds); ``values`` and
+    ``reached`` as for :func:`over_seeds`. 0 when there is no budget."""
+    if budget is None:
+        return 0
+    return sum(1 for v in reached_values(values, reached) if v <= budget)

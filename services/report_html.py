@@ -10,7 +10,7 @@ from pathlib import Path
 import jinja2
 import pandas as pd
 
-from services.report_tables import display_rows, has_threads, header_cells
+from services.report_tables import display_rows, has_threads, header_cells, is_steps
 
 TEMPLATE = Path(__file__).resolve().parents[1] / "dashboards" / "report.html.j2"
 FIGURE_CAPTIONS = {
@@ -24,8 +24,11 @@ FIGURE_CAPTIONS = {
 
 
 def _table_context(table: pd.DataFrame, with_counts: bool) -> dict:
-    groups, sub = header_cells(with_counts)
-    return {"groups": groups, "sub": sub, "per": len(sub) // len(groups), "threads": has_threads(table),
+    budget = is_steps(table)
+    groups, sub = header_cells(with_counts, budget=budget)
+    per = len(sub[:-1] if budget else sub) // (len(groups) - budget)  # the budget group is one column wide
+    spans = [(g, 1 if budget and i == len(groups) - 1 else per) for i, g in enumerate(groups)]
+    return {"groups": spans, "sub": sub, "threads": has_threads(table),
             "rows": display_rows(table, with_counts) if not table.empty else []}
 
 
@@ -34,8 +37,9 @@ def _data_uri(path: Path) -> str:
 
 
 def render_html(ours: pd.DataFrame, paper: pd.DataFrame, figures: dict, provenance: dict,
-                template: str | Path = TEMPLATE) -> str:
-    """The dashboard page as a string. figures: {name: png path}; provenance: see write_report."""
+                template: str | Path = TEMPLATE, steps: pd.DataFrame | None = None) -> str:
+    """The dashboard page as a string. ours / paper: seconds tables; steps: the env-steps table (the
+    headline); figures: {name: png path}; provenance: see write_report."""
     template = Path(template)
     if not template.is_file():
         raise FileNotFoundError(f"report template not found: {template} (it lives in the repository's "
@@ -46,4 +50,5 @@ def render_html(ours: pd.DataFrame, paper: pd.DataFrame, figures: dict, provenan
     figs = [{"name": name, "src": _data_uri(p), "caption": FIGURE_CAPTIONS.get(name, name)}
             for name, p in figures.items() if Path(p).suffix == ".png"]
     return env.get_template(template.name).render(
-        ours=_table_context(ours, True), paper=_table_context(paper, False), figures=figs, prov=provenance)
+        ours=_table_context(ours, True), paper=_table_context(paper, False), figures=figs, prov=provenance,
+        steps=_table_context(steps, True) if steps is not None else None)

@@ -13,11 +13,14 @@ from pathlib import Path
 import pandas as pd
 
 from flashnav.machine import split_device_name
-from flashnav.metrics import THRESHOLD_TAGS, bootstrap_mean_ci, over_seeds  # noqa: F401 - bootstrap_mean_ci re-exported
+from flashnav.learn.hparams import paper_budget
+from flashnav.metrics import THRESHOLD_TAGS, bootstrap_mean_ci, over_seeds, within_budget  # noqa: F401 - bootstrap_mean_ci re-exported
 from flashnav.names import ALGORITHM_LABELS, ROBOT_LABELS
 
 THRESHOLDS = THRESHOLD_TAGS  # column-name tags: "90" -> best_90, "90% success"
 GROUP = ("embodiment", "algorithm", "platform")
+#: What a threshold table measures: training seconds, or environment steps (machine-independent).
+KINDS = ("time_to", "env_steps_to")
 PAPER_CSV = Path(__file__).resolve().parent / "data" / "paper_table2.csv"
 
 # Display order and names follow the paper; unknown names sort after these, alphabetically.
@@ -54,8 +57,9 @@ def _threads_cell(values: pd.Series) -> str:
     return ", ".join(str(int(v)) for v in sorted(set(values.dropna().astype(int))))
 
 
-def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS) -> pd.DataFrame:
-    """Best / mean seconds to each success threshold, one row per embodiment x algorithm x platform.
+def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time_to") -> pd.DataFrame:
+    """Best / mean seconds (``kind="time_to"``) or environment steps (``kind="env_steps_to"``) to each
+    success threshold, one row per embodiment x algorithm x platform.
 
     runs: one row per trial with columns robot, algorithm, device_name, time_to_<t> [s], reached_<t>
     and optionally threads (split_platform is applied: the platform is the machine).
@@ -64,16 +68,25 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS) -> pd.DataFrame:
     ci_low_<t>, ci_high_<t> [s] (95 % bootstrap of the mean; None when k < 2),
     bold_best_<t>, bold_mean_<t> (the lowest value among platforms of the same embodiment x algorithm;
     ties are all bold; cells without a value are never bold), then threads (the learner thread
-    counts of the row's runs, "1, 2"; "" on GPUs).
+    counts of the row's runs, "1, 2"; "" on GPUs). With ``kind="env_steps_to"`` also budget (the
+    paper's env-step budget of the embodiment x algorithm, flashnav.learn.hparams.paper_budget; NaN
+    where the paper has none) and budget_<t> (seeds that reached t within it).
     """
+    if kind not in KINDS:
+        raise ValueError(f"unknown table kind {kind!r}; use one of {', '.join(KINDS)}")
     rows = []
     frame = split_platform(runs).rename(columns={"robot": "embodiment", "device_name": "platform"})
     for key, grp in frame.groupby(list(GROUP), sort=False, dropna=False):
         row = dict(zip(GROUP, key))
         row["n"] = int(len(grp))
         for t in thresholds:
-            stats = over_seeds(grp[f"time_to_{t}"].astype(float).to_numpy(),
-                               reached=grp[f"reached_{t}"].fillna(0).astype(float).to_numpy())
+            values = grp[f"{kind}_{t}"].astype(float).to_numpy()
+            reached = grp[f"reached_{t}"].fillna(0).astype(float).to_numpy()
+            stats = over_seeds(values, reached=reached)
+            if kind == "env_steps_to":
+                budget = paper_budget(str(row["algorithm"]), str(row["embodiment"]))
+                row["budget"] = math.nan if budget is None else budget
+                row[f"budget_{t}"] = within_budget(values, budget, reached)
             row[f"best_{t}"] = stats.best if stats.k else math.nan
             row[f"mean_{t}"] = stats.mean if stats.k else math.nan
             row[f"reached_{t}"] = stats.k
@@ -146,6 +159,16 @@ def fmt_s(x) -> str:
     return MISSING if x is None or (isinstance(x, float) and math.isnan(x)) or pd.isna(x) else f"{x:.1f}"
 
 
+def fmt_steps(x) -> str:
+    """Environment steps with thousands separators; MISSING when no seed reached."""
+    return MISSING if x is None or (isinstance(x, float) and math.isnan(x)) or pd.isna(x) else f"{x:,.0f}"
+
+
+def is_steps(table: pd.DataFrame) -> bool:
+    """Whether ``table`` is an env-steps table (it carries the paper's budget)."""
+    return "budget" in table
+
+
 def display_rows(table: pd.DataFrame, with_counts: bool = True, thresholds=THRESHOLDS) -> list[dict]:
     """Rows ready to print: labels, row spans for the multirow cells, and per-threshold cells.
 
@@ -154,15 +177,21 @@ def display_rows(table: pd.DataFrame, with_counts: bool = True, thresholds=THRES
     (the paper's).
     """
     out = []
+    fmt = fmt_steps if is_steps(table) else fmt_s
     for i, r in table.reset_index(drop=True).iterrows():
         cells = []
         for t in thresholds:
-            cells.append({"text": fmt_s(r[f"best_{t}"]), "bold": bool(r.get(f"bold_best_{t}", False)), "ci": ""})
+            cells.append({"text": fmt(r[f"best_{t}"]), "bold": bool(r.get(f"bold_best_{t}", False)), "ci": ""})
             lo, hi = r.get(f"ci_low_{t}"), r.get(f"ci_high_{t}")
-            ci = f"[{lo:.1f}, {hi:.1f}]" if lo is not None and not pd.isna(lo) else ""
-            cells.append({"text": fmt_s(r[f"mean_{t}"]), "bold": bool(r.get(f"bold_mean_{t}", False)), "ci": ci})
+            ci = f"[{fmt(lo)}, {fmt(hi)}]" if lo is not None and not pd.isna(lo) else ""
+            cells.append({"text": fmt(r[f"mean_{t}"]), "bold": bool(r.get(f"bold_mean_{t}", False)), "ci": ci})
             if with_counts:
                 cells.append({"text": f"{int(r[f'reached_{t}'])}/{int(r['n'])}", "bold": False, "ci": ""})
+        if is_steps(table):  # the paper-budget view: 100 % reached within the paper's env steps, k/n
+            last = thresholds[-1]
+            cells.append({"text": MISSING if pd.isna(r["budget"]) else
+                          f"{int(r[f'budget_{last}'])}/{int(r['n'])} (≤ {fmt_steps(r['budget'])})",
+                          "bold": False, "ci": ""})
         out.append({"embodiment": ROBOT_ORDER.get(r["embodiment"], str(r["embodiment"])),
                     "algorithm": ALGO_ORDER.get(r["algorithm"], str(r["algorithm"])),
                     "platform": short_platform(r["platform"]), "cells": cells,
@@ -185,10 +214,13 @@ def has_threads(table: pd.DataFrame) -> bool:
     return "threads" in table
 
 
-def header_cells(with_counts: bool = True, thresholds=THRESHOLDS) -> tuple[list[str], list[str]]:
-    """(threshold group labels, sub-column labels)."""
+def header_cells(with_counts: bool = True, thresholds=THRESHOLDS, budget: bool = False) -> tuple[list[str], list[str]]:
+    """(threshold group labels, sub-column labels); ``budget`` adds the paper-budget group (one column)."""
     sub = ["Best", "Mean", "k/n"] if with_counts else ["Best", "Mean"]
-    return [f"{t}% success" for t in thresholds], sub * len(thresholds)
+    groups, cols = [f"{t}% success" for t in thresholds], sub * len(thresholds)
+    if budget:
+        groups, cols = groups + [f"{thresholds[-1]}% in paper budget"], cols + ["k/n"]
+    return groups, cols
 
 
 def to_markdown(table: pd.DataFrame, with_counts: bool = True) -> str:
@@ -197,6 +229,8 @@ def to_markdown(table: pd.DataFrame, with_counts: bool = True) -> str:
     per = len(sub) // len(groups)
     labels = ["Embodiment", "Algorithm", "Platform"] + (["Threads"] if has_threads(table) else [])
     head = labels + [f"{g.split()[0]} {s}" for g in groups for s in sub[:per]]
+    if is_steps(table):
+        head, sub = head + [f"{THRESHOLDS[-1]}% in paper budget"], sub + ["budget"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(labels) + "--:|" * len(sub)]
     for row in display_rows(table, with_counts):
         cells = []

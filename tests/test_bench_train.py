@@ -10,9 +10,9 @@ from flashnav.bench.train import summarise
 from flashnav.cli import main as cli_main
 
 
-def _run(t90, t95, t100, s90=None, cycle=(10.0, 20.0, 21.0)):
+def _run(t90, t95, t100, s90=None, cycle=(10.0, 20.0, 21.0), s100=None):
     return {"time_to_threshold": {"0.9": t90, "0.95": t95, "1.0": t100},
-            "env_steps_to_threshold": {"0.9": s90, "0.95": None, "1.0": None},
+            "env_steps_to_threshold": {"0.9": s90, "0.95": None, "1.0": s100},
             "cycle": dict(zip(("collector_ms", "learner_ms", "effective_ms"), cycle))}
 
 
@@ -20,11 +20,22 @@ def test_summarise_counts_only_seeds_that_reached():
     runs = [_run(10.0, 20.0, None, 1000), _run(30.0, None, None, 3000, cycle=(12.0, 22.0, 23.0)),
             _run(None, None, None)]
     s = summarise(runs)
-    assert s["runs"] == 3
-    assert s["0.9"] == {"reached": 2, "best_s": 10.0, "mean_s": 20.0, "mean_env_steps": 2000.0}
-    assert s["0.95"] == {"reached": 1, "best_s": 20.0, "mean_s": 20.0, "mean_env_steps": None}
-    assert s["1.0"] == {"reached": 0, "best_s": None, "mean_s": None, "mean_env_steps": None}
+    assert s["runs"] == 3 and s["budget"] is None
+    assert s["0.9"] == {"reached": 2, "best_s": 10.0, "mean_s": 20.0, "best_env_steps": 1000.0,
+                        "mean_env_steps": 2000.0, "within_budget": 0}
+    assert s["0.95"] == {"reached": 1, "best_s": 20.0, "mean_s": 20.0, "best_env_steps": None,
+                         "mean_env_steps": None, "within_budget": 0}
+    assert s["1.0"] == {"reached": 0, "best_s": None, "mean_s": None, "best_env_steps": None,
+                        "mean_env_steps": None, "within_budget": 0}
     assert s["collector_ms"] == pytest.approx(32.0 / 3) and s["effective_ms"] == pytest.approx(65.0 / 3)
+
+
+def test_summarise_counts_seeds_within_the_paper_budget():
+    runs = [_run(5.0, 6.0, 7.0, 1000, s100=150_000), _run(5.0, 6.0, 9.0, 1000, s100=250_000),
+            _run(None, None, None)]
+    s = summarise(runs, budget=200_704)
+    assert s["budget"] == 200_704 and s["1.0"]["reached"] == 2 and s["1.0"]["within_budget"] == 1
+    assert s["0.9"]["within_budget"] == 2
 
 
 def test_summarise_lists_the_learner_thread_counts():
@@ -45,7 +56,9 @@ def test_bench_train_command_writes_every_run(tmp_path, capsys):
     assert all(r["robot"] == "turtlebot2" and r["algorithm"] == "fastdsac" and r["recipe"] == "cpu" for r in data["runs"])
     (robot, algo, recipe, device, summary), = data["groups"]
     assert (robot, algo, recipe) == ("turtlebot2", "fastdsac", "cpu") and summary["runs"] == 2
-    assert "turtlebot2 fastdsac seed 1: 90% at" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "turtlebot2 fastdsac seed 1: 90% at" in printed
+    assert summary["budget"] == 200_704
     assert (tmp_path / "curves.png").stat().st_size > 0
 
 

@@ -119,3 +119,22 @@ def test_threshold_tracker_is_the_incremental_first_crossing():
     for t in THRESHOLDS:
         assert tracker.seconds[t] == first_crossing(success, SECONDS, t)
         assert tracker.env_steps[t] == first_crossing(success, steps, t)
+
+
+def test_within_budget_counts_reached_runs_at_or_below_the_budget():
+    from flashnav.metrics import within_budget
+
+    steps = [120_000.0, 200_704.0, 250_000.0, None, float("nan")]
+    assert within_budget(steps, 200_704) == 2  # at the budget counts
+    assert within_budget(steps, None) == 0
+    # censored values (the run's total where not reached) never count, whatever their size
+    assert within_budget([150_000.0, 100_000.0], 200_704, reached=[1, 0]) == 1
+
+
+def test_paper_budget_is_the_paper_recipes_total():
+    from flashnav.learn.hparams import paper_budget
+
+    assert paper_budget("fastdsac", "turtlebot2") == 200_704
+    assert paper_budget("fastdsac", "go2") == 401_408
+    assert paper_budget("fasttd3", "go2") == 602_112
+    assert paper_budget("fastdsac", "jackal") is None

@@ -108,6 +108,21 @@ def test_threshold_table_values(table):
                 assert row[f"best_{t}"] == pytest.approx(best) and row[f"mean_{t}"] == pytest.approx(mean)
 
 
+def test_steps_table_and_paper_budget(runs):
+    # The fixture's env steps are seconds x a per-platform rate; the budget is the paper recipe's total.
+    steps = threshold_table(runs, kind="env_steps_to")
+    row = lambda e, a, p: steps[(steps.embodiment == e) & (steps.algorithm == a) & (steps.platform == p)].iloc[0]  # noqa: E731
+    epyc = row("turtlebot2", "fastdsac", "AMD EPYC 7B13")
+    assert (epyc.best_90, epyc.mean_90, epyc.reached_90, epyc.budget) == (40_000, 60_000, 3, 200_704)
+    td3 = row("go2", "fasttd3", "AMD EPYC 7B13")
+    assert (td3.budget, td3.reached_100, td3.budget_100) == (602_112, 1, 1)  # 180,000 <= 602,112
+    h100 = row("turtlebot2", "fastdsac", "NVIDIA H100 80GB HBM3")
+    assert (h100.reached_100, h100.budget_100) == (2, 0)  # reached, but past the paper's budget
+    assert "0/3 (≤ 200,704)" in to_markdown(steps) and "| **40,000** |" in to_markdown(steps)
+    with pytest.raises(ValueError, match="kind"):
+        threshold_table(runs, kind="seconds")
+
+
 def test_bold_cells(table):
     for _, row in table.iterrows():
         assert _bold_cells(row) == BOLD.get((row["embodiment"], row["algorithm"], row["platform"]), set())
@@ -247,6 +262,10 @@ def test_build_report_offline(tmp_path, runs):
     assert H100_TB2_DSAC_MD in written["md"].read_text()
     comparison = pd.read_csv(written["csv_comparison"])
     assert comparison["source"].value_counts().to_dict() == {"this report": 9, "paper": 18}
+    md = written["md"].read_text()  # env steps first: the machine-independent headline
+    assert md.index("## Environment steps to success threshold") < md.index("## Time to success threshold")
+    assert "Environment steps to success threshold" in html and "100% in paper budget" in html
+    assert pd.read_csv(written["csv_steps"])["budget"].tolist()[:1] == [200704]
     with pytest.raises(ValueError, match="pdf"):
         build_report(runs, None, tmp_path, formats=("pdf",))
 

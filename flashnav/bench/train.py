@@ -10,9 +10,10 @@ import statistics
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.names import ALGORITHMS, RECIPE_CHOICES, ROBOTS
+from flashnav.learn.hparams import paper_budget
 from flashnav.learn.progress import TrainProgress
-from flashnav.metrics import THRESHOLDS, over_seeds
+from flashnav.metrics import THRESHOLDS, over_seeds, within_budget
+from flashnav.names import ALGORITHMS, RECIPE_CHOICES, ROBOTS
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -33,13 +34,16 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     q.set_defaults(func=run_bench_plot)
 
 
-def summarise(runs: list[dict]) -> dict:
-    """Best / mean seconds and env steps to each threshold over the runs that reached it, and k/S."""
-    out = {"runs": len(runs)}
+def summarise(runs: list[dict], budget: int | None = None) -> dict:
+    """Best / mean env steps and seconds to each threshold over the runs that reached it, k/S, and
+    (with the paper's env-step ``budget`` of the robot x algorithm) how many reached it within that."""
+    out = {"runs": len(runs), "budget": budget}
     for t in THRESHOLDS:
         secs = over_seeds([r["time_to_threshold"][str(t)] for r in runs], interval=False)
-        steps = over_seeds([r["env_steps_to_threshold"][str(t)] for r in runs], interval=False)
-        out[str(t)] = {"reached": secs.k, "best_s": secs.best, "mean_s": secs.mean, "mean_env_steps": steps.mean}
+        step_values = [r["env_steps_to_threshold"][str(t)] for r in runs]
+        steps = over_seeds(step_values, interval=False)
+        out[str(t)] = {"reached": secs.k, "best_s": secs.best, "mean_s": secs.mean, "best_env_steps": steps.best,
+                       "mean_env_steps": steps.mean, "within_budget": within_budget(step_values, budget)}
     for k in ("collector_ms", "learner_ms", "effective_ms"):
         out[k] = statistics.fmean(r["cycle"][k] for r in runs)
     out["threads"] = sorted({r["threads"] for r in runs if r.get("threads") is not None})  # [] on a GPU
@@ -75,7 +79,8 @@ def run_bench_train(args) -> int:
             _save(args.json, when, groups, results + runs)  # after every run: an interrupted bench keeps its runs
         results += runs
         robot, algo = specs[0][0], specs[0][1]
-        groups.append((robot, algo, runs[0]["recipe"], runs[0]["device_name"], summarise(runs)))
+        budget = paper_budget(algo, specs[0][3].robot_name)
+        groups.append((robot, algo, runs[0]["recipe"], runs[0]["device_name"], summarise(runs, budget)))
         _save(args.json, when, groups, results)
     _print(console, groups, args.seeds, when)
     if args.plot:
@@ -113,17 +118,23 @@ def _save(path: str | None, when: str, groups, runs: list[dict]) -> None:
 
 
 def _print(console: Console, groups, seeds: int, when: str) -> None:
-    t = Table(title=f"flashnav bench train ({when}): seconds of training to success thresholds, {seeds} seeds")
-    for col in ("robot", "algo", "recipe", "device", "threads", "90% best/mean (k/S)", "95% best/mean (k/S)",
-                "100% best/mean (k/S)", "env steps to 90%", "collector/learner/cycle ms"):
+    """Environment steps first (machine-independent, comparable with the paper), then seconds."""
+    t = Table(title=f"flashnav bench train ({when}): environment steps, then seconds of training, to success "
+                    f"thresholds; {seeds} seeds")
+    for col in ("robot", "algo", "recipe", "device", "threads", "env steps to 90% best/mean (k/S)",
+                "to 95%", "to 100%", "100% in paper budget", "seconds to 90/95/100% mean",
+                "collector/learner/cycle ms"):
         t.add_column(col, justify="right")
     for robot, algo, recipe, device, s in groups:
         cells = []
         for th in THRESHOLDS:
             c = s[str(th)]
-            cells.append("-" if not c["reached"] else f"{c['best_s']:.1f} / {c['mean_s']:.1f} ({c['reached']}/{s['runs']})")
-        e90 = s["0.9"]["mean_env_steps"]
+            cells.append("-" if not c["reached"] else
+                         f"{c['best_env_steps']:,.0f} / {c['mean_env_steps']:,.0f} ({c['reached']}/{s['runs']})")
+        last, budget = s[str(THRESHOLDS[-1])], s.get("budget")
+        in_budget = "-" if budget is None else f"{last['within_budget']}/{s['runs']} (<= {budget:,})"
+        seconds = " / ".join("-" if s[str(th)]["mean_s"] is None else f"{s[str(th)]['mean_s']:.1f}" for th in THRESHOLDS)
         threads = ", ".join(str(n) for n in s.get("threads", [])) or "-"
-        t.add_row(robot, algo, recipe, device, threads, *cells, "-" if e90 is None else f"{e90:,.0f}",
+        t.add_row(robot, algo, recipe, device, threads, *cells, in_budget, seconds,
                   f"{s['collector_ms']:.1f} / {s['learner_ms']:.1f} / {s['effective_ms']:.1f}")
     console.print(t)

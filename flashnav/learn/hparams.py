@@ -164,3 +164,13 @@ def recipe_values(algorithm: str, robot: str, recipe: str) -> dict[str, Any]:
     for layer in layers:
         data.update(layer or {})
     return data
+
+
+def paper_budget(algorithm: str, robot: str) -> int | None:
+    """The paper's environment-step budget of ``algorithm`` on ``robot``: its ``paper`` recipe's
+    ``total_env_steps`` (appendix A: 200,704 on TurtleBot2; 401,408 / 501,760 / 602,112 for FastDSAC /
+    FastSAC / FastTD3 on Go2). None for a robot the paper has no recipe for."""
+    try:
+        return int(recipe_values(algorithm, robot, "paper")["total_env_steps"])
+    except (ValueError, KeyError):
+        return None
