@@ -63,3 +63,18 @@ def test_bench_update_command_writes_rows(tmp_path, capsys):
 def test_bench_update_rejects_a_bad_way(capsys):
     assert cli_main(["bench", "update", "--ways", "eager,turbo", "--device", "cpu"]) == 2
     assert "unknown turbo" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("algo", ["fastdsac", "fastsac", "fasttd3"])
+def test_bf16_autocast_way_times_updates_of_every_learner(algo):
+    # The way changes the arithmetic, not the code: every learner's update runs under bf16 autocast
+    # (its float32 state - running std, C51 targets - stays float32).
+    import torch
+
+    spec = run_spec(algo, "turtlebot2", "cpu", "cpu", ["batch_size=32"])
+    row = time_updates(spec, "bf16-autocast", seconds=0.1, warmup=2)
+    assert row["way"] == "bf16-autocast" and row["updates"] >= 8 and row["ms_per_update"] > 0
+    assert "bf16-autocast" in parse_ways("eager,bf16-autocast")
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        assert torch.ones(2, 2).matmul(torch.ones(2, 2)).dtype == torch.bfloat16  # autocast really applies
+

@@ -6,7 +6,9 @@ size, once per way: ``eager`` (what ``flashnav train`` runs) and each ``torch.co
 applied to the actor, the twin critic and its target (the networks; noise draws, losses and the
 optimiser stay eager). Every way starts from the same seed and the same batches; each reports its
 warm-up seconds (compilation, which a training clock would pay) apart from the timed updates, and its
-speed as a ratio to eager. Use it to decide whether compiling pays on a machine before turning it on.
+speed as a ratio to eager. ``bf16-autocast`` keeps the networks eager and runs the whole update under
+``torch.autocast(dtype=torch.bfloat16)`` (matrix products in bf16: AVX-512 BF16 / AMX on this CPU
+family, tensor cores on GPUs). Use it to decide whether a way pays on a machine before turning it on.
 """
 
 from __future__ import annotations
@@ -22,7 +24,10 @@ from rich.table import Table
 from flashnav.names import ALGORITHMS, RECIPE_CHOICES
 
 #: ``--ways`` values: eager, or a torch.compile mode ("default" is torch's default mode).
-WAYS = ("eager", "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+WAYS = ("eager", "bf16-autocast", "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+#: Ways that keep the networks eager and change the arithmetic instead: the update runs under
+#: ``torch.autocast`` in bfloat16 (matrix products in bf16, on CPUs with AVX-512 BF16 / AMX and on GPUs).
+AUTOCAST_WAYS = ("bf16-autocast",)
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -64,7 +69,7 @@ def compile_networks(learner, way: str) -> None:
     nothing for ``"eager"``)."""
     if way not in WAYS:
         raise ValueError(f"unknown way {way!r}: use one of {', '.join(WAYS)}")
-    if way == "eager":
+    if way == "eager" or way in AUTOCAST_WAYS:
         return
     s = learner.state
     for module in (s.actor, s.critic, s.critic_target):
@@ -89,7 +94,8 @@ def random_batches(obs_dim: int, batch_size: int, device, seed: int, n: int) -> 
 
 
 def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, num_batches: int = 8) -> dict:
-    """Build the learner of ``spec`` (a :class:`flashnav.spec.RunSpec`; ``seed``), compile its networks unless ``way == "eager"``, run ``warmup``
+    """Build the learner of ``spec`` (a :class:`flashnav.spec.RunSpec`; ``seed``), compile its networks
+    (a torch.compile way) or run the update under bf16 autocast (``bf16-autocast``), run ``warmup``
     updates, then time whole updates for at least ``seconds`` (device synchronised at both ends).
 
     Returns ``{"way", "batch_size", "warmup_s", "updates", "ms_per_update"}``."""
@@ -108,15 +114,21 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
         if str(device).startswith("cuda"):
             torch.cuda.synchronize(device)
 
+    def update(batch):
+        if way in AUTOCAST_WAYS:
+            with torch.autocast(torch.device(device).type, dtype=torch.bfloat16):
+                return learner.update(batch)
+        return learner.update(batch)
+
     start = time.perf_counter()
     for i in range(warmup):
-        learner.update(batches[i % num_batches])
+        update(batches[i % num_batches])
     sync()
     warmup_s = time.perf_counter() - start
     updates, start = 0, time.perf_counter()
     while True:
         for batch in batches:
-            learner.update(batch)
+            update(batch)
         updates += num_batches
         sync()
         elapsed = time.perf_counter() - start

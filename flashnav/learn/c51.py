@@ -34,6 +34,9 @@ def project(probs: torch.Tensor, reward: torch.Tensor, bootstrap: torch.Tensor, 
     exactly on a support point has ``l == u`` and both linear weights 0; moving ``u`` up one index
     (or ``l`` down one at the top end) gives that point weight 1, so no mass is lost.
     """
+    # at least the support's precision (bf16 probabilities under autocast become float32 targets;
+    # float32 or float64 input is returned as it is)
+    probs = probs.to(torch.promote_types(probs.dtype, atoms.dtype))
     k = atoms.shape[0]
     v_min, v_max = atoms[0], atoms[-1]
     delta = (v_max - v_min) / (k - 1)

@@ -133,7 +133,7 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
     target, target_sample = compute_target(state, batch)
     mu, std = gaussian_head(state.critic(batch.obs, batch.action))                         # [2, B]
     with torch.no_grad():
-        batch_std = std.mean(dim=-1)
+        batch_std = std.float().mean(dim=-1)  # float32 state, also under bf16 autocast (no-op otherwise)
         running_std = state.algo.running_std
         ema = torch.lerp(running_std, batch_std, hp.std_ema)
         running_std.copy_(torch.where(running_std < 0, batch_std, ema))
