@@ -55,6 +55,8 @@ def run_bench_train(args) -> int:
     from flashnav.spec import config_from_cli, resolve
 
     console = Console()
+    if not console.is_terminal:  # a log file: rich's 80 columns would cut the eleven-column table to stubs
+        console = Console(width=220)
     when = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     # Every run's spec first, through flashnav train's own path: a bad name or key fails before any training.
     assignments = [*args.overrides, f"budget.max_train_seconds={args.budget_seconds}"]
