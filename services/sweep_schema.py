@@ -21,7 +21,7 @@ import yaml
 from pydantic import Field, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from flashnav.config import UniqueKeyLoader, parse_assignment, set_dotted, yaml_error_line
+from flashnav.config import load_yaml, parse_assignment, set_dotted
 from flashnav.names import ROBOTS
 from flashnav.spec import Budget, TrainConfig
 from services.schema_base import Strict, SweepError, known_algorithms
@@ -214,12 +214,12 @@ def load_sweep(path: str | Path, sets: list[str] | None = None) -> Sweep:
     """Read, override and validate a sweep file; raises :class:`SweepError` with every problem."""
     path = Path(path)
     try:
-        # duplicate keys are refused: with plain safe_load the last `seeds:` would win silently
-        data = yaml.load(path.read_text(encoding="utf-8"), Loader=UniqueKeyLoader)  # noqa: S506 - SafeLoader subclass
+        # flashnav's loader refuses duplicate keys: with plain safe_load the last `seeds:` would win silently
+        data = load_yaml(path)
     except FileNotFoundError:
         raise SweepError(f"{path}: no such sweep file") from None
-    except yaml.YAMLError as exc:
-        raise SweepError(f"{path}: not valid YAML: {yaml_error_line(exc)}") from None
+    except ValueError as exc:  # "<path>: not valid YAML: ..." (or a folder, or not UTF-8)
+        raise SweepError(str(exc)) from None
     if not isinstance(data, dict):
         raise SweepError(f"{path}: a sweep is a mapping of keys, got {type(data).__name__}")
     apply_sets(data, sets or [])

@@ -50,9 +50,9 @@ def run_sim(args) -> int:
     seconds = args.seconds
     if args.quick:
         robots, sizes, seconds = ["turtlebot2"], [64], 0.5
-    from flashnav.machine import learner_threads
+    from flashnav.machine import learner_threads, machine_name
 
-    machine, threads = sim.machine_description(args.device), learner_threads(args.device)
+    machine, threads = machine_name(args.device), learner_threads(args.device)
     when = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     on = f"{machine}, {threads} torch threads" if threads else machine
     console.print(f"[bold]flashnav bench sim[/] {when} on {on}; each row >= {seconds} s of whole env steps")

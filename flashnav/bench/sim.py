@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from flashnav.machine import machine_name
 from flashnav.sim.env import make_env
 from flashnav.sim.raycast import error_stats, make_raycaster, random_free_poses
 
@@ -75,8 +74,3 @@ def accuracy(robot: str, raycaster: str, device: str, num_poses: int = 256, seed
     other = make_raycaster(raycaster, env.map, env.beam_angles, env.preset.lidar.max_range, env.device,
                            env.preset.lidar.march_step)(poses)
     return {"robot": robot, "raycaster": raycaster, **error_stats(other, exact)}
-
-
-def machine_description(device: str = "cpu") -> str:
-    """The machine, as every table names it (see flashnav.machine): GPU name or CPU model and cores."""
-    return machine_name(device)

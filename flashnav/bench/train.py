@@ -6,6 +6,7 @@ import argparse
 import datetime as dt
 import json
 import statistics
+from dataclasses import replace
 
 from rich.console import Console
 from rich.table import Table
@@ -60,10 +61,13 @@ def run_bench_train(args) -> int:
     when = dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     # Every run's spec first, through flashnav train's own path: a bad name or key fails before any training.
     assignments = [*args.overrides, f"budget.max_train_seconds={args.budget_seconds}"]
-    plan = [[(robot, algo, seed, resolve(config_from_cli(None, dict(robot=robot, algorithm=algo, recipe=args.recipe,
-                                                                     device=args.device, seed=seed), assignments)))
-             for seed in range(args.seeds)]
-            for robot in args.robots.split(",") for algo in args.algos.split(",")]
+    # One resolution per robot x algorithm; the seeds differ in the seed alone and share its loaded map
+    # (and the map's derived fields, computed once).
+    firsts = [(robot, algo, resolve(config_from_cli(None, dict(robot=robot, algorithm=algo, recipe=args.recipe,
+                                                                device=args.device, seed=0), assignments)))
+              for robot in args.robots.split(",") for algo in args.algos.split(",")]
+    plan = [[(robot, algo, seed, replace(spec, config=spec.config.model_copy(update={"seed": seed})))
+             for seed in range(args.seeds)] for robot, algo, spec in firsts]
     results, groups = [], []
     for specs in plan:
         runs = []

@@ -141,7 +141,7 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
 def run_bench_update(args) -> int:
     import torch
 
-    from flashnav.bench.sim import machine_description
+    from flashnav.machine import machine_name
 
     ways = parse_ways(args.ways)
     if args.seconds <= 0 or args.warmup < 1 or args.threads < 1:
@@ -151,7 +151,7 @@ def run_bench_update(args) -> int:
     if device == "cpu":
         torch.set_num_threads(args.threads)
     console = Console()
-    machine, when = machine_description(device), dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    machine, when = machine_name(device), dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     threads = args.threads if device == "cpu" else None  # the learner's torch threads, set above
     on = f"{machine}, {threads} torch threads" if threads else machine
     console.print(f"[bold]flashnav bench update[/] {when} on {on}: {args.robot} / {args.algo} / "

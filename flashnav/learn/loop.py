@@ -26,6 +26,7 @@ from flashnav.evaluate import ThresholdTracker, evaluate
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
+from flashnav.machine import learner_threads, machine_name
 from flashnav.maps.bundled import resolve_map
 from flashnav.metrics import reaches
 from flashnav.sim.env import NavVecEnv
@@ -71,20 +72,6 @@ class TrainResult:
             "best_success_rate": self.best_success_rate,
             "config": self.spec.to_dict(),
         }
-
-
-def device_name(device: str) -> str:
-    """The machine as reports show it: the GPU's name, or the CPU model and core count (no threads)."""
-    from flashnav.machine import machine_name
-
-    return machine_name(device)
-
-
-def learner_threads(device: str) -> int | None:
-    """The learner's torch CPU threads (None on a GPU), recorded beside device_name, not inside it."""
-    from flashnav.machine import learner_threads as threads_now
-
-    return threads_now(device)
 
 
 class _Timer:
@@ -238,7 +225,7 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
         train_seconds=cycle_t.total,
         env_steps=env_steps,
         spec=spec,
-        device_name=device_name(spec.device),
+        device_name=machine_name(spec.device),
         threads=learner_threads(spec.device),  # read before train() restores the caller's thread count
         stop_reason=stop_reason,
         best_success_rate=best_rate,

@@ -220,16 +220,13 @@ class NavVecEnv(VectorEnv):
         self._place(torch.arange(n, device=self.device), pose.float(), goal.float())
         return self.obs.clone()
 
-    def _world_to_frame(self, pose, goal):
-        """World (pose [N, 3], goal [N, 2]) -> the simulator frame, in float64 (unchanged, not even
-        converted, when the frame is the world's)."""
+    def _world_to_frame(self, pose: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """World (checked float64 pose [N, 3], goal [N, 2]) -> the simulator frame, still float64
+        (returned as they are when the frame is the world's)."""
         if self.frame_origin == (0.0, 0.0):
             return pose, goal
         off = torch.tensor(self.frame_origin, dtype=torch.float64, device=self.device)
-        pose = torch.as_tensor(pose, dtype=torch.float64, device=self.device).reshape(self.num_envs, 3)
-        pose = torch.cat([pose[:, :2] - off, pose[:, 2:]], dim=1)
-        goal = torch.as_tensor(goal, dtype=torch.float64, device=self.device).reshape(self.num_envs, 2) - off
-        return pose, goal
+        return torch.cat([pose[:, :2] - off, pose[:, 2:]], dim=1), goal - off
 
     def world_pose(self) -> torch.Tensor:
         """[N, 3] float64: the current poses in world coordinates (x, y m, yaw rad)."""
