@@ -37,3 +37,10 @@ def check_name(kind: str, value: str, allowed: tuple[str, ...]) -> str:
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         raise ValueError(f"unknown {kind} {value!r}{hint}; use one of {', '.join(allowed)}")
     return value
+
+
+def check_robot(value: str) -> str:
+    """``value`` if it names a bundled robot preset or a preset YAML path, else a ValueError."""
+    if value not in ROBOTS and not str(value).endswith((".yaml", ".yml")):
+        raise ValueError(f"unknown robot {value!r}; allowed: {', '.join(ROBOTS)} or a preset YAML path")
+    return value

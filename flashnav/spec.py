@@ -24,7 +24,7 @@ from pydantic import Field, ValidationError, field_validator
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
 from flashnav.maps.grid import OccupancyMap
-from flashnav.names import ALGORITHMS, RAYCASTERS, RECIPE_CHOICES, ROBOTS
+from flashnav.names import ALGORITHMS, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_robot
 from flashnav.presets import load_robot
 
 #: Prefixes of the keys in ``TrainConfig.overrides``: into the hyperparameters, into the robot preset.
@@ -73,9 +73,7 @@ class TrainConfig(KnownKeys):
     @field_validator("robot")
     @classmethod
     def _robot(cls, value: str) -> str:
-        if value not in ROBOTS and not value.endswith((".yaml", ".yml")):
-            raise ValueError(f"unknown robot {value!r}: use one of {', '.join(ROBOTS)} or a preset YAML path")
-        return value
+        return check_robot(value)
 
     @field_validator("device")
     @classmethod

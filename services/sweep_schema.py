@@ -22,7 +22,7 @@ from pydantic import Field, ValidationError, field_serializer, field_validator, 
 from pydantic_core import PydanticCustomError
 
 from flashnav.config import load_yaml, parse_assignment, set_dotted
-from flashnav.names import ROBOTS
+from flashnav.names import check_robot
 from flashnav.spec import Budget, TrainConfig
 from services.schema_base import Strict, SweepError, known_algorithms
 from services.search_space import Search
@@ -107,8 +107,7 @@ class Sweep(Strict):
     @classmethod
     def _robots(cls, value: list[str]) -> list[str]:
         for name in value:
-            if name not in ROBOTS and not name.endswith((".yaml", ".yml")):
-                raise ValueError(f"unknown robot {name!r}; allowed: {', '.join(ROBOTS)} or a preset YAML path")
+            check_robot(name)
         return value
 
     @field_validator("algorithms")

@@ -15,7 +15,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from flashnav.config import RobotPreset, deep_merge, load_yaml, set_dotted
-from flashnav.names import ROBOTS
+from flashnav.names import ROBOTS, check_robot
 
 
 def preset_path(name: str) -> Path:
@@ -39,15 +39,13 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
     """
     if isinstance(robot, RobotPreset):
         data, source = robot.model_dump(), robot.name
-    elif robot in ROBOTS:
+    elif check_robot(robot) in ROBOTS:  # check_robot: a bundled name or a preset YAML path, else raises
         data, source = deep_merge(load_preset_file("simulator"), load_preset_file(robot)), robot
-    elif str(robot).endswith((".yaml", ".yml")):
+    else:
         own = load_yaml(robot) or {}
         if not isinstance(own, dict):
             raise ValueError(f"{robot}: a robot preset must be a mapping")
         data, source = deep_merge(load_preset_file("simulator"), own), str(robot)
-    else:
-        raise ValueError(f"unknown robot {robot!r}: use one of {', '.join(ROBOTS)} or a preset YAML path")
     for key, value in overrides.items():
         set_dotted(data, key, value, known=RobotPreset, what="robot override")
     try:
