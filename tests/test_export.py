@@ -19,11 +19,11 @@ from flashnav.sim.motion import action_to_velocity
 HIDDEN = (64, 64)
 
 
-def random_actor(preset, seed: int = 0, heads: int = 3) -> Actor:
+def random_actor(preset, seed: int = 0, heads: int = 3, layer_norm: bool = False) -> Actor:
     """An actor with random weights; the output layer is re-drawn with a large std so that actions
     cover [-1, 1] (at the training init they sit near 0 and would test little)."""
     gen = torch.Generator().manual_seed(seed)
-    actor = Actor(ObsLayout.from_robot(preset, math.hypot(*preset.map_size)), 2, HIDDEN, heads, gen)
+    actor = Actor(ObsLayout.from_robot(preset, math.hypot(*preset.map_size)), 2, HIDDEN, heads, gen, layer_norm)
     with torch.no_grad():
         actor.mlp.net[-1].weight.normal_(0.0, 1.0, generator=gen)
     return actor
@@ -114,6 +114,20 @@ def test_onnx_equals_torch(exported, tb2, n):
     np.testing.assert_allclose(onnx_command, torch.stack([v, w], 1).numpy(), rtol=0, atol=1e-6)
     policy, _ = load_policy(paths["onnx"])
     torch.testing.assert_close(policy(obs), action, rtol=0, atol=1e-5)
+
+
+def test_a_layer_normed_actor_exports_to_the_same_actions(tb2, tmp_path):
+    import onnxruntime as ort
+
+    actor = random_actor(tb2, seed=5, layer_norm=True)
+    paths = export_policy(actor, tb2, tmp_path)
+    obs = observations(tb2, 65)
+    with torch.no_grad():
+        action, _ = DeployablePolicy(actor, tb2).eval()(obs)
+    session = ort.InferenceSession(str(paths["onnx"]), providers=["CPUExecutionProvider"])
+    np.testing.assert_allclose(session.run(None, {"obs": obs.numpy()})[0], action.numpy(), rtol=0, atol=1e-5)
+    scripted, _ = load_policy(paths["torchscript"])
+    torch.testing.assert_close(scripted(obs), action, rtol=0, atol=1e-5)
 
 
 def test_metadata(exported, tb2):

@@ -93,15 +93,24 @@ def separate_critic(twin: TwinCritic, k: int) -> tuple[IPAPRec, nn.Sequential]:
             linear.bias.copy_(b[k, 0])
         layers.append(linear)
         if i < len(twin.weights) - 1:
+            if twin.layer_norm:
+                norm = nn.LayerNorm(w.shape[2])
+                with torch.no_grad():
+                    norm.weight.copy_(twin.norm_gains[i][k, 0])
+                    norm.bias.copy_(twin.norm_biases[i][k, 0])
+                layers.append(norm)
             layers.append(nn.LeakyReLU())
     return transform, nn.Sequential(*layers)
 
 
-@pytest.mark.parametrize("out_dim", [101, 2])
-def test_batched_twin_critic_equals_two_separate_mlps(out_dim):
-    twin = TwinCritic(TB2, 2, (100, 100, 100, 100), out_dim, torch.Generator().manual_seed(0))
+@pytest.mark.parametrize("out_dim,layer_norm", [(101, False), (2, False), (101, True), (2, True)])
+def test_batched_twin_critic_equals_two_separate_mlps(out_dim, layer_norm):
+    twin = TwinCritic(TB2, 2, (100, 100, 100, 100), out_dim, torch.Generator().manual_seed(0),
+                      layer_norm=layer_norm)
     with torch.no_grad():
         twin.transform.rho.copy_(torch.tensor([-1.0, 0.7]))   # different betas per critic
+        for p in [*getattr(twin, "norm_gains", []), *getattr(twin, "norm_biases", [])]:
+            p.add_(0.3 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
     obs, action = random_obs(TB2, 64), torch.rand(64, 2) * 2 - 1
     out = twin(obs, action)
     assert out.shape == (2, 64, out_dim)
@@ -118,8 +127,25 @@ def test_twin_init_draws_like_two_linear_stacks():
     assert not torch.equal(twin.weights[0][0], twin.weights[0][1])
 
 
-def test_detached_critic_trains_the_action_only():
-    twin = TwinCritic(TB2, 2, (100, 100), 2, torch.Generator().manual_seed(0))
+def test_layer_norm_keeps_the_linear_draws_and_normalises_each_hidden_layer():
+    gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
+    plain, normed = TwinCritic(TB2, 2, (100, 100), 2, gen()), TwinCritic(TB2, 2, (100, 100), 2, gen(), layer_norm=True)
+    assert all(torch.equal(a, b) for a, b in zip(plain.weights, normed.weights))
+    actor_plain, actor_normed = Actor(TB2, 2, (100, 100), 3, gen()), Actor(TB2, 2, (100, 100), 3, gen(), layer_norm=True)
+    linears = lambda a: [m.weight for m in a.mlp.net if isinstance(m, nn.Linear)]  # noqa: E731
+    assert all(torch.equal(a, b) for a, b in zip(linears(actor_plain), linears(actor_normed)))
+    norms = [m for m in actor_normed.mlp.net if isinstance(m, nn.LayerNorm)]
+    assert [n.normalized_shape for n in norms] == [(100,), (100,)]
+    # the first hidden layer's activations, before LeakyReLU, have zero mean and unit variance per sample
+    obs = random_obs(TB2, 32)
+    pre = actor_normed.mlp.net[1](actor_normed.mlp.net[0](actor_normed.transform(obs)))
+    torch.testing.assert_close(pre.mean(-1), torch.zeros(32), atol=1e-5, rtol=0)
+    torch.testing.assert_close(pre.var(-1, unbiased=False), torch.ones(32), atol=1e-3, rtol=0)
+
+
+@pytest.mark.parametrize("layer_norm", [False, True])
+def test_detached_critic_trains_the_action_only(layer_norm):
+    twin = TwinCritic(TB2, 2, (100, 100), 2, torch.Generator().manual_seed(0), layer_norm=layer_norm)
     action = torch.zeros(8, 2, requires_grad=True)
     twin(random_obs(TB2, 8), action, detach_params=True).sum().backward()
     assert action.grad is not None and action.grad.abs().sum() > 0

@@ -191,8 +191,9 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     device = torch.device(device)
     init_seed, collect_seed, update_seed = derive_seeds(seed, 3)
     init_gen = torch.Generator().manual_seed(init_seed)
-    actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen).to(device)
-    critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen).to(device)
+    actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, layer_norm=hp.layer_norm).to(device)
+    critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen,
+                        layer_norm=hp.layer_norm).to(device)
     critic_target = frozen_copy(critic)
     return LearnerState(
         hp=hp, actor=actor, collector=frozen_copy(actor), critic=critic, critic_target=critic_target,

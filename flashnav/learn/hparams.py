@@ -35,6 +35,7 @@ class LearnerHParams(Strict):
     betas: tuple[float, float] = Field(description="AdamW (beta1, beta2)")
     actor_hidden: tuple[int, ...] = Field(min_length=1, description="actor hidden layer widths")
     critic_hidden: tuple[int, ...] = Field(min_length=1, description="critic hidden layer widths")
+    layer_norm: bool = Field(description="LayerNorm before each hidden activation (actor and critics)")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")
     buffer_size: int = Field(gt=0, description="replay capacity, transitions (all envs together)")

@@ -136,10 +136,14 @@ def _uniform_(tensor: torch.Tensor, fan_in: int, generator: torch.Generator | No
 
 
 class MLP(nn.Module):
-    """``[..., in] -> [..., out]``: Linear/LeakyReLU hidden layers, linear output."""
+    """``[..., in] -> [..., out]``: Linear(/LayerNorm)/LeakyReLU hidden layers, linear output.
+
+    ``layer_norm``: a LayerNorm (learned gain and bias) between each hidden Linear and its activation,
+    as in the FastSAC / FastDSAC reference networks; off in the paper recipe (the paper is silent)."""
 
     def __init__(self, in_dim: int, hidden: Sequence[int], out_dim: int,
-                 generator: torch.Generator | None = None, out_init_std: float | None = None):
+                 generator: torch.Generator | None = None, out_init_std: float | None = None,
+                 layer_norm: bool = False):
         super().__init__()
         sizes = [in_dim, *hidden, out_dim]
         layers: list[nn.Module] = []
@@ -149,6 +153,8 @@ class MLP(nn.Module):
             _uniform_(linear.bias, n_in, generator)
             layers.append(linear)
             if i < len(sizes) - 2:
+                if layer_norm:
+                    layers.append(nn.LayerNorm(n_out))
                 layers.append(nn.LeakyReLU())
         if out_init_std is not None:
             with torch.no_grad():
@@ -168,12 +174,12 @@ class Actor(nn.Module):
     """
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], heads: int,
-                 generator: torch.Generator | None = None):
+                 generator: torch.Generator | None = None, layer_norm: bool = False):
         super().__init__()
         self.action_dim = action_dim
         self.heads = heads
         self.transform = IPAPRec(layout)
-        self.mlp = MLP(layout.obs_dim, hidden, heads * action_dim, generator, ACTOR_OUT_INIT_STD)
+        self.mlp = MLP(layout.obs_dim, hidden, heads * action_dim, generator, ACTOR_OUT_INIT_STD, layer_norm)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.mlp(self.transform(obs))
@@ -201,13 +207,16 @@ class TwinCritic(nn.Module):
     Weights are stacked ``[2, in, out]`` (biases ``[2, 1, out]``) and applied with ``baddbmm``;
     each critic keeps its own IPAPRec beta. ``out`` = K logits (C51) or 2 (Gaussian: mean, raw std;
     see :func:`gaussian_head`). ``detach_params=True`` evaluates with detached weights, so the actor
-    loss backpropagates into the action only and never writes critic gradients.
+    loss backpropagates into the action only and never writes critic gradients. ``layer_norm``: each
+    copy's hidden pre-activations are layer-normalised with their own gain and bias (``[2, 1, out]``),
+    the same as :class:`MLP`'s option.
     """
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], out_dim: int,
-                 generator: torch.Generator | None = None, copies: int = 2):
+                 generator: torch.Generator | None = None, copies: int = 2, layer_norm: bool = False):
         super().__init__()
         self.copies = copies
+        self.layer_norm = layer_norm
         self.transform = IPAPRec(layout, copies=copies)
         sizes = [layout.obs_dim + action_dim, *hidden, out_dim]
         self.weights = nn.ParameterList()
@@ -220,6 +229,9 @@ class TwinCritic(nn.Module):
                 _uniform_(b[k], n_in, generator)
             self.weights.append(nn.Parameter(w))
             self.biases.append(nn.Parameter(b))
+        if layer_norm:  # after the weight draws: the same seed gives the same Linear weights either way
+            self.norm_gains = nn.ParameterList(nn.Parameter(torch.ones(copies, 1, n)) for n in hidden)
+            self.norm_biases = nn.ParameterList(nn.Parameter(torch.zeros(copies, 1, n)) for n in hidden)
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor, detach_params: bool = False) -> torch.Tensor:
         x = self.transform(obs, detach_rho=detach_params)
@@ -230,6 +242,11 @@ class TwinCritic(nn.Module):
                 w, b = w.detach(), b.detach()
             x = torch.baddbmm(b, x, w)
             if i < last:
+                if self.layer_norm:
+                    g, c = self.norm_gains[i], self.norm_biases[i]
+                    if detach_params:
+                        g, c = g.detach(), c.detach()
+                    x = torch.addcmul(c, F.layer_norm(x, x.shape[-1:]), g)
                 x = F.leaky_relu(x)
         return x
 
