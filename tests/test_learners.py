@@ -212,11 +212,32 @@ def test_same_seed_same_parameters(algorithm):
 
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_state_dict_round_trip_continues_identically(algorithm):
-    a = learner(algorithm, seed=0)
+def test_obs_norm_feeds_every_network_the_replay_statistics(algorithm):
+    lrn = learner(algorithm, obs_norm=True, layer_norm=True)
+    nets = (lrn.state.actor, lrn.state.critic, lrn.state.critic_target)
+    seen = {id(net): [] for net in nets}  # each network's features of each batch, with its beta of that moment
+    for i in range(3):
+        batch = random_batch(i)
+        for net in nets:
+            seen[id(net)].append(net.transform.features(batch.obs).detach())
+        lrn.update(batch)
+    for net in nets:
+        feats = torch.cat(seen[id(net)], dim=-2)
+        assert float(net.transform.feat_count) == 3 * B
+        torch.testing.assert_close(net.transform.feat_mean, feats.mean(-2, keepdim=net is not lrn.state.actor),
+                                   rtol=1e-4, atol=1e-4)
+    assert float(lrn.state.collector.transform.feat_count) == 0  # the collector gets them with the weights
+    lrn.sync_collector()
+    assert torch.equal(lrn.state.collector.transform.feat_mean, lrn.state.actor.transform.feat_mean)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+@pytest.mark.parametrize("norms", [{}, {"obs_norm": True, "layer_norm": True}])
+def test_state_dict_round_trip_continues_identically(algorithm, norms):
+    a = learner(algorithm, seed=0, **norms)
     for i in range(3):
         a.update(random_batch(i))
-    b = learner(algorithm, seed=123)
+    b = learner(algorithm, seed=123, **norms)
     b.load_state_dict(a.state_dict())
     ma, mb = a.update(random_batch(7)), b.update(random_batch(7))
     assert all(torch.equal(ma[k], mb[k]) for k in ma)

@@ -203,3 +203,28 @@ def test_gaussian_head_std_positive():
     mean, std = gaussian_head(torch.tensor([[1.0, -30.0], [2.0, 3.0]]))
     torch.testing.assert_close(mean, torch.tensor([1.0, 2.0]))
     assert (std > 0).all()
+
+
+@pytest.mark.parametrize("copies", [0, 2])
+def test_running_feature_statistics_equal_those_of_all_batches_together(copies):
+    transform = IPAPRec(TB2, copies=copies, normalize=True)
+    with torch.no_grad():
+        transform.rho.copy_(torch.tensor([-1.0, 0.7]) if copies else torch.tensor(0.3))
+    batches = [random_obs(TB2, n, seed=n) for n in (5, 64, 1, 300)]
+    for obs in batches:
+        transform.update_stats(obs)
+    feats = transform.features(torch.cat(batches))  # [N, D] or [C, N, D]
+    expected_mean = feats.mean(-2, keepdim=bool(copies))
+    expected_var = feats.var(-2, unbiased=False, keepdim=bool(copies))
+    torch.testing.assert_close(transform.feat_mean, expected_mean, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(transform.feat_var, expected_var, rtol=1e-4, atol=1e-5)
+    assert float(transform.feat_count) == 370
+    obs = random_obs(TB2, 7, seed=99)
+    torch.testing.assert_close(transform(obs), (transform.features(obs) - expected_mean) / (expected_var + 1e-8).sqrt(),
+                               rtol=1e-4, atol=1e-4)
+
+
+def test_normalisation_is_the_identity_before_any_statistics():
+    plain, normed = IPAPRec(TB2), IPAPRec(TB2, normalize=True)
+    obs = random_obs(TB2, 9)
+    torch.testing.assert_close(normed(obs), plain(obs), rtol=0, atol=1e-6)

@@ -191,9 +191,9 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     device = torch.device(device)
     init_seed, collect_seed, update_seed = derive_seeds(seed, 3)
     init_gen = torch.Generator().manual_seed(init_seed)
-    actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, layer_norm=hp.layer_norm).to(device)
-    critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen,
-                        layer_norm=hp.layer_norm).to(device)
+    norms = dict(layer_norm=hp.layer_norm, obs_norm=hp.obs_norm)
+    actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, **norms).to(device)
+    critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen, **norms).to(device)
     critic_target = frozen_copy(critic)
     return LearnerState(
         hp=hp, actor=actor, collector=frozen_copy(actor), critic=critic, critic_target=critic_target,
@@ -203,6 +203,15 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
         critic_params=list(critic.parameters()), target_params=list(critic_target.parameters()),
         actor_params=list(actor.parameters()),
     )
+
+
+@torch.no_grad()
+def update_obs_stats(state: LearnerState, obs: torch.Tensor) -> None:
+    """With ``hp.obs_norm``: merge a replay batch's observations ``[B, D]`` into the running feature
+    statistics of the actor, the critics and the target critics (each on its own transform; the
+    collector's copy receives them with the weights)."""
+    for net in (state.actor, state.critic, state.critic_target):
+        net.transform.update_stats(obs)
 
 
 def make_temperature(state: LearnerState, alpha_init: float, alpha_lr: float, target_entropy: float) -> Temperature:

@@ -80,7 +80,10 @@ class Learner:
         common.copy_params_(self.state.collector, self.state.actor)
 
     def update(self, batch: Transition) -> dict[str, torch.Tensor]:
-        """One critic update (+ actor/temperature on schedule) + Polyak on ``batch`` ``[B, ...]``."""
+        """One critic update (+ actor/temperature on schedule) + Polyak on ``batch`` ``[B, ...]``
+        (with ``hp.obs_norm``, the batch's observations first update the running feature statistics)."""
+        if self.state.hp.obs_norm:
+            common.update_obs_stats(self.state, batch.obs)
         return self._ops.update(self.state, batch)
 
     def state_dict(self) -> dict[str, Any]:

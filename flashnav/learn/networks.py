@@ -29,6 +29,8 @@ BETA_MARGIN = 0.01
 BETA_INIT = 0.0
 #: std of the actor's output-layer weights at init: actions start near 0, DEM weights near uniform.
 ACTOR_OUT_INIT_STD = 0.01
+#: added to the running variance before the square root of the optional feature normalisation.
+NORM_EPS = 1e-8
 
 
 @dataclass(frozen=True)
@@ -96,9 +98,11 @@ class IPAPRec(nn.Module):
     transforms (rho ``[C]``) for a batched ensemble; input ``[B, D]``, output ``[C, B, D]``.
     Readings are clamped to ``[inscribed_radius, max_range]`` first: a post-collision final
     observation can read inside the footprint, and must not reach the pole of the reciprocal.
+    ``normalize``: the features are then centred and scaled by running statistics (buffers, updated
+    only by :meth:`update_stats`), like the reference code's empirical observation normaliser.
     """
 
-    def __init__(self, layout: ObsLayout, copies: int = 0):
+    def __init__(self, layout: ObsLayout, copies: int = 0, normalize: bool = False):
         super().__init__()
         self.sectors = layout.sectors
         self.r_in = float(layout.inscribed_radius)
@@ -109,6 +113,12 @@ class IPAPRec(nn.Module):
         rho0 = gap + math.log(-math.expm1(-gap))
         self.rho = nn.Parameter(torch.full((copies,) if copies else (), rho0))
         self.register_buffer("inv_scale", 1.0 / layout.feature_scales())
+        self.normalize = normalize
+        if normalize:  # running statistics of the transformed features (identity until the first update)
+            shape = (copies, 1, layout.obs_dim) if copies else (layout.obs_dim,)
+            self.register_buffer("feat_mean", torch.zeros(shape))
+            self.register_buffer("feat_var", torch.ones(shape))
+            self.register_buffer("feat_count", torch.zeros((), dtype=torch.float64))
 
     def beta(self, detach: bool = False) -> torch.Tensor:
         """Pole position, metres: ``[]`` or ``[C]``, always <= r_in - margin."""
@@ -116,6 +126,29 @@ class IPAPRec(nn.Module):
         return self.r_in - BETA_MARGIN - F.softplus(rho)
 
     def forward(self, obs: torch.Tensor, detach_rho: bool = False) -> torch.Tensor:
+        x = self.features(obs, detach_rho)
+        if self.normalize:
+            x = (x - self.feat_mean) * torch.rsqrt(self.feat_var + NORM_EPS)
+        return x
+
+    @torch.no_grad()
+    def update_stats(self, obs: torch.Tensor) -> None:
+        """Merge the batch ``obs [B, D]``'s transformed features into the running mean and variance
+        (Chan et al.'s parallel update; per copy for a batched transform). Only with ``normalize``."""
+        x = self.features(obs, detach_rho=True)
+        n = x.shape[-2]
+        keep = self.copies > 0
+        mean, var = x.mean(-2, keepdim=keep), x.var(-2, unbiased=False, keepdim=keep)
+        count = self.feat_count
+        total = count + n
+        delta = mean - self.feat_mean
+        m2 = self.feat_var * count + var * n + delta.square() * (count * n / total)
+        self.feat_mean.add_(delta * (n / total))
+        self.feat_var.copy_(m2 / total)
+        self.feat_count.copy_(total)
+
+    def features(self, obs: torch.Tensor, detach_rho: bool = False) -> torch.Tensor:
+        """The transform before any normalisation: LiDAR ``1 / (l - beta)``, the rest / bounds."""
         lidar = obs[..., : self.sectors].clamp(min=self.r_in, max=self.max_range)
         rest = obs[..., self.sectors:] * self.inv_scale
         beta = self.beta(detach_rho)
@@ -174,11 +207,11 @@ class Actor(nn.Module):
     """
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], heads: int,
-                 generator: torch.Generator | None = None, layer_norm: bool = False):
+                 generator: torch.Generator | None = None, layer_norm: bool = False, obs_norm: bool = False):
         super().__init__()
         self.action_dim = action_dim
         self.heads = heads
-        self.transform = IPAPRec(layout)
+        self.transform = IPAPRec(layout, normalize=obs_norm)
         self.mlp = MLP(layout.obs_dim, hidden, heads * action_dim, generator, ACTOR_OUT_INIT_STD, layer_norm)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
@@ -213,11 +246,12 @@ class TwinCritic(nn.Module):
     """
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], out_dim: int,
-                 generator: torch.Generator | None = None, copies: int = 2, layer_norm: bool = False):
+                 generator: torch.Generator | None = None, copies: int = 2, layer_norm: bool = False,
+                 obs_norm: bool = False):
         super().__init__()
         self.copies = copies
         self.layer_norm = layer_norm
-        self.transform = IPAPRec(layout, copies=copies)
+        self.transform = IPAPRec(layout, copies=copies, normalize=obs_norm)
         sizes = [layout.obs_dim + action_dim, *hidden, out_dim]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
