@@ -358,3 +358,25 @@ def test_overrides_and_validation_messages():
         load_hparams("fastsac", "jackal", "paper")
     with pytest.raises(ValueError):
         type(hp).model_validate({**hp.model_dump(), "unknown_key": 1})
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_policy_averaging_evaluates_a_polyak_average_of_the_actor(algorithm):
+    rate = 0.25
+    lrn = learner(algorithm, policy_averaging=rate, obs_norm=True)
+    expected = params(lrn.state.actor)
+    for i in range(3 * lrn.hp.policy_frequency):
+        lrn.update(random_batch(i))
+        if lrn.num_updates % lrn.hp.policy_frequency == 0:  # an actor step: the average moves
+            expected = [(1 - rate) * e + rate * p for e, p in zip(expected, params(lrn.state.actor))]
+    got = params(lrn.state.averaged_actor)
+    assert all(torch.allclose(e, g, rtol=1e-5, atol=1e-6) for e, g in zip(expected, got))
+    assert any(not torch.equal(a, g) for a, g in zip(params(lrn.state.actor), got))
+    assert torch.equal(lrn.state.averaged_actor.transform.feat_mean, lrn.state.actor.transform.feat_mean)
+    obs = random_obs(N, torch.Generator().manual_seed(4))
+    with torch.no_grad():
+        assert torch.equal(lrn.policy(obs), torch.tanh(lrn.state.averaged_actor(obs)[:, :A]))
+    copy = learner(algorithm, seed=5, policy_averaging=rate, obs_norm=True)
+    copy.load_state_dict(lrn.state_dict())
+    assert all(torch.equal(a, b) for a, b in zip(got, params(copy.state.averaged_actor)))
+    assert learner(algorithm).state.averaged_actor is None  # off: the policy is the trained actor

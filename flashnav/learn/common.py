@@ -131,6 +131,8 @@ class LearnerState:
     algorithm module, e.g. :class:`flashnav.learn.fasttd3.TD3State`).
 
     ``collector``: the actor's weight copy used for collection (synced by the loop).
+    ``averaged_actor``: with ``hp.policy_averaging > 0``, a Polyak average of the actor's weights
+    (updated after every actor step): the policy that is evaluated and exported. None otherwise.
     ``critic`` / ``critic_target``: twin critics, one batched network each.
     ``collect_gen`` / ``update_gen``: RNG streams of collection (exploration noise, per-env scales)
     and of updates (target and actor samples), on the learner's device.
@@ -149,6 +151,7 @@ class LearnerState:
     collect_gen: torch.Generator
     update_gen: torch.Generator
     algo: Any = None
+    averaged_actor: nn.Module | None = None
     num_updates: int = 0
     critic_params: list = dataclasses.field(default_factory=list)
     target_params: list = dataclasses.field(default_factory=list)
@@ -202,6 +205,7 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
         collect_gen=generator(device, collect_seed), update_gen=generator(device, update_seed),
         critic_params=list(critic.parameters()), target_params=list(critic_target.parameters()),
         actor_params=list(actor.parameters()),
+        averaged_actor=frozen_copy(actor) if hp.policy_averaging > 0 else None,
     )
 
 
@@ -228,8 +232,21 @@ def finish_update(state: LearnerState, critic_metrics: dict, actor_step) -> dict
     state.num_updates += 1
     if state.num_updates % state.hp.policy_frequency == 0:
         state.last_actor_metrics = actor_step(state)
+        if state.averaged_actor is not None:
+            average_actor_(state)
     polyak_(state.target_params, state.critic_params, state.hp.tau)
     return {**critic_metrics, **state.last_actor_metrics}
+
+
+@torch.no_grad()
+def average_actor_(state: LearnerState) -> None:
+    """``averaged <- (1 - rate) averaged + rate actor`` for the weights (``hp.policy_averaging``);
+    buffers (running feature statistics) are copied, not averaged."""
+    averaged = state.averaged_actor
+    polyak_(list(averaged.parameters()), state.actor_params, state.hp.policy_averaging)
+    buffers = list(averaged.buffers())
+    if buffers:
+        torch._foreach_copy_(buffers, list(state.actor.buffers()))
 
 
 def resample_where(scale: torch.Tensor, done: torch.Tensor, low: float, high: float, gen: torch.Generator) -> None:

@@ -36,6 +36,7 @@ class LearnerHParams(Strict):
     actor_hidden: tuple[int, ...] = Field(min_length=1, description="actor hidden layer widths")
     critic_hidden: tuple[int, ...] = Field(min_length=1, description="critic hidden layer widths")
     layer_norm: bool = Field(description="LayerNorm before each hidden activation (actor and critics)")
+    policy_averaging: float = Field(ge=0, le=1, description="Polyak rate, after every actor step, of the evaluated and exported policy's weights towards the trained actor (0 = the trained actor itself)")
     obs_norm: bool = Field(description="running mean/std normalisation of the IPAPRec features, updated from replay batches")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")

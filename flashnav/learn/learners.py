@@ -51,7 +51,8 @@ class Learner:
         self.algorithm = algorithm
         self.state = state
         self._ops = MODULES[algorithm]
-        self.policy = DeterministicActor(state.actor)
+        # the evaluated and exported policy: the trained actor, or its Polyak average (hp.policy_averaging)
+        self.policy = DeterministicActor(state.actor if state.averaged_actor is None else state.averaged_actor)
 
     @property
     def hp(self):
