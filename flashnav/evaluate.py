@@ -29,7 +29,17 @@ def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, see
     """
     if dense:
         return _evaluate_dense(policy, env, seed)
+    e = evaluate_episodes(policy, env, seed)
+    return _rates(e["success"], e["collision"], e["episode_return"], e["episode_steps"])
+
+
+def evaluate_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv,
+                      seed: int) -> dict[str, torch.Tensor]:
+    """:func:`evaluate`'s episodes one by one: ``success`` / ``collision`` [N] bool, ``episode_return``
+    and ``episode_steps`` [N] float, and each episode's ``start_pose`` [N, 3] / ``goal`` [N, 2] in the
+    map's own (world) frame. Slot k holds the k-th episode of the set that ``seed`` draws."""
     obs, _ = env.reset(seed=seed)
+    start_pose, goal = env.world_pose(), env.world_goal()
     n, dev = env.num_envs, env.device
     success = torch.zeros(n, dtype=torch.bool, device=dev)
     collision = torch.zeros(n, dtype=torch.bool, device=dev)
@@ -48,7 +58,8 @@ def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, see
         active, obs = active[running], t["obs"][running]
         if active.numel() == 0:  # a host sync per step: evaluation is outside the training clock
             break
-    return _rates(success, collision, returns, steps)
+    return {"success": success, "collision": collision, "episode_return": returns, "episode_steps": steps,
+            "start_pose": start_pose, "goal": goal}
 
 
 def _evaluate_dense(policy, env: NavVecEnv, seed: int) -> dict[str, float]:

@@ -1,0 +1,116 @@
+"""Which evaluation episodes does a policy fail? Outcome by route length and detour (issue 16, item 3).
+
+    .venv/bin/python scripts/episode_difficulty.py POLICY [--episodes 1024] [--seed 12345] [--json OUT] [--plot PNG]
+
+Evaluates the exported POLICY on the fixed set that ``flashnav train`` evaluates on (``--episodes`` start/goal
+pairs drawn with evaluation seed ``--seed``, the robot's bundled map), episode by episode
+(:func:`flashnav.evaluate.evaluate_episodes`), and relates each outcome to the episode's geodesic route:
+the shortest 8-connected grid path from start to goal through the cells where the footprint's circumscribed
+disc is collision-free (the oracle's graph, :func:`flashnav.sim.oracle.grid_graph`). Prints success / collision
+/ timeout by route length and by detour ratio (route / straight line), and the time the route needs at top speed
+against the horizon.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import numpy as np
+from scipy.sparse.csgraph import dijkstra
+
+from flashnav.evaluate import evaluate_episodes
+from flashnav.export import load_policy
+from flashnav.sim.env import make_env
+from flashnav.sim.oracle import grid_graph
+
+LENGTH_BINS = [0, 2, 3, 4, 5, 6, 8, math.inf]  # metres of route
+DETOUR_BINS = [1.0, 1.1, 1.25, 1.5, 2.0, math.inf]
+
+
+def route_lengths(grid, radius: float, start_xy: np.ndarray, goal_xy: np.ndarray) -> np.ndarray:
+    """Geodesic route length (m) from each start to its goal on ``grid`` (world coordinates)."""
+    graph = grid_graph(grid.free_space(radius), grid.resolution)
+    h, w = grid.shape
+
+    def cells(xy):
+        j = np.clip(((xy[:, 0] - grid.origin[0]) / grid.resolution).astype(int), 0, w - 1)
+        i = np.clip(((xy[:, 1] - grid.origin[1]) / grid.resolution).astype(int), 0, h - 1)
+        return i * w + j
+
+    goals, starts = cells(goal_xy), cells(start_xy)
+    out = np.empty(len(goals))
+    for k in range(0, len(goals), 64):
+        field = dijkstra(graph, directed=False, indices=goals[k:k + 64])
+        out[k:k + 64] = field[np.arange(len(field)), starts[k:k + 64]]
+    return out
+
+
+def table(name: str, values: np.ndarray, bins: list[float], outcome: np.ndarray) -> list[dict]:
+    rows = []
+    print(f"\nby {name}:\n  {'bin':>14} {'episodes':>9} {'success':>8} {'collision':>10} {'timeout':>8}")
+    for lo, hi in zip(bins[:-1], bins[1:]):
+        sel = (values >= lo) & (values < hi)
+        n = int(sel.sum())
+        if not n:
+            continue
+        rates = {k: float((outcome[sel] == k).mean()) for k in ("success", "collision", "timeout")}
+        rows.append({"bin": [lo, hi], "episodes": n, **rates})
+        print(f"  {f'[{lo:g}, {hi:g})':>14} {n:9d} {rates['success']:8.1%} {rates['collision']:10.1%} "
+              f"{rates['timeout']:8.1%}")
+    return rows
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("policy")
+    p.add_argument("--episodes", type=int, default=1024)
+    p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
+    p.add_argument("--json", help="write every episode's route, detour and outcome here")
+    p.add_argument("--plot", help="scatter of route length vs straight-line distance, coloured by outcome")
+    args = p.parse_args()
+    policy, meta = load_policy(args.policy)
+    env = make_env(meta["robot"], args.episodes, seed=args.seed)
+    e = {k: v.cpu().numpy() for k, v in evaluate_episodes(policy, env, args.seed).items()}
+    outcome = np.where(e["success"], "success", np.where(e["collision"], "collision", "timeout"))
+    start, goal = e["start_pose"][:, :2], e["goal"]
+    straight = np.linalg.norm(goal - start, axis=1)
+    route = route_lengths(env.map, env.preset.footprint.circumscribed_radius, start, goal)
+    detour = route / np.maximum(straight, 1e-9)
+    m, ep = env.preset.motion, env.preset.episode
+    reach = max(m.v_bounds) * ep.horizon * ep.dt
+    print(f"{args.policy}: {args.episodes} episodes (eval seed {args.seed}), success {np.mean(e['success']):.2%}; "
+          f"route at top speed fits the horizon up to {reach:.1f} m; longest route {np.nanmax(route):.2f} m, "
+          f"unreachable on the grid: {int(np.isinf(route).sum())}")
+    out = {"by_route_length": table("route length (m)", route, LENGTH_BINS, outcome),
+           "by_detour": table("detour ratio (route / straight line)", detour, DETOUR_BINS, outcome)}
+    failed = np.nonzero(outcome != "success")[0]
+    print(f"\nfailed episodes ({len(failed)}): " + ", ".join(
+        f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f}" for k in failed[:40]))
+    if args.json:
+        out["episodes"] = [{"index": int(k), "outcome": str(outcome[k]), "straight_m": float(straight[k]),
+                            "route_m": float(route[k]), "steps": float(e["episode_steps"][k])} for k in range(len(route))]
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(out, f, indent=1)
+    if args.plot:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(6, 4.5))
+        for name, colour in (("success", "#9bbbd4"), ("timeout", "#e69f00"), ("collision", "#d62728")):
+            sel = outcome == name
+            ax.scatter(straight[sel], route[sel], s=6 if name == "success" else 22, c=colour,
+                       label=f"{name} ({int(sel.sum())})")
+        ax.axhline(reach, ls=":", c="k", lw=0.8, label=f"horizon at top speed ({reach:.0f} m)")
+        ax.set_xlabel("straight-line start-goal distance (m)")
+        ax.set_ylabel("geodesic route length (m)")
+        ax.set_title(f"{meta['robot']}: {args.episodes} evaluation episodes, seed {args.seed}")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(args.plot, dpi=130)
+        print(f"plot: {args.plot}")
+
+
+if __name__ == "__main__":
+    main()
