@@ -66,6 +66,7 @@ class SimRobot:
         self.answer: dict | None = None
         self.scan_on, self.scan_off_wall, self.scan_off_t = True, None, None
         self.stop_wall = self.stop_t = None
+        self.last_scan_wall = self.command_at_scan_off = None
         if not real_time:
             rospy.set_param("/use_sim_time", True)
         rospy.init_node("flashnav_sim_robot", disable_signals=True)
@@ -73,8 +74,8 @@ class SimRobot:
         self.scan_pub = rospy.Publisher(scan, LaserScan, queue_size=1, tcp_nodelay=True)
         self.odom_pub = rospy.Publisher(odom, Odometry, queue_size=1, tcp_nodelay=True)
         self.goal_pub = rospy.Publisher(goal, PoseStamped, queue_size=1, latch=True)
-        rospy.Subscriber(cmd, Twist, self._on_cmd, queue_size=10, tcp_nodelay=True)
-        rospy.Subscriber(status, String, self._on_status, queue_size=100, tcp_nodelay=True)
+        self.cmd_sub = rospy.Subscriber(cmd, Twist, self._on_cmd, queue_size=10, tcp_nodelay=True)
+        self.status_sub = rospy.Subscriber(status, String, self._on_status, queue_size=100, tcp_nodelay=True)
         signal.signal(signal.SIGUSR1, lambda *_: self._scan_off())
 
     # ---- callbacks ------------------------------------------------------------------------------
@@ -91,6 +92,7 @@ class SimRobot:
             self.cond.notify_all()
 
     def _scan_off(self) -> None:
+        self.command_at_scan_off = self.cmd
         self.scan_on = False
 
     # ---- publishing -----------------------------------------------------------------------------
@@ -116,6 +118,7 @@ class SimRobot:
             self.scan_pub.unregister()
             self.scan_off_wall, self.scan_off_t = time.monotonic(), self.t
         if self.scan_on:
+            self.last_scan_wall = time.monotonic()
             lidar = self.preset.lidar
             fov, n = math.radians(lidar.fov_deg), lidar.beams
             scan = self.msgs["LaserScan"]()
@@ -128,21 +131,32 @@ class SimRobot:
             self.scan_pub.publish(scan)
         return stamp.to_sec()
 
+    def wait_for_node(self, timeout: float = 60.0) -> None:
+        """Block (wall) until something subscribes to the scan, odometry and goal and publishes the
+        command and status topics, so that no message of the first episode is lost."""
+        deadline = time.monotonic() + timeout
+        ends = [self.scan_pub, self.odom_pub, self.goal_pub, self.cmd_sub, self.status_sub]
+        while not all(e.get_num_connections() > 0 for e in ends):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"no deploy node connected within {timeout:g} s (topics {[e.name for e in ends]})")
+            time.sleep(0.05)
+
     def send_goal(self, goal) -> None:
-        """Publish the goal and wait (wall, answer timeout) until the node's status shows it."""
+        """Publish the goal (again every half second) until the node's status shows it."""
         msg = self.msgs["PoseStamped"]()
         msg.header.stamp, msg.header.frame_id = self._stamp(), "odom"
         msg.pose.position.x, msg.pose.position.y, msg.pose.orientation.w = float(goal[0]), float(goal[1]), 1.0
-        with self.cond:
-            self.answer = None
-        self.goal_pub.publish(msg)
         deadline = time.monotonic() + 10 * self.answer_timeout
         with self.cond:
-            while not _same_goal(self.answer, goal):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise RuntimeError(f"the node did not acknowledge goal {list(goal)} on its status topic")
-                self.cond.wait(left)
+            self.answer = None
+        while True:
+            self.goal_pub.publish(msg)
+            with self.cond:
+                self.cond.wait_for(lambda: _same_goal(self.answer, goal), timeout=0.5)
+                if _same_goal(self.answer, goal):
+                    return
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the node did not acknowledge goal {list(goal)} on its status topic")
 
     # ---- stepping -------------------------------------------------------------------------------
     def _wait_answer(self, stamp: float, count_before: int) -> bool:
@@ -208,9 +222,12 @@ class SimRobot:
         if self.scan_off_wall is None:
             return None
         waited = None if self.stop_wall is None else self.stop_wall - self.scan_off_wall
+        since_scan = None if self.stop_wall is None else self.stop_wall - self.last_scan_wall
         return {"stopped": self.stop_wall is not None, "wall_s_to_zero_command": waited,
+                "wall_s_from_last_scan_to_zero_command": since_scan,
                 "sim_s_to_zero_command": None if self.stop_t is None else round(self.stop_t - self.scan_off_t, 6),
-                "command_now": list(self.cmd)}
+                "command_before": list(self.command_at_scan_off),
+                "command_now": list(self.cmd), "velocity_now": self.env.velocity[0].tolist()}
 
 
 def _same_goal(status: dict | None, goal) -> bool:
@@ -222,6 +239,9 @@ def run(args) -> dict:
     """The ``flashnav deploy sim-robot`` job (parsed arguments: see :mod:`flashnav.deploy.cli`)."""
     robot = SimRobot(args.robot, args.map, scan=args.scan, odom=args.odom, cmd=args.cmd, goal=args.goal,
                      status=args.status, real_time=args.real_time, answer_timeout=args.answer_timeout)
+    robot.publish_clock()
+    if args.episodes or args.goal_at is not None:
+        robot.wait_for_node()
     report: dict = {"clock": "real" if args.real_time else "simulated", "robot": robot.preset.name,
                     "map": robot.env.map.name}
     if args.episodes:
@@ -240,10 +260,12 @@ def run(args) -> dict:
         robot.publish_clock()
         if args.goal_at is not None:
             robot.send_goal(args.goal_at)
+            print(f"goal acknowledged: {args.goal_at}", flush=True)
         end = math.inf if not args.duration else time.monotonic() + args.duration
         while time.monotonic() < end and not robot.rospy.is_shutdown():
             robot.step()
-        report["final_pose"] = robot.env.world_pose()[0].tolist()
+        report |= {"final_pose": robot.env.world_pose()[0].tolist(), "commands_received": robot.cmd_count,
+                   "command_now": list(robot.cmd), "velocity_now": robot.env.velocity[0].tolist()}
     report["scan_stop"] = robot.scan_stop_report()
     if args.results:
         Path(args.results).write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
