@@ -35,7 +35,8 @@ def _ros_missing() -> str | None:
     return None
 
 
-pytestmark = pytest.mark.skipif(_ros_missing() is not None, reason=f"ROS 1 unavailable: {_ros_missing()}")
+_MISSING = _ros_missing()
+pytestmark = pytest.mark.skipif(_MISSING is not None, reason=f"ROS 1 unavailable: {_MISSING}")
 
 
 def _free_port() -> int:
@@ -149,7 +150,8 @@ def test_twenty_goals_in_closed_loop_on_simulated_time(ros, tmp_path):
     rate, sim_rate = sum(closed) / EPISODES, sum(in_sim) / EPISODES
     missed = sum(e["missed_answers"] for e in report["episodes"])
     print(f"closed loop over ROS: {rate:.0%} of {EPISODES} goals; in simulation: {sim_rate:.0%}; "
-          f"missed answers {missed}; per episode {[e['outcome'][0] for e in report['episodes']]}")
+          f"missed answers {missed}; per episode over ROS {''.join(e['outcome'][0] for e in report['episodes'])}, "
+          f"in simulation {''.join('s' if ok else '-' for ok in in_sim)}")
     assert len(closed) == EPISODES
     assert rate >= 0.9
     assert rate >= sim_rate - 0.10
