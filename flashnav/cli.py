@@ -19,12 +19,14 @@ _SERVICE_EXTRAS = ("ray", "mlflow", "optuna", "pandas")
 def _add_library_commands(sub: argparse._SubParsersAction) -> None:
     from flashnav import demo, policy_cli
     from flashnav.bench import cli as bench_cli
+    from flashnav.deploy import cli as deploy_cli
     from flashnav.learn import cli as learn_cli
 
     demo.register_cli(sub)
     bench_cli.register_cli(sub)
     policy_cli.register_cli(sub)
     learn_cli.register_cli(sub)
+    deploy_cli.register_cli(sub)
 
 
 def _unavailable(sub: argparse._SubParsersAction, name: str, exc: BaseException) -> None:

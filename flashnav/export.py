@@ -28,13 +28,10 @@ import flashnav
 from flashnav.checkpoint import is_checkpoint
 from flashnav.config import RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
+from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, parse_metadata as _parse_metadata  # noqa: F401
 
-#: Version of the exported-policy metadata (bumped when its layout changes).
-POLICY_FORMAT_VERSION = 1
 #: ONNX opset: well inside what onnxruntime >= 1.18 implements, and every op used here exists in it.
 ONNX_OPSET = 17
-#: Name of the metadata entry in policy.pt (``_extra_files``) and in policy.onnx (``metadata_props``).
-METADATA_KEY = "flashnav.json"
 #: Largest difference tolerated between the eager policy and an exported file when checking it.
 EXPORT_CHECK_TOL = 1e-4
 
@@ -82,8 +79,10 @@ class DeployablePolicy(nn.Module):
         return action, command
 
 
-def policy_metadata(preset: RobotPreset) -> dict[str, Any]:
-    """The JSON stored with every exported policy: robot, versions and the observation layout."""
+def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None) -> dict[str, Any]:
+    """The JSON stored with every exported policy: robot, versions, the observation layout and what a
+    robot-side runtime needs besides it (goal radius; ``goal_distance_max``, the goal-distance scale
+    inside the network, when known). Keys are only ever added, so older files stay readable."""
     s, lidar, m = preset.lidar.sectors, preset.lidar, preset.motion
     velocity = ["v", "w"] if m.velocity_state_dims == 2 else ["vx", "vy", "w"]
     units = {"v": "m/s", "vx": "m/s", "vy": "m/s", "w": "rad/s"}
@@ -95,6 +94,8 @@ def policy_metadata(preset: RobotPreset) -> dict[str, Any]:
         "obs_dim": preset.obs_dim,
         "action_dim": 2,
         "control_period_s": preset.episode.dt,
+        # the episode's goal radius (metres): a deployed robot stops when closer than this
+        "goal_threshold": preset.episode.goal_threshold,
         "inputs": {"obs": "[N, obs_dim] float32, physical units, layout in 'observation'"},
         "outputs": {"action": "[N, 2] float32 in [-1, 1] (v, w)",
                     "command": "[N, 2] float32 (v m/s, w rad/s), the action mapped onto the robot's bounds"},
@@ -116,7 +117,7 @@ def policy_metadata(preset: RobotPreset) -> dict[str, Any]:
                            "max_angular_velocity": m.max_angular_velocity},
         # the exact robot the policy was exported for, so a custom preset can be rebuilt from the file
         "preset": preset.model_dump(mode="json"),
-    }
+    } | ({} if goal_distance_max is None else {"goal_distance_max": goal_distance_max})
 
 
 def export_policy(actor: nn.Module, preset: RobotPreset, out_dir: str | Path, onnx: bool = True) -> dict[str, Path]:
@@ -132,10 +133,10 @@ def export_policy(actor: nn.Module, preset: RobotPreset, out_dir: str | Path, on
     out_dir.mkdir(parents=True, exist_ok=True)
     module = DeployablePolicy(copy.deepcopy(actor).cpu(), preset).cpu().eval()
     module.requires_grad_(False)
-    meta = policy_metadata(preset)
+    goal_max = goal_distance_scale(actor, preset)
+    meta = policy_metadata(preset, goal_distance_max=goal_max)
     meta_json = json.dumps(meta, indent=1)
     gen = torch.Generator().manual_seed(0)
-    goal_max = goal_distance_scale(actor, preset)
     example = sample_observations(preset, 8, gen, goal_max)
 
     paths: dict[str, Path] = {"torchscript": out_dir / "policy.pt", "metadata": out_dir / "policy.json"}
@@ -254,22 +255,6 @@ def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
         return run(obs)
 
     return policy, meta
-
-
-def _parse_metadata(path: Path, text: str | bytes | None) -> dict[str, Any]:
-    if not text:
-        raise ValueError(f"{path}: no FlashNav metadata ({METADATA_KEY}); export it with flashnav.export.export_policy")
-    try:
-        meta = json.loads(text)
-    except ValueError as exc:
-        raise ValueError(f"{path}: FlashNav metadata ({METADATA_KEY}) is not valid JSON: {exc}") from None
-    if not isinstance(meta, dict) or not isinstance(meta.get("obs_dim"), int):
-        raise ValueError(f"{path}: FlashNav metadata ({METADATA_KEY}) lacks an integer obs_dim")
-    version = meta.get("format_version")
-    if not isinstance(version, int) or version > POLICY_FORMAT_VERSION:
-        raise ValueError(f"{path}: policy format version {version!r} is not supported "
-                         f"(this FlashNav {flashnav.__version__} reads <= {POLICY_FORMAT_VERSION})")
-    return meta
 
 
 def _load_torchscript(path: Path, device: torch.device | str):

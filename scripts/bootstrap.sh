@@ -9,6 +9,24 @@ VENV=${FLASHNAV_VENV:-.venv}
 stamp="$VENV/.flashnav-installed"
 want=$(sha256sum pyproject.toml | cut -c1-16)
 
+# ROS 1 for `flashnav deploy ros|sim-robot|replay` and its closed-loop test: Debian's packages, installed
+# once where apt-get is available and we are root (or have sudo); anywhere else the deploy runtime still
+# works and the ROS tests skip with a message. FLASHNAV_SKIP_ROS=1 skips this step.
+ros_pkgs="ros-core python3-rospy python3-sensor-msgs python3-geometry-msgs python3-nav-msgs python3-rosbag"
+if [ "${FLASHNAV_SKIP_ROS:-0}" != 1 ] && ! { command -v roscore >/dev/null 2>&1 \
+     && /usr/bin/python3 -c "import rospy, rosbag, sensor_msgs.msg, nav_msgs.msg, geometry_msgs.msg" 2>/dev/null; }; then
+  as_root=()
+  [ "$(id -u)" = 0 ] || { command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null && as_root=(sudo -n); }
+  if command -v apt-get >/dev/null 2>&1 && { [ "$(id -u)" = 0 ] || [ "${#as_root[@]}" -gt 0 ]; }; then
+    echo "[bootstrap] installing ROS 1 (Debian packages: $ros_pkgs) for flashnav deploy" >&2
+    { "${as_root[@]}" apt-get update -qq && "${as_root[@]}" env DEBIAN_FRONTEND=noninteractive \
+        apt-get install -y -qq --no-install-recommends $ros_pkgs >/dev/null; } \
+      || echo "[bootstrap] could not install ROS 1: flashnav deploy ros/sim-robot/replay and their tests are unavailable" >&2
+  else
+    echo "[bootstrap] ROS 1 not installed (needs apt-get as root): flashnav deploy ros/sim-robot/replay and their tests are unavailable" >&2
+  fi
+fi
+
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$VENV/bin/python" -c "import flashnav" 2>/dev/null; then
   exit 0
 fi

@@ -1,0 +1,133 @@
+"""``flashnav deploy ros|sim-robot|replay``: run an exported policy on a ROS 1 robot, on the simulator
+behind ROS topics, or over a recorded bag."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from flashnav.deploy.scan import Mount
+
+
+def _floats(n: int, name: str):
+    def parse(text: str) -> list[float]:
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != n or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"{name} must be {n} comma-separated finite numbers, got {text!r}")
+        return values
+    return parse
+
+
+def _topics(p: argparse.ArgumentParser, cmd: bool = True) -> None:
+    p.add_argument("--scan", default="/scan", help="sensor_msgs/LaserScan topic (default /scan)")
+    p.add_argument("--odom", default="/odom", help="nav_msgs/Odometry topic (default /odom)")
+    p.add_argument("--goal", default="/move_base_simple/goal",
+                   help="geometry_msgs/PoseStamped goal topic, in the odometry frame (default /move_base_simple/goal)")
+    if cmd:
+        p.add_argument("--cmd", default="/cmd_vel", help="geometry_msgs/Twist command topic (default /cmd_vel)")
+        p.add_argument("--status", default="/flashnav_deploy/status",
+                       help="std_msgs/String JSON status topic (default /flashnav_deploy/status)")
+
+
+def _runtime_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--lidar-pose", type=_floats(3, "--lidar-pose"), default=[0.0, 0.0, 0.0], metavar="X,Y,YAW",
+                   help="the LiDAR's mounting in the base frame: metres, metres, radians (default 0,0,0)")
+    p.add_argument("--lidar-flipped", action="store_true", help="the LiDAR is mounted upside down")
+    p.add_argument("--fill", type=float, default=None, metavar="M",
+                   help="range read by sectors the scan does not cover (default: the policy's max range)")
+    p.add_argument("--timeout", type=float, default=0.3,
+                   help="seconds after which a missing scan or odometry stops the robot (default 0.3)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="control rate, Hz (default: the policy's, 1 / control_period_s = 10 for the presets)")
+
+
+def register_cli(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("deploy", help="run an exported policy on a ROS 1 robot (or the simulator behind ROS topics)")
+    dsub = p.add_subparsers(dest="deploy_command", metavar="WHAT", required=True)
+
+    q = dsub.add_parser("ros", help="the ROS 1 node: LaserScan + Odometry + goal -> Twist")
+    q.add_argument("policy", metavar="POLICY", help="policy.onnx")
+    _topics(q)
+    _runtime_args(q)
+    q.set_defaults(func=run_ros)
+
+    q = dsub.add_parser("sim-robot", help="the simulator as a robot behind ROS 1 topics (closed-loop harness)")
+    q.add_argument("--robot", default="turtlebot2", help="turtlebot2, go2 or a preset YAML (default turtlebot2)")
+    q.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
+    q.add_argument("--episodes", type=int, default=0,
+                   help="play the start/goal pairs of `flashnav eval --episodes N --seed S` (default 0: free running)")
+    q.add_argument("--seed", type=int, default=12345, help="start/goal sampling seed (default 12345, as flashnav eval)")
+    q.add_argument("--start", type=_floats(3, "--start"), default=None, metavar="X,Y,YAW",
+                   help="free running: the start pose (default: the first sampled start)")
+    q.add_argument("--goal-at", type=_floats(2, "--goal-at"), default=None, metavar="X,Y",
+                   help="free running: send this goal (odom frame) once at the start")
+    q.add_argument("--duration", type=float, default=0.0, help="free running: wall seconds to run (default 0: forever)")
+    q.add_argument("--real-time", action="store_true",
+                   help="step once per control period of wall time (default: simulated /clock in lock step with the node)")
+    q.add_argument("--answer-timeout", type=float, default=2.0,
+                   help="lock step: wall seconds to wait for the node's answer to a scan (default 2)")
+    q.add_argument("--results", default=None, metavar="FILE", help="write the outcomes as JSON")
+    _topics(q)
+    q.set_defaults(func=run_sim_robot)
+
+    q = dsub.add_parser("replay", help="the commands a policy would have sent over a recorded ROS 1 bag")
+    q.add_argument("bag", metavar="BAG", help="a ROS 1 bag with LaserScan and Odometry messages")
+    q.add_argument("--policy", required=True, help="policy.onnx")
+    q.add_argument("--out", required=True, metavar="FILE", help="CSV of the commands (t, v, w, state, distance)")
+    q.add_argument("--goal-at", type=_floats(2, "--goal-at"), default=None, metavar="X,Y",
+                   help="the goal (odom frame) when the bag has no goal messages")
+    _topics(q, cmd=False)
+    _runtime_args(q)
+    q.set_defaults(func=run_replay)
+
+
+def make_controller(args):
+    """The runtime and controller for parsed `ros` / `replay` arguments."""
+    from flashnav.deploy.controller import Controller
+    from flashnav.deploy.runtime import PolicyRuntime
+
+    x, y, yaw = args.lidar_pose
+    rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)
+    if args.rate is not None and not args.rate > 0:
+        raise ValueError(f"--rate must be > 0 Hz, got {args.rate}")
+    if not args.timeout > 0:
+        raise ValueError(f"--timeout must be > 0 s, got {args.timeout}")
+    return Controller(rt, timeout=args.timeout, period=None if args.rate is None else 1.0 / args.rate)
+
+
+def run_ros(args) -> int:
+    from flashnav.deploy.ros1 import DeployNode
+
+    ctl = make_controller(args)
+    node = DeployNode(ctl, scan=args.scan, odom=args.odom, goal=args.goal, cmd=args.cmd, status=args.status)
+    print(f"flashnav deploy ros: {args.policy} ({ctl.rt.meta.get('robot')}) at {1 / ctl.period:g} Hz: "
+          f"{args.scan} + {args.odom} + {args.goal} -> {args.cmd}", file=sys.stderr, flush=True)
+    node.spin()
+    return 0
+
+
+def run_sim_robot(args) -> int:
+    from flashnav.deploy import sim_robot
+    from flashnav.outputs import check_output_file
+
+    if args.episodes < 0:
+        raise ValueError(f"--episodes must be >= 0, got {args.episodes}")
+    if args.results:
+        check_output_file(args.results, "--results")
+    sim_robot.run(args)
+    return 0
+
+
+def run_replay(args) -> int:
+    from flashnav.deploy import replay
+    from flashnav.outputs import check_output_file
+
+    check_output_file(args.out, "--out")
+    n = replay.replay_bag(args.bag, make_controller(args), args.out, scan=args.scan, odom=args.odom,
+                          goal=args.goal, goal_at=args.goal_at)
+    print(f"flashnav deploy replay: {n} commands -> {args.out}")
+    return 0

@@ -1,0 +1,129 @@
+"""The deploy node's logic without ROS: inputs with their times in, commands and a status out.
+
+A ROS node (``flashnav/deploy/ros1.py``; an rclpy node would be the same few lines), the bag replayer
+and the tests all drive this one state machine, so the safety behaviour is written and tested once:
+
+* ``idle``: no goal yet; nothing is commanded.
+* ``driving``: a goal is set and the inputs are fresh: each scan at least ``0.8 * period`` (by its
+  stamp) after the last control step runs the policy, and its command is sent.
+* ``stale``: the latest scan or odometry arrived more than ``timeout`` seconds ago (or odometry is that
+  much older than the scan): zero velocity, sent again on every :meth:`tick`; driving resumes with
+  fresh inputs.
+* ``reached``: within the goal radius: zero velocity, sent once; a new goal starts driving again.
+* ``stopped``: :meth:`shutdown`: zero velocity; nothing after it.
+
+The velocity state given to the policy is the command the controller sent last (what the simulator
+calls the executed command; a stop counts as (0, 0)); a new goal starts from the robot's measured
+velocity being unknown, so from (0, 0) as in the simulator's episodes.
+Times are seconds on one clock (ROS time: wall or simulated).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from flashnav.deploy.runtime import PolicyRuntime
+
+#: a scan triggers a control step when its stamp is at least this fraction of the period after the
+#: last one: a 10 Hz policy on a 40 Hz scanner acts on every 4th scan despite stamp jitter
+DUE_FRACTION = 0.8
+
+
+@dataclass(frozen=True)
+class Command:
+    """(v m/s, w rad/s) to publish, and why (the state that produced it)."""
+
+    v: float
+    w: float
+    state: str
+
+
+class Controller:
+    """See the module docstring. ``timeout`` seconds: the largest input age that still drives."""
+
+    def __init__(self, runtime: PolicyRuntime, timeout: float = 0.5, period: float | None = None):
+        if not timeout > 0:
+            raise ValueError(f"timeout must be > 0 s, got {timeout}")
+        self.rt, self.timeout = runtime, float(timeout)
+        self.period = runtime.control_period if period is None else float(period)
+        if not self.period > 0:
+            raise ValueError(f"period must be > 0 s, got {period}")
+        self.state = "idle"
+        self.goal: tuple[float, float] | None = None
+        self.pose: tuple[float, float, float] | None = None
+        self.odom_time = self.scan_time = -math.inf
+        self.last_step_stamp = -math.inf
+        self.velocity = (0.0, 0.0)
+        self.distance = math.nan
+        self.last_action: list[float] | None = None
+        self.steps = 0
+
+    # ---- inputs ---------------------------------------------------------------------------------
+    def on_goal(self, x: float, y: float, now: float) -> None:
+        """A new goal (same frame as the odometry pose)."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"goal ({x}, {y}) is not finite")
+        if self.state == "stopped":
+            return
+        self.goal, self.velocity, self.last_step_stamp = (float(x), float(y)), (0.0, 0.0), -math.inf
+        self.state = "driving"
+
+    def on_odom(self, x: float, y: float, yaw: float, now: float) -> None:
+        self.pose, self.odom_time = (float(x), float(y), float(yaw)), float(now)
+
+    def on_scan(self, angle_min: float, angle_increment: float, ranges, range_min: float, range_max: float,
+                stamp: float, now: float) -> Command | None:
+        """A scan (``stamp``: its header time; ``now``: when it arrived). Returns the command to send, if any."""
+        self.scan_time = float(now)
+        if self.state in ("idle", "stopped", "reached"):
+            return None
+        if stamp < self.last_step_stamp + DUE_FRACTION * self.period:
+            return None
+        if self._stale(now):
+            return self._stop("stale")
+        sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
+        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity)
+        self.last_step_stamp, self.steps = float(stamp), self.steps + 1
+        self.distance = d.distance
+        self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
+        if d.state == "reached":
+            return self._stop("reached")
+        self.state, self.velocity = "driving", (d.v, d.w)
+        return Command(d.v, d.w, "driving")
+
+    def tick(self, now: float) -> Command | None:
+        """The watchdog, called often (e.g. 4x the control rate): zero velocity while inputs are stale."""
+        if self.state in ("driving", "stale") and self._stale(now):
+            return self._stop("stale")
+        if self.state == "stale":  # fresh again: the next due scan drives
+            self.state = "driving"
+        return None
+
+    def shutdown(self) -> Command:
+        return self._stop("stopped")
+
+    # ---- helpers --------------------------------------------------------------------------------
+    def _stale(self, now: float) -> bool:
+        return (self.pose is None or now - self.scan_time > self.timeout or now - self.odom_time > self.timeout)
+
+    def _stop(self, state: str) -> Command:
+        self.state, self.velocity = state, (0.0, 0.0)
+        return Command(0.0, 0.0, state)
+
+    def status(self, now: float) -> dict:
+        """What the node publishes on its status topic (JSON)."""
+        dist = self.distance
+        if self.goal is not None and self.pose is not None:
+            dist, _ = self.rt.goal_in_robot_frame(self.pose, self.goal)
+        return {"state": self.state, "distance": None if math.isnan(dist) else round(dist, 4),
+                "goal": None if self.goal is None else list(self.goal),
+                "command": list(self.velocity), "action": self.last_action, "steps": self.steps,
+                "scan_age": _age(now, self.scan_time), "odom_age": _age(now, self.odom_time),
+                "last_step_stamp": None if math.isinf(self.last_step_stamp) else self.last_step_stamp}
+
+
+def _age(now: float, t: float) -> float | None:
+    return None if math.isinf(t) else round(now - t, 4)

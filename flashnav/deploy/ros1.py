@@ -1,0 +1,138 @@
+"""The ROS 1 node: ROS messages <-> the ROS-free :class:`~flashnav.deploy.controller.Controller`.
+
+Only message conversion and wiring live here (an rclpy node would be the same mapping). Topics:
+
+* in: ``sensor_msgs/LaserScan`` (scan), ``nav_msgs/Odometry`` (pose in its ``header.frame_id``, the
+  fixed frame), ``geometry_msgs/PoseStamped`` (goal, in the odometry's frame or with an empty frame);
+* out: ``geometry_msgs/Twist`` (linear.x = v m/s, angular.z = w rad/s) and ``std_msgs/String`` with
+  the controller's status as JSON.
+
+Debian ships ROS 1 for its system python3 (/usr/lib/python3/dist-packages); the project's venv runs
+its own CPython 3.11, so :func:`import_rospy` appends that directory at the *end* of ``sys.path``
+(only when ROS is used, and only if ``rospy`` is not importable already): the venv's packages keep
+precedence and only what the venv lacks (rospy, the message packages, rospkg) comes from Debian.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import threading
+
+from flashnav.deploy.controller import Command, Controller
+from flashnav.deploy.runtime import yaw_from_quaternion
+
+#: where Debian's ROS 1 python packages live (override: FLASHNAV_ROS_PYTHONPATH, ':'-separated)
+ROS_DIST_PACKAGES = "/usr/lib/python3/dist-packages"
+#: the Debian packages that provide what the node and the harness import
+ROS_APT_PACKAGES = ("ros-core", "python3-rospy", "python3-sensor-msgs", "python3-geometry-msgs",
+                    "python3-nav-msgs", "python3-rosbag")
+
+
+class RosUnavailable(OSError):
+    """ROS 1's python packages cannot be imported (an environment problem: exit 2, one line)."""
+
+
+def import_rospy():
+    """``rospy``, importing it from Debian's dist-packages when the venv does not have it."""
+    try:
+        import rospy
+        return rospy
+    except ImportError:
+        pass
+    for extra in os.environ.get("FLASHNAV_ROS_PYTHONPATH", ROS_DIST_PACKAGES).split(os.pathsep):
+        if extra and os.path.isdir(extra) and extra not in sys.path:
+            sys.path.append(extra)
+    try:
+        import rospy
+        return rospy
+    except ImportError as exc:
+        raise RosUnavailable(f"ROS 1 (rospy) is not installed ({exc}); on Debian: apt-get install "
+                             f"{' '.join(ROS_APT_PACKAGES)} (scripts/bootstrap.sh does this as root)") from None
+
+
+def scan_args(msg) -> tuple:
+    """LaserScan -> (angle_min, angle_increment, ranges, range_min, range_max) for the runtime."""
+    return msg.angle_min, msg.angle_increment, msg.ranges, msg.range_min, msg.range_max
+
+
+def odom_pose(msg) -> tuple[float, float, float]:
+    """Odometry (or a PoseStamped's pose holder) -> (x, y, yaw) in its header's frame."""
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    q = pose.orientation
+    return pose.position.x, pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)
+
+
+class DeployNode:
+    """The node: subscriptions feed the controller under one lock; a timer at 4x the control rate
+    runs its watchdog; every decision is published with a status message."""
+
+    def __init__(self, controller: Controller, *, scan: str, odom: str, goal: str, cmd: str, status: str,
+                 name: str = "flashnav_deploy"):
+        self.rospy = rospy = import_rospy()
+        from geometry_msgs.msg import PoseStamped, Twist
+        from nav_msgs.msg import Odometry
+        from sensor_msgs.msg import LaserScan
+        from std_msgs.msg import String
+
+        self.Twist, self.String = Twist, String
+        self.ctl, self.lock = controller, threading.Lock()
+        self.odom_frame = None
+        rospy.init_node(name)
+        self.cmd_pub = rospy.Publisher(cmd, Twist, queue_size=1, tcp_nodelay=True)
+        self.status_pub = rospy.Publisher(status, String, queue_size=10, tcp_nodelay=True)
+        rospy.Subscriber(odom, Odometry, self._on_odom, queue_size=1, tcp_nodelay=True)
+        rospy.Subscriber(goal, PoseStamped, self._on_goal, queue_size=1, tcp_nodelay=True)
+        rospy.Subscriber(scan, LaserScan, self._on_scan, queue_size=1, tcp_nodelay=True)
+        rospy.on_shutdown(self._on_shutdown)
+        self.timer = rospy.Timer(rospy.Duration(controller.period / 4.0), self._on_tick)
+
+    def _now(self) -> float:
+        return self.rospy.get_time()
+
+    def _publish(self, command: Command | None, now: float, **extra) -> None:
+        """The command (if any), then the status; ``extra`` keys join the status (the scan's stamp and
+        whether it was answered: what a lock-step simulator waits for)."""
+        if command is not None:
+            twist = self.Twist()
+            twist.linear.x, twist.angular.z = command.v, command.w
+            self.cmd_pub.publish(twist)
+        self.status_pub.publish(self.String(data=json.dumps(self.ctl.status(now) | extra)))
+
+    def _on_odom(self, msg) -> None:
+        with self.lock:
+            self.odom_frame = msg.header.frame_id
+            self.ctl.on_odom(*odom_pose(msg), self._now())
+
+    def _on_goal(self, msg) -> None:
+        with self.lock:
+            frame = msg.header.frame_id.lstrip("/")
+            if frame and self.odom_frame is not None and frame != self.odom_frame.lstrip("/"):
+                self.rospy.logerr(f"goal ignored: frame {frame!r}, but the odometry is in {self.odom_frame!r} "
+                                  "(send the goal in the odometry frame)")
+                return
+            now = self._now()
+            self.ctl.on_goal(msg.pose.position.x, msg.pose.position.y, now)
+            self._publish(None, now)
+
+    def _on_scan(self, msg) -> None:
+        with self.lock:
+            now = self._now()
+            stamp = msg.header.stamp.to_sec()
+            command = self.ctl.on_scan(*scan_args(msg), stamp=stamp, now=now)
+            self._publish(command, now, scan_stamp=stamp, answered=command is not None)
+
+    def _on_tick(self, _event) -> None:
+        with self.lock:
+            now = self._now()
+            command = self.ctl.tick(now)
+            if command is not None:
+                self._publish(command, now)
+
+    def _on_shutdown(self) -> None:
+        with self.lock:
+            self._publish(self.ctl.shutdown(), self._now())
+
+    def spin(self) -> None:
+        self.rospy.spin()

@@ -1,0 +1,154 @@
+"""Run an exported policy (policy.onnx) on a robot: numpy + onnxruntime, no torch.
+
+```python
+rt = PolicyRuntime.load("policy.onnx", mount=Mount(yaw=0.0))
+sectors = rt.scan(angle_min, angle_increment, ranges, range_min, range_max)       # [S] float32, metres
+d = rt.decide(sectors, pose=(x, y, yaw), goal=(gx, gy), velocity=(v, w))          # pose/goal: one frame
+d.state, d.v, d.w                                                                   # "driving" | "reached"
+```
+
+The observation is the simulator's (``flashnav/sim/env.py``): the pooled sectors, the goal distance
+(m) and angle (rad, robot frame, [-pi, pi), positive = left), then the velocity state, the command
+executed in the last control step (``(v, w)``; ``(vx, 0, w)`` for a 3-D velocity state). The network
+holds its own input scaling, so the runtime passes physical units. Inside the goal radius the runtime
+commands (0, 0) without running the network.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
+from flashnav.policy_meta import METADATA_KEY, parse_metadata
+
+
+def wrap_angle(a: float) -> float:
+    """Radians wrapped to [-pi, pi) (the simulator's convention)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Heading (rad) of an orientation quaternion: the rotation about z (ROS's yaw)."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One control step: ``state`` ("driving" or "reached"), the command ``v`` m/s, ``w`` rad/s, the
+    network's ``action`` [2] in [-1, 1] (None when it did not run), goal ``distance`` m and ``angle`` rad,
+    and the ``obs`` [D] float32 given to the network."""
+
+    state: str
+    v: float
+    w: float
+    distance: float
+    angle: float
+    action: np.ndarray | None
+    obs: np.ndarray
+
+
+def _lidar_meta(meta: dict[str, Any], path) -> tuple[SectorLayout, int]:
+    try:
+        lidar = meta["observation"]["lidar"]
+        sectors = int(lidar["columns"][1]) - int(lidar["columns"][0])
+        return SectorLayout(sectors, float(lidar["fov_deg"]), float(lidar["range"][1])), int(lidar["beams"])
+    except (KeyError, IndexError, TypeError) as exc:
+        raise ValueError(f"{path}: the policy's metadata lacks the LiDAR layout (observation.lidar: {exc})") from None
+
+
+class PolicyRuntime:
+    """An exported policy with what it needs on the robot: the sector layout, the goal radius, the
+    command bounds and the control period, all read from the file's metadata."""
+
+    def __init__(self, session, meta: dict[str, Any], path: str | Path = "<policy>", *,
+                 mount: Mount = Mount(), fill: float | None = None):
+        self.session, self.meta, self.path = session, meta, str(path)
+        self.layout, self.beams = _lidar_meta(meta, path)
+        self.adapter = ScanAdapter(self.layout, mount, fill)
+        self.obs_dim = int(meta["obs_dim"])
+        preset = meta.get("preset") or {}
+        episode = preset.get("episode") or {}
+        # files written before these keys existed carry them in their preset block
+        self.goal_threshold = float(meta.get("goal_threshold", episode.get("goal_threshold", 0.0)))
+        self.control_period = float(meta.get("control_period_s", episode.get("dt", 0.0)))
+        if not self.goal_threshold > 0 or not self.control_period > 0:
+            raise ValueError(f"{path}: the policy's metadata lacks goal_threshold / control_period_s")
+        self.velocity_dims = self.obs_dim - self.layout.sectors - 2
+        if self.velocity_dims not in (2, 3):
+            raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + velocity")
+        bounds = meta.get("command_bounds") or {}
+        self.v_limit = float(bounds.get("max_linear_velocity", math.inf))
+        self.w_limit = float(bounds.get("max_angular_velocity", math.inf))
+
+    @classmethod
+    def load(cls, path: str | Path, *, mount: Mount = Mount(), fill: float | None = None) -> "PolicyRuntime":
+        """Load ``policy.onnx`` (the ONNX file ``flashnav train`` / ``flashnav.export`` writes).
+
+        Raises FileNotFoundError for a missing file and ValueError naming ``path`` for another suffix,
+        an unreadable file or missing FlashNav metadata."""
+        path = Path(path)
+        if path.suffix != ".onnx":
+            raise ValueError(f"{path}: the deploy runtime runs policy.onnx (numpy + onnxruntime, no torch); "
+                             f"got {path.suffix or 'no suffix'!r}")
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such policy file")
+        try:
+            import onnxruntime as ort
+        except ImportError:
+            raise ImportError("the deploy runtime needs onnxruntime: pip install 'flashnav[export]'") from None
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = 1  # a 34-number MLP: threads only add latency on the robot
+        options.inter_op_num_threads = 1
+        try:
+            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime's own exception types: a bad file
+            raise ValueError(f"{path}: not a readable ONNX policy ({' '.join(str(exc).split())[:200]})") from None
+        meta = parse_metadata(path, session.get_modelmeta().custom_metadata_map.get(METADATA_KEY))
+        return cls(session, meta, path, mount=mount, fill=fill)
+
+    # ---- the observation ------------------------------------------------------------------------
+    def scan(self, angle_min: float, angle_increment: float, ranges, range_min: float, range_max: float) -> np.ndarray:
+        """Raw scan -> the policy's sectors [S] float32 metres (see :mod:`flashnav.deploy.scan`)."""
+        return self.adapter(angle_min, angle_increment, ranges, range_min, range_max)
+
+    def goal_in_robot_frame(self, pose, goal) -> tuple[float, float]:
+        """(distance m, angle rad in [-pi, pi), positive = left) of ``goal`` (x, y) seen from ``pose``
+        (x, y, yaw); both in the same fixed frame."""
+        dx, dy = float(goal[0]) - float(pose[0]), float(goal[1]) - float(pose[1])
+        return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - float(pose[2]))
+
+    def observation(self, sectors, pose, goal, velocity) -> np.ndarray:
+        """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed."""
+        sectors = np.asarray(sectors, np.float32).reshape(-1)
+        if sectors.size != self.layout.sectors:
+            raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
+        dist, angle = self.goal_in_robot_frame(pose, goal)
+        v, w = float(velocity[0]), float(velocity[1])
+        vel = [v, w] if self.velocity_dims == 2 else [v, 0.0, w]
+        return np.concatenate([sectors, np.array([dist, angle, *vel], np.float32)])
+
+    # ---- the command ----------------------------------------------------------------------------
+    def act(self, obs: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """The network on one observation: (action [2] in [-1, 1], v m/s, w rad/s), v and w as the
+        export maps the action onto the preset's bounds and clamps them to the platform limits."""
+        x = np.asarray(obs, np.float32).reshape(1, self.obs_dim)
+        if not np.isfinite(x).all():
+            raise ValueError(f"observation is not finite: {x.tolist()}")
+        action, command = self.session.run(["action", "command"], {"obs": x})
+        v = min(max(float(command[0, 0]), -self.v_limit), self.v_limit)
+        w = min(max(float(command[0, 1]), -self.w_limit), self.w_limit)
+        return action[0], v, w
+
+    def decide(self, sectors, pose, goal, velocity) -> Decision:
+        """One control step: stop inside the goal radius, else the policy's command."""
+        obs = self.observation(sectors, pose, goal, velocity)
+        dist, angle = float(obs[self.layout.sectors]), float(obs[self.layout.sectors + 1])
+        if dist < self.goal_threshold:
+            return Decision("reached", 0.0, 0.0, dist, angle, None, obs)
+        action, v, w = self.act(obs)
+        return Decision("driving", v, w, dist, angle, action, obs)

@@ -1,0 +1,40 @@
+"""The exported-policy metadata format, torch-free (read by flashnav.export and flashnav.deploy).
+
+Every exported policy (``policy.pt``'s ``_extra_files``, ``policy.onnx``'s ``metadata_props``) carries
+one JSON document under :data:`METADATA_KEY`; :func:`flashnav.export.policy_metadata` writes it. This
+module only knows how to read and check it, so that a robot-side runtime can do so without torch.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+#: Version of the exported-policy metadata (bumped when its layout changes incompatibly; new keys are
+#: added without a bump, and readers fall back to the ``preset`` block for files that lack them).
+POLICY_FORMAT_VERSION = 1
+#: Name of the metadata entry in policy.pt (``_extra_files``) and in policy.onnx (``metadata_props``).
+METADATA_KEY = "flashnav.json"
+
+
+def parse_metadata(path: str | Path, text: str | bytes | None) -> dict[str, Any]:
+    """The metadata dict of the policy file ``path`` from its stored JSON ``text``.
+
+    Raises ValueError naming ``path`` for missing metadata, invalid JSON, no integer ``obs_dim`` or a
+    format version newer than this FlashNav reads."""
+    from flashnav import __version__
+
+    if not text:
+        raise ValueError(f"{path}: no FlashNav metadata ({METADATA_KEY}); export it with flashnav.export.export_policy")
+    try:
+        meta = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"{path}: FlashNav metadata ({METADATA_KEY}) is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("obs_dim"), int):
+        raise ValueError(f"{path}: FlashNav metadata ({METADATA_KEY}) lacks an integer obs_dim")
+    version = meta.get("format_version")
+    if not isinstance(version, int) or version > POLICY_FORMAT_VERSION:
+        raise ValueError(f"{path}: policy format version {version!r} is not supported "
+                         f"(this FlashNav {__version__} reads <= {POLICY_FORMAT_VERSION})")
+    return meta

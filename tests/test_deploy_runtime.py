@@ -1,0 +1,117 @@
+"""The deploy runtime (policy.onnx without torch) and the controller's safety states."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from flashnav.deploy.controller import Controller
+from flashnav.deploy.runtime import PolicyRuntime, yaw_from_quaternion
+from flashnav.export import load_policy
+
+POLICY = Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx"
+FOV = math.radians(270.0)
+SCAN = dict(angle_min=-FOV / 2 + FOV / 2160, angle_increment=FOV / 1080, range_min=0.0, range_max=20.0)
+
+
+def _ranges(value=3.0):
+    return np.full(1080, value, np.float32)
+
+
+def test_runtime_runs_without_torch():
+    code = textwrap.dedent(f"""
+        import sys
+        class Block:
+            def find_spec(self, name, path=None, target=None):
+                if name == "torch" or name.startswith("torch."):
+                    raise ImportError("torch is blocked in this test")
+        sys.meta_path.insert(0, Block())
+        import numpy as np
+        from flashnav.deploy import PolicyRuntime, Controller
+        rt = PolicyRuntime.load({str(POLICY)!r})
+        s = rt.scan(0.0, 0.0043633, np.full(1080, 3.0, np.float32), 0.0, 20.0)
+        d = rt.decide(s, (0.0, 0.0, 0.0), (2.0, 1.0), (0.0, 0.0))
+        assert d.state == "driving" and 0.0 <= d.v <= 0.5, d
+        assert "torch" not in sys.modules
+        print("ok")
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_commands_equal_the_exported_policy():
+    rt = PolicyRuntime.load(POLICY)
+    policy, meta = load_policy(POLICY)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        sectors = rng.uniform(0.2, 20.0, 30).astype(np.float32)
+        obs = rt.observation(sectors, rng.uniform(0, 10, 3), rng.uniform(0, 10, 2), (rng.uniform(0, 0.5), 0.1))
+        action, v, w = rt.act(obs)
+        want = policy(torch.from_numpy(obs)[None])[0].numpy()
+        np.testing.assert_allclose(action, want, atol=1e-6)
+        m = meta["preset"]["motion"]
+        assert v == pytest.approx(m["v_bounds"][0] + (want[0] + 1) * 0.5 * (m["v_bounds"][1] - m["v_bounds"][0]), abs=1e-6)
+        assert w == pytest.approx(m["w_bounds"][0] + (want[1] + 1) * 0.5 * (m["w_bounds"][1] - m["w_bounds"][0]), abs=1e-6)
+
+
+def test_goal_frame_and_quaternion():
+    rt = PolicyRuntime.load(POLICY)
+    d, a = rt.goal_in_robot_frame((1.0, 1.0, math.pi / 2), (0.0, 1.0))  # goal behind-left: to the left
+    assert d == pytest.approx(1.0) and a == pytest.approx(math.pi / 2)
+    d, a = rt.goal_in_robot_frame((0.0, 0.0, 0.0), (-1.0, 0.0))
+    assert a == pytest.approx(-math.pi)  # [-pi, pi), as the simulator wraps
+    yaw = 2.5
+    assert yaw_from_quaternion(0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)) == pytest.approx(yaw)
+
+
+def test_old_metadata_without_the_new_keys_still_loads():
+    rt = PolicyRuntime.load(POLICY)
+    meta = {k: v for k, v in rt.meta.items() if k not in ("goal_threshold", "goal_distance_max")}
+    old = PolicyRuntime(rt.session, meta)
+    assert old.goal_threshold == rt.goal_threshold == meta["preset"]["episode"]["goal_threshold"]
+
+
+def test_load_errors_name_the_file(tmp_path):
+    with pytest.raises(ValueError, match="policy.pt.*policy.onnx"):
+        PolicyRuntime.load(tmp_path / "policy.pt")
+    with pytest.raises(FileNotFoundError, match="missing.onnx"):
+        PolicyRuntime.load(tmp_path / "missing.onnx")
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not onnx")
+    with pytest.raises(ValueError, match="bad.onnx: not a readable ONNX policy"):
+        PolicyRuntime.load(bad)
+
+
+def test_controller_safety_states():
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.0, now=0.0, **SCAN) is None and ctl.state == "idle"
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.0)
+    ctl.on_goal(3.0, 0.0, now=0.0)
+    first = ctl.on_scan(ranges=_ranges(), stamp=0.0, now=0.0, **SCAN)
+    assert first.state == "driving" and first.v > 0
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.05, now=0.05, **SCAN) is None  # not due (10 Hz)
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.1)
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.1, now=0.1, **SCAN).state == "driving"
+    assert ctl.velocity != (0.0, 0.0)
+    assert ctl.tick(0.35) is None  # 0.25 s since the last inputs: still fresh
+    stop = ctl.tick(0.45)  # scan and odometry 0.35 s old
+    assert (stop.v, stop.w, stop.state) == (0.0, 0.0, "stale") and ctl.velocity == (0.0, 0.0)
+    assert ctl.tick(0.5).state == "stale"  # repeated while stale
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.6)
+    again = ctl.on_scan(ranges=_ranges(), stamp=0.6, now=0.6, **SCAN)
+    assert again.state == "driving"
+    ctl.on_odom(2.9, 0.0, 0.0, now=0.7)  # within the 0.2 m goal radius
+    reached = ctl.on_scan(ranges=_ranges(), stamp=0.7, now=0.7, **SCAN)
+    assert (reached.v, reached.w, reached.state) == (0.0, 0.0, "reached")
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.8, now=0.8, **SCAN) is None  # sent once
+    assert ctl.status(0.8)["state"] == "reached"
+    assert ctl.shutdown().state == "stopped"
+    ctl.on_goal(0.0, 5.0, now=0.9)
+    assert ctl.state == "stopped"  # nothing after shutdown
