@@ -1,6 +1,7 @@
 """Which evaluation episodes does a policy fail? Outcome by route length and detour (issue 16, item 3).
 
     .venv/bin/python scripts/episode_difficulty.py POLICY [--episodes 1024] [--seed 12345] [--json OUT] [--plot PNG]
+        [--failures PNG]
 
 Evaluates the exported POLICY on the fixed set that ``flashnav train`` evaluates on (``--episodes`` start/goal
 pairs drawn with evaluation seed ``--seed``, the robot's bundled map), episode by episode
@@ -8,7 +9,9 @@ pairs drawn with evaluation seed ``--seed``, the robot's bundled map), episode b
 the shortest 8-connected grid path from start to goal through the cells where the footprint's circumscribed
 disc is collision-free (the oracle's graph, :func:`flashnav.sim.oracle.grid_graph`). Prints success / collision
 / timeout by route length and by detour ratio (route / straight line), and the time the route needs at top speed
-against the horizon.
+against the horizon. The failed episodes are replayed alone (``set_state`` at their start and goal, the
+deterministic policy gives the same path) to find each one's closest approach to its goal; ``--failures`` draws
+their paths on the map, split into near misses (within 0.1 m of the goal radius) and the rest.
 """
 
 from __future__ import annotations
@@ -47,6 +50,53 @@ def route_lengths(grid, radius: float, start_xy: np.ndarray, goal_xy: np.ndarray
     return out
 
 
+def replay_failures(policy, robot: str, start_pose: np.ndarray, goal: np.ndarray):
+    """Replays episodes alone from ``start_pose [F, 3]`` / ``goal [F, 2]`` (world): their paths
+    ``[T, F, 2]`` (NaN after the episode ended) and closest approach to the goal ``[F]`` (m)."""
+    import torch
+
+    env = make_env(robot, len(goal), seed=0)
+    env.reset(seed=0)
+    obs = env.set_state(torch.as_tensor(start_pose), torch.as_tensor(goal))
+    horizon = env.preset.episode.horizon
+    paths = np.full((horizon + 1, len(goal), 2), np.nan)
+    closest = np.full(len(goal), np.inf)
+    active = torch.arange(len(goal))
+    for t in range(horizon + 1):
+        idx = active.numpy()
+        xy = env.world_pose()[idx, :2].numpy()
+        paths[t, idx] = xy
+        closest[idx] = np.minimum(closest[idx], np.linalg.norm(xy - goal[idx], axis=1))
+        if t == horizon or not len(idx):
+            break
+        step = env.step_slots(active, policy(obs))
+        running = ~(step["terminated"] | step["truncated"])
+        active, obs = active[running], step["obs"][running]
+    return paths, closest
+
+
+def draw_failures(path: str, grid, paths: np.ndarray, goal: np.ndarray, near: np.ndarray, title: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    h, w = grid.shape
+    extent = [grid.origin[0], grid.origin[0] + w * grid.resolution, grid.origin[1], grid.origin[1] + h * grid.resolution]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6.3))
+    for ax, sel, name in ((axes[0], near, "near misses: within 0.1 m of the goal radius, not inside"),
+                          (axes[1], ~near, "never near the goal")):
+        ax.imshow(grid.occupied, origin="lower", extent=extent, cmap="Greys")
+        for j in np.nonzero(sel)[0]:
+            line, = ax.plot(paths[:, j, 0], paths[:, j, 1], lw=0.9)
+            ax.plot(paths[0, j, 0], paths[0, j, 1], "o", c=line.get_color(), ms=3)
+            ax.plot(goal[j, 0], goal[j, 1], "*", c=line.get_color(), ms=10)
+        ax.set_title(f"{name}: {int(sel.sum())}", fontsize=10)
+        ax.set_aspect("equal")
+    fig.suptitle(title + " (o start, * goal)", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def table(name: str, values: np.ndarray, bins: list[float], outcome: np.ndarray) -> list[dict]:
     rows = []
     print(f"\nby {name}:\n  {'bin':>14} {'episodes':>9} {'success':>8} {'collision':>10} {'timeout':>8}")
@@ -69,6 +119,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
     p.add_argument("--json", help="write every episode's route, detour and outcome here")
     p.add_argument("--plot", help="scatter of route length vs straight-line distance, coloured by outcome")
+    p.add_argument("--failures", help="the failed episodes' paths on the map (near misses apart)")
     args = p.parse_args()
     policy, meta = load_policy(args.policy)
     env = make_env(meta["robot"], args.episodes, seed=args.seed)
@@ -86,8 +137,16 @@ def main() -> None:
     out = {"by_route_length": table("route length (m)", route, LENGTH_BINS, outcome),
            "by_detour": table("detour ratio (route / straight line)", detour, DETOUR_BINS, outcome)}
     failed = np.nonzero(outcome != "success")[0]
-    print(f"\nfailed episodes ({len(failed)}): " + ", ".join(
-        f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f}" for k in failed[:40]))
+    paths, closest = replay_failures(policy, meta["robot"], e["start_pose"][failed], goal[failed])
+    near = closest < ep.goal_threshold + 0.1
+    print(f"\nfailed episodes ({len(failed)}; {int(near.sum())} came within 0.1 m of the {ep.goal_threshold:g} m "
+          "goal radius): " + ", ".join(f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f} "
+                                       f"closest {c:.2f} m" for k, c in zip(failed[:40], closest)))
+    out["failed"] = [{"index": int(k), "outcome": str(outcome[k]), "closest_m": float(c)} for k, c in zip(failed, closest)]
+    if args.failures:
+        draw_failures(args.failures, env.map, paths, goal[failed], near,
+                      f"{len(failed)} failures of {args.policy} on {args.episodes} evaluation episodes")
+        print(f"failures: {args.failures}")
     if args.json:
         out["episodes"] = [{"index": int(k), "outcome": str(outcome[k]), "straight_m": float(straight[k]),
                             "route_m": float(route[k]), "steps": float(e["episode_steps"][k])} for k in range(len(route))]
