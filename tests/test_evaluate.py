@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from flashnav.evaluate import evaluate
+from flashnav.evaluate import evaluate, evaluate_episodes
 from flashnav.sim.env import make_env
 
 
@@ -33,6 +33,25 @@ def test_evaluate_equals_the_dense_reference(robot):
     assert fast["mean_return"] == pytest.approx(slow["mean_return"], abs=1e-5)
     assert fast["mean_steps"] == pytest.approx(slow["mean_steps"])
     assert 0 < fast["success_rate"] < 1 and fast["collision_rate"] > 0  # the comparison covers both outcomes
+
+
+def test_each_episode_replayed_alone_from_its_start_ends_the_same_way():
+    env = make_env("turtlebot2", 48, seed=0)
+    e = evaluate_episodes(heading_controller, env, seed=3)
+    assert e["success"].any() and e["collision"].any() and (~e["success"] & ~e["collision"]).any()
+    # the recorded start/goal are the episodes that seed draws: replayed one by one with set_state, each ends alike
+    for k in (int(e["success"].nonzero()[0]), int(e["collision"].nonzero()[0]),
+              int((~e["success"] & ~e["collision"]).nonzero()[0])):
+        one = make_env("turtlebot2", 1, seed=0)
+        one.reset(seed=0)
+        obs = one.set_state(e["start_pose"][k:k + 1], e["goal"][k:k + 1])
+        for _ in range(one.preset.episode.horizon):
+            t = one.step_slots(torch.tensor([0]), heading_controller(obs))
+            obs = t["obs"]
+            if bool(t["terminated"][0] | t["truncated"][0]):
+                break
+        assert bool(t["success"][0]) == bool(e["success"][k]) and bool(t["collision"][0]) == bool(e["collision"][k])
+        assert int(t["episode_steps"][0]) == int(e["episode_steps"][k])
 
 
 def test_step_slots_equals_step_on_those_slots_and_leaves_the_others():
