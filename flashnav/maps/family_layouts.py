@@ -1,5 +1,5 @@
 """The layouts of :mod:`flashnav.maps.families`: one function per family, drawing on a
-:class:`~flashnav.maps.families.Canvas` with a seeded generator. Every passage is ``canvas.gap()``
+:class:`~flashnav.maps.canvas.Canvas` with a seeded generator. Every passage is ``canvas.gap()``
 wide or wider; loose furniture goes through ``canvas.scatter`` (which keeps it clear of passages)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from flashnav.maps.families import WALL, Canvas
+from flashnav.maps.canvas import WALL, Canvas
 
 
 def _split(rng: np.random.Generator, lo: float, hi: float, widths: tuple[float, float], least: float) -> list[float]:
