@@ -125,8 +125,8 @@ class Episode(Strict):
     horizon: int = Field(gt=0, description="steps before truncation")
     dt: float = Field(gt=0, description="seconds per step")
     goal_threshold: float = Field(gt=0, description="goal reached when distance < this, metres")
-    min_goal_distance: float = Field(ge=0, description="start-goal straight-line distance, lower bound, metres")
-    max_goal_distance: float = Field(gt=0, description="start-goal straight-line distance, upper bound, metres")
+    min_goal_distance: float = Field(ge=0, description="start-goal distance (see goal_sampling), lower bound, metres")
+    max_goal_distance: float = Field(gt=0, description="start-goal distance (see goal_sampling), upper bound, metres")
     start_clearance: float = Field(ge=0, description="extra free margin around the footprint at start/goal, metres")
     goal_sampling: Literal[GOAL_SAMPLINGS] = Field(  # type: ignore[valid-type]
         "euclidean", description="goal distance band measured as the straight line (euclidean, the paper task) "

@@ -22,7 +22,7 @@ import numpy as np
 from flashnav.maps.fields import _radius_key, cached, component_cells
 
 PAIRS = 32768  # pairs kept per map (each serves both ways)
-VISIT_BUDGET = 8_000_000  # cells visited by all the sources' searches together (~1 s on one core)
+VISIT_BUDGET = 8_000_000  # cells visited by all the sources' searches together
 MIN_SOURCES, MAX_SOURCES = 32, 256
 MAX_TRIES = 8  # sources tried, in multiples of the sources kept, before giving up on a map
 
