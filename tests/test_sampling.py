@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from flashnav.config import RobotPreset
 from flashnav.maps.grid import OccupancyMap
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
@@ -39,7 +40,7 @@ def test_default_sampling_on_the_bundled_maps_is_unchanged(robot):
 # ---- helpers: maps and a reference geodesic distance ---------------------------------------------------
 
 
-def robot(mode: str = "euclidean", **overrides) -> "RobotPreset":
+def robot(mode: str = "euclidean", **overrides) -> RobotPreset:
     return load_robot("turtlebot2", **{"episode.goal_sampling": mode, **overrides})
 
 
