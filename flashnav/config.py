@@ -15,6 +15,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
+from flashnav.names import GOAL_SAMPLINGS
+
 
 class KnownKeys(BaseModel):
     """Base: unknown keys are errors that name the key and the allowed names (a misspelt key must not
@@ -123,9 +125,12 @@ class Episode(Strict):
     horizon: int = Field(gt=0, description="steps before truncation")
     dt: float = Field(gt=0, description="seconds per step")
     goal_threshold: float = Field(gt=0, description="goal reached when distance < this, metres")
-    min_goal_distance: float = Field(ge=0, description="start-goal straight-line distance, lower bound, metres")
-    max_goal_distance: float = Field(gt=0, description="start-goal straight-line distance, upper bound, metres")
+    min_goal_distance: float = Field(ge=0, description="start-goal distance (see goal_sampling), lower bound, metres")
+    max_goal_distance: float = Field(gt=0, description="start-goal distance (see goal_sampling), upper bound, metres")
     start_clearance: float = Field(ge=0, description="extra free margin around the footprint at start/goal, metres")
+    goal_sampling: Literal[GOAL_SAMPLINGS] = Field(  # type: ignore[valid-type]
+        "euclidean", description="goal distance band measured as the straight line (euclidean, the paper task) "
+        "or as the path length through the free space (geodesic, capped by what the horizon allows)")
 
     @model_validator(mode="after")
     def _band(self) -> "Episode":

@@ -22,6 +22,11 @@ RECIPE_CHOICES = ("auto", *RECIPES)
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
 RAYCASTERS = ("exact", "exact-torch", "march")
 DEFAULT_RAYCASTER = RAYCASTERS[0]
+#: How the episode sampler picks goals (``episode.goal_sampling``; :mod:`flashnav.sim.sampling`):
+#: ``euclidean`` (the default, the paper task) by straight-line distance, ``geodesic`` by path length.
+GOAL_SAMPLINGS = ("euclidean", "geodesic")
+#: Families of generated maps (:mod:`flashnav.maps.families`).
+MAP_FAMILIES = ("rooms", "offices", "halls", "warehouses", "mazes", "clutter")
 #: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
 #: metric names (``time_to_90``).
 THRESHOLDS = (0.9, 0.95, 1.0)

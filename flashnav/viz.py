@@ -81,3 +81,34 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return out
+
+
+def draw_map_sheet(rows: dict[str, list[OccupancyMap]], out: str | Path, title: str = "") -> Path:
+    """Save a contact sheet PNG: one row of maps per key of ``rows`` (e.g. a map family), each map
+    drawn at its own scale with its size and resolution underneath."""
+    ncols = max(len(maps) for maps in rows.values())
+    fig, axes = plt.subplots(len(rows), ncols, figsize=(2.6 * ncols, 2.7 * len(rows)), dpi=110, squeeze=False)
+    for r, (label, maps) in enumerate(rows.items()):
+        for k in range(ncols):
+            ax = axes[r, k]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if k >= len(maps):
+                ax.axis("off")
+                continue
+            grid = maps[k]
+            xmin, ymin, xmax, ymax = grid.bounds
+            ax.imshow(grid.occupied, origin="lower", extent=(xmin, xmax, ymin, ymax), cmap="Greys", vmin=0,
+                      vmax=1.2, interpolation="nearest")
+            ax.set_xlabel(f"{grid.name}: {grid.width_m:.1f} x {grid.height_m:.1f} m, {grid.resolution:g} m",
+                          fontsize=7)
+            if k == 0:
+                ax.set_ylabel(label, fontsize=11)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)
+    return out

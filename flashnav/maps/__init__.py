@@ -16,9 +16,9 @@ __all__ = [
 
 
 def __getattr__(name: str):
-    # imported lazily so `python -m flashnav.maps.generate` does not import itself twice
+    # imported on first use: reading maps needs none of the generator
     if name == "generate_map":
-        from flashnav.maps.generate import generate_map
+        from flashnav.maps.clutter import generate_map
 
         return generate_map
     raise AttributeError(name)

@@ -3,8 +3,18 @@
 Starts and goals are drawn from the *free configuration space*: cells whose centre (plus the jitter
 inside the cell) stays farther than the footprint's circumscribed radius + ``start_clearance`` from any
 obstacle, so the robot is collision-free there at any heading. The goal lies in the same 4-connected
-component of that space as the start (so a path exists along which the whole footprint stays clear),
-at a straight-line distance within [min_goal_distance, max_goal_distance].
+component of that space as the start (so a path exists along which the whole footprint stays clear).
+``episode.goal_sampling`` says how far:
+
+- ``euclidean`` (default; the paper task on the bundled maps, whose episodes stay bit-identical): a
+  straight-line distance within [min_goal_distance, max_goal_distance]. Of ``GOAL_CANDIDATES``
+  candidates the first inside the band wins; when none is, the nearest one outside it does. Such a
+  fallback is counted (``out_of_band``, on the device) and, when a probe at construction finds any,
+  reported once per map with a warning; a map where the probe finds no episode in the band at all is
+  refused.
+- ``geodesic``: a path length through that space (:mod:`flashnav.maps.geodesic`) within
+  [min_goal_distance, min(max_goal_distance, HORIZON_PATH_FRACTION x horizon x dt x top speed)],
+  so every goal is reachable in time by construction, on any map; a map with no such pair is refused.
 
 Sampling is a handful of batched tensor ops with a ``torch.Generator``: no host synchronisation,
 same seed -> same episodes, on any device.
@@ -13,6 +23,7 @@ same seed -> same episodes, on any device.
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import torch
@@ -23,11 +34,22 @@ from flashnav.maps.grid import OccupancyMap
 
 GOAL_CANDIDATES = 32  # goal candidates drawn per start; the first inside the distance band wins
 MIN_COMPONENT_CELLS = 16  # smaller pockets of free space are never used for starts
+#: Geodesic goals are at most this fraction of the horizon's path at top speed away: the rest of the
+#: horizon is for turning (a half turn takes 40 steps at pi/4 rad/s) and slowing down around corners.
+HORIZON_PATH_FRACTION = 0.5
+PROBE_EPISODES = 4096  # euclidean mode: episodes drawn at construction to find fallbacks
+_warned: set[tuple] = set()  # (map, band, radius) already reported: warn once per map and process
 
 
 class EpisodeSampler:
     """Draws (pose [n, 3], goal [n, 2]) pairs for ``n`` environment slots, in ``grid``'s
-    coordinates (the environment passes its re-centred map, so they are in the simulator's frame)."""
+    coordinates (the environment passes its re-centred map, so they are in the simulator's frame).
+
+    Attributes:
+        d_min, d_max: the goal distance band, metres (geodesic: after the horizon cap).
+        out_of_band: [] int64 on the device: euclidean episodes sampled so far whose goal lies outside
+            the band (the nearest candidate was taken); always 0 in geodesic mode.
+    """
 
     def __init__(self, grid: OccupancyMap, preset: RobotPreset, device: torch.device):
         ep = preset.episode
@@ -39,18 +61,38 @@ class EpisodeSampler:
         cx, cy = grid.cell_centres(rows, cols)
         f32 = dict(device=device, dtype=torch.float32)
         self.centres = torch.as_tensor(np.stack([cx, cy], axis=1), **f32)  # [M, 2] metres
-        self.comp_first = torch.tensor(per_cell_first, device=device, dtype=torch.long)  # [M]
-        self.comp_count = torch.tensor(per_cell_count, device=device, dtype=torch.float32)  # [M]
         self.num_cells = len(rows)
         self.resolution = grid.resolution
-        self.d_min, self.d_max = ep.min_goal_distance, ep.max_goal_distance
+        self.mode = ep.goal_sampling
         self.device = device
+        self.out_of_band = torch.zeros((), dtype=torch.long, device=device)
+        if self.mode == "geodesic":
+            from flashnav.maps.geodesic import geodesic_pairs
+
+            self.d_min, self.d_max = geodesic_band(preset)
+            starts, goals = geodesic_pairs(grid, self.radius + jitter_margin, MIN_COMPONENT_CELLS,
+                                           (self.d_min, self.d_max))
+            self.pair_start = torch.tensor(starts, device=device)  # [K] indices into centres
+            self.pair_goal = torch.tensor(goals, device=device)
+        else:
+            self.comp_first = torch.tensor(per_cell_first, device=device, dtype=torch.long)  # [M]
+            self.comp_count = torch.tensor(per_cell_count, device=device, dtype=torch.float32)  # [M]
+            self.d_min, self.d_max = ep.min_goal_distance, ep.max_goal_distance
+            self._probe(grid)
 
     def _jitter(self, n: int, gen: torch.Generator) -> torch.Tensor:
         return (torch.rand(n, 2, generator=gen, device=self.device) - 0.5) * self.resolution
 
     def sample(self, n: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Returns pose [n, 3] (x, y m, yaw rad in [-pi, pi)) and goal [n, 2] (m)."""
+        if self.mode == "geodesic":
+            return self._sample_geodesic(n, gen)
+        pose, goal, outside = self._sample_euclidean(n, gen)
+        self.out_of_band += outside.sum()
+        return pose, goal
+
+    def _sample_euclidean(self, n: int, gen: torch.Generator):
+        """(pose [n, 3], goal [n, 2], outside [n] bool: no candidate was in the band)."""
         dev = self.device
         start_idx = torch.randint(self.num_cells, (n,), generator=gen, device=dev)
         start = self.centres[start_idx] + self._jitter(n, gen)
@@ -67,5 +109,57 @@ class EpisodeSampler:
         index = torch.arange(GOAL_CANDIDATES, device=dev, dtype=torch.float32)
         score = miss * 1e3 + index * 1e-3
         pick = score.argmin(dim=1)
-        goal = cand[torch.arange(n, device=dev), pick]
+        rows = torch.arange(n, device=dev)
+        goal = cand[rows, pick]
+        return torch.cat([start, yaw[:, None]], dim=1), goal, miss[rows, pick] > 0
+
+    def _sample_geodesic(self, n: int, gen: torch.Generator):
+        dev = self.device
+        pair = torch.randint(self.pair_start.numel(), (n,), generator=gen, device=dev)
+        swap = torch.rand(n, generator=gen, device=dev) < 0.5  # a pair serves both ways
+        a, b = self.pair_start[pair], self.pair_goal[pair]
+        start_idx, goal_idx = torch.where(swap, b, a), torch.where(swap, a, b)
+        start = self.centres[start_idx] + self._jitter(n, gen)
+        goal = self.centres[goal_idx] + self._jitter(n, gen)
+        yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
         return torch.cat([start, yaw[:, None]], dim=1), goal
+
+    def _probe(self, grid: OccupancyMap) -> None:
+        """Euclidean mode: draw PROBE_EPISODES with a private generator (the caller's stream is not
+        touched); refuse the map if none is in the band, warn once if some fall outside it."""
+        gen = torch.Generator(device=self.device).manual_seed(0)
+        _, _, outside = self._sample_euclidean(PROBE_EPISODES, gen)
+        count = int(outside.sum())
+        if count == 0:
+            return
+        where = f"{grid.source}" if grid.source else f"map {grid.name!r}"
+        band = f"{self.d_min:g}-{self.d_max:g} m"
+        if count == PROBE_EPISODES:
+            raise ValueError(
+                f"{where}: no start found a goal {band} away (straight line) in its free-space component "
+                f"({PROBE_EPISODES} starts, {GOAL_CANDIDATES} candidates each): the band is unreachable "
+                f"on this map; change episode.min_goal_distance / max_goal_distance")
+        key = (grid.name, str(grid.source), grid.shape, self.d_min, self.d_max, self.radius)
+        if key not in _warned:
+            _warned.add(key)
+            warnings.warn(
+                f"{where}: {count} of {PROBE_EPISODES} sampled episodes ({count / PROBE_EPISODES:.2%}) find no goal "
+                f"{band} away (straight line) and take "
+                f"the nearest candidate outside the band (counted in EpisodeSampler.out_of_band); "
+                f"episode.goal_sampling=geodesic keeps every goal in the band by path length", RuntimeWarning,
+                stacklevel=3)
+
+
+def geodesic_band(preset: RobotPreset) -> tuple[float, float]:
+    """The geodesic goal band (lo, hi), metres: the preset's, its top capped at HORIZON_PATH_FRACTION
+    of the path the horizon allows at top speed (horizon x dt x v_max)."""
+    ep = preset.episode
+    reach = HORIZON_PATH_FRACTION * ep.horizon * ep.dt * preset.motion.v_bounds[1]
+    hi = min(ep.max_goal_distance, reach)
+    if not ep.min_goal_distance < hi:
+        raise ValueError(
+            f"robot {preset.name!r}: episode.min_goal_distance {ep.min_goal_distance:g} m is not below the "
+            f"geodesic band's top {hi:g} m (max_goal_distance {ep.max_goal_distance:g} m, or "
+            f"{HORIZON_PATH_FRACTION:g} x horizon {ep.horizon} x dt {ep.dt:g} s x top speed "
+            f"{preset.motion.v_bounds[1]:g} m/s)")
+    return ep.min_goal_distance, hi
