@@ -22,6 +22,9 @@ RECIPE_CHOICES = ("auto", *RECIPES)
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
 RAYCASTERS = ("exact", "exact-torch", "march")
 DEFAULT_RAYCASTER = RAYCASTERS[0]
+#: ``TrainConfig.cuda_graph``: a cycle's updates on static buffers captured as a CUDA graph (``on``;
+#: eager with capture skipped on a CPU), the plain eager loop (``off``), or ``auto`` (on for cuda only).
+CUDA_GRAPH_MODES = ("auto", "on", "off")
 #: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
 #: metric names (``time_to_90``).
 THRESHOLDS = (0.9, 0.95, 1.0)

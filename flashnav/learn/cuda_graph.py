@@ -1,0 +1,194 @@
+"""The U learner updates of a cycle on static batch buffers, captured once as a CUDA graph and replayed.
+
+```python
+updates = CycleUpdates(learner, obs_dim, action_dim, batch_size=B, updates=U, capture=True)  # capture: CUDA only
+replay.sample(B, U, out=updates.batches)   # the replay gathers into the static [U, B, ...] buffers
+metrics = updates.run()                    # U x learner.update(updates.batches.at(i)), or one graph replay
+```
+
+Every cycle runs exactly the eager update code (:meth:`flashnav.learn.learners.Learner.update` on
+``batches.at(i)``, i < U); what changes is *where* its inputs live (static buffers the replay
+gathers into) and, on a CUDA device, *how it is launched*: after ``warmup_cycles`` eager cycles (on
+a side stream, so that lazy initialisation - optimiser moments, cuBLAS handles - happens outside the
+capture), the U updates are captured once into a ``torch.cuda.CUDAGraph`` and every later cycle is
+one ``replay()``: one launch instead of thousands of small kernels. On a CPU, or with
+``capture=False``, the same code runs eagerly (capture skipped); the CPU tests pin it bit for bit
+to the plain eager loop (tests/test_cuda_graph.py).
+
+What makes the update capturable, and where it lives:
+- no host reads of device values inside an update (no ``.item()``, no branching on tensors): the
+  running std is initialised with ``torch.where``, the temperature is the tensor ``log_alpha``;
+- the actor schedule is decided on the host from ``state.num_updates``: a graph captures one
+  *phase* (``num_updates % policy_frequency`` at the cycle's start) and is kept per phase, so a U
+  that ``policy_frequency`` does not divide still replays the right schedule; ``num_updates`` is
+  advanced by U on the host after each replay;
+- the optimisers are fused AdamW (:func:`flashnav.learn.common.adamw`): their step counters and
+  bias corrections live on the device, so ``capturable`` only has to pass torch's capture check
+  (it is set for the capture and restored after; the fused kernel does not read it);
+- random draws come from ``state.update_gen``, registered with the graph, so each replay advances
+  it exactly as the eager updates would;
+- outputs (metrics) are the graph's static tensors, overwritten by the next replay of that graph.
+
+Why manual capture, not ``torch.compile(mode="reduce-overhead")``: on a CPU reduce-overhead is
+inductor without CUDA graphs (different kernels, different rounding, and half the eager speed on
+this project's CPU, docs/benchmarks.md), so no CPU test could show that the captured code is the
+update the learner runs; manual capture keeps the eager code and only changes how it is launched,
+and it captures the optimiser steps, Polyak averaging and temperature step too, not only the networks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from typing import Any, Iterator
+
+import torch
+
+from flashnav.learn.replay import Replay, Transition
+
+def optimizers(state: Any) -> list[torch.optim.Optimizer]:
+    """Every optimiser of a learner state (dataclass fields, nested dataclasses such as the
+    temperature included), in field order."""
+    found: list[torch.optim.Optimizer] = []
+    for field in dataclasses.fields(state):
+        value = getattr(state, field.name)
+        if isinstance(value, torch.optim.Optimizer):
+            found.append(value)
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            found.extend(optimizers(value))
+    return found
+
+
+def check_fused(opts: list[torch.optim.Optimizer]) -> None:
+    """A ValueError naming the first optimiser that is not fused: only the fused kernel keeps its
+    step counter and bias correction on the device with the numbers of the eager step."""
+    for opt in opts:
+        if not all(group.get("fused") for group in opt.param_groups):
+            raise ValueError(f"CUDA-graph capture needs fused optimisers (flashnav.learn.common.adamw); "
+                             f"{type(opt).__name__} over {sum(len(g['params']) for g in opt.param_groups)} "
+                             "tensors is not fused")
+
+
+def has_state(opts: list[torch.optim.Optimizer]) -> bool:
+    """True when every parameter of every optimiser has its moments: a capture must not create them
+    (their zero fill would be recorded and replayed every cycle)."""
+    return all(p in opt.state for opt in opts for group in opt.param_groups for p in group["params"])
+
+
+@contextlib.contextmanager
+def capturable(opts: list[torch.optim.Optimizer]) -> Iterator[None]:
+    """``capturable=True`` on every param group for the duration of a capture, restored after (so a
+    checkpoint's optimiser state and later eager steps are those of the eager learner)."""
+    saved = [[group["capturable"] for group in opt.param_groups] for opt in opts]
+    try:
+        for opt in opts:
+            for group in opt.param_groups:
+                group["capturable"] = True
+        yield
+    finally:
+        for opt, flags in zip(opts, saved):
+            for group, flag in zip(opt.param_groups, flags):
+                group["capturable"] = flag
+
+
+def static_batches(updates: int, batch_size: int, obs_dim: int, action_dim: int,
+                   device: torch.device | str) -> Transition:
+    """Zeroed static ``[U, B, ...]`` float32 buffers in :class:`Transition` layout."""
+    f32 = dict(dtype=torch.float32, device=torch.device(device))
+    return Transition(obs=torch.zeros(updates, batch_size, obs_dim, **f32),
+                      action=torch.zeros(updates, batch_size, action_dim, **f32),
+                      reward=torch.zeros(updates, batch_size, **f32),
+                      terminated=torch.zeros(updates, batch_size, **f32),
+                      next_obs=torch.zeros(updates, batch_size, obs_dim, **f32))
+
+
+class CycleUpdates:
+    """The U updates of a cycle of ``learner`` on static batch buffers ``batches [U, B, ...]``.
+
+    ``capture``: record them as a CUDA graph after ``warmup_cycles`` eager cycles and replay it
+    (the learner must be on a CUDA device); ``False`` runs the same updates eagerly every cycle.
+    """
+
+    def __init__(self, learner, obs_dim: int, action_dim: int, batch_size: int, updates: int,
+                 capture: bool, warmup_cycles: int = 1):
+        if min(obs_dim, action_dim, batch_size, updates) <= 0 or warmup_cycles < 1:
+            raise ValueError(f"CycleUpdates needs obs_dim, action_dim, batch_size, updates > 0 and warmup_cycles "
+                             f">= 1, got {obs_dim}, {action_dim}, {batch_size}, {updates}, {warmup_cycles}")
+        device = learner.device
+        if capture and device.type != "cuda":
+            raise ValueError(f"CUDA-graph capture needs a learner on a CUDA device, this one is on {device} "
+                             "(capture=False runs the same static-buffer updates eagerly)")
+        self.learner, self.updates, self.batch_size = learner, updates, batch_size
+        self.capture, self.warmup_cycles = capture, warmup_cycles
+        self.batches = static_batches(updates, batch_size, obs_dim, action_dim, device)
+        self.cycles = 0                                        # run() calls so far
+        self._graphs: dict[int, Any] = {}                      # phase -> torch.cuda.CUDAGraph
+        self._outputs: dict[int, list[dict[str, torch.Tensor]]] = {}
+        self._stream = torch.cuda.Stream(device) if capture else None
+
+    @property
+    def graphs(self) -> int:
+        """Graphs captured so far (one per phase of the actor schedule met after the warm-up)."""
+        return len(self._graphs)
+
+    def sample(self, replay: Replay) -> Transition:
+        """Gather this cycle's U batches from ``replay`` into :attr:`batches` (returned)."""
+        return replay.sample(self.batch_size, self.updates, out=self.batches)
+
+    def _phase(self) -> int:
+        return self.learner.state.num_updates % self.learner.hp.policy_frequency
+
+    def _ready(self) -> bool:
+        return self.cycles >= self.warmup_cycles and has_state(optimizers(self.learner.state))
+
+    @property
+    def captures_next(self) -> bool:
+        """True when the next :meth:`run` captures a graph: the caller runs that cycle with nothing
+        else issuing CUDA work (the loop does not overlap collection with it)."""
+        return self.capture and self._ready() and self._phase() not in self._graphs
+
+    def run(self) -> list[dict[str, torch.Tensor]]:
+        """The cycle's U updates on :attr:`batches`; returns each update's metrics (on a replayed
+        graph, its static outputs: valid until that graph's next replay)."""
+        if not self.capture:
+            metrics = self._updates()
+        elif not self._ready():
+            metrics = self._on_side_stream()
+        else:
+            state = self.learner.state
+            start, phase = state.num_updates, self._phase()
+            if phase not in self._graphs:
+                self._capture(phase)
+            self._graphs[phase].replay()
+            state.num_updates = start + self.updates  # the replay ran no Python: count its updates here
+            metrics = self._outputs[phase]
+        self.cycles += 1
+        return metrics
+
+    def _updates(self) -> list[dict[str, torch.Tensor]]:
+        """The update code itself: the same on every device and in every mode."""
+        return [self.learner.update(self.batches.at(i)) for i in range(self.updates)]
+
+    def _on_side_stream(self) -> list[dict[str, torch.Tensor]]:
+        """Eager warm-up cycle on the capture stream (torch's recipe for what a capture must find
+        initialised), ordered after and before the caller's stream."""
+        caller = torch.cuda.current_stream(self.learner.device)
+        self._stream.wait_stream(caller)
+        with torch.cuda.stream(self._stream):
+            metrics = self._updates()
+        caller.wait_stream(self._stream)
+        return metrics
+
+    def _capture(self, phase: int) -> None:
+        """Record the U updates of ``phase`` (nothing runs on the device; Python's side effects -
+        the update count - are rolled back, the first replay does the work)."""
+        state = self.learner.state
+        opts = optimizers(state)
+        check_fused(opts)
+        graph = torch.cuda.CUDAGraph()
+        graph.register_generator_state(state.update_gen)
+        start = state.num_updates
+        with capturable(opts), torch.cuda.graph(graph, stream=self._stream):
+            outputs = self._updates()
+        state.num_updates = start
+        self._graphs[phase], self._outputs[phase] = graph, outputs
