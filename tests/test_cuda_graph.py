@@ -96,6 +96,79 @@ def test_static_buffer_path_is_the_eager_update_bit_for_bit(algo, updates):
     assert not torch.equal(fresh.state.actor_params[0], static.state.actor_params[0])
 
 
+class EmulatedGraphs:
+    """:class:`~flashnav.learn.cuda_graph.CudaGraphs` on a CPU, with a CUDA graph's semantics: a
+    capture executes nothing (the updates run, then the learner and the carried metrics are rolled
+    back), a replay runs the recorded updates and leaves its results in the capture's output tensors
+    (a graph's static outputs). Records what it was asked to do."""
+
+    def __init__(self):
+        self.cycles = None  # the CycleUpdates, set once built
+        self.warmups, self.captured_phases, self.flags = 0, [], []
+
+    def warmup(self, updates):
+        self.warmups += 1
+        return updates()
+
+    def capture(self, updates, generator):
+        learner = self.cycles.learner
+        assert generator is learner.state.update_gen
+        self.flags.append([g["capturable"] for o in optimizers(learner.state) for g in o.param_groups])
+        self.captured_phases.append(learner.state.num_updates % learner.hp.policy_frequency)
+        saved, carry = learner.state_dict(), {k: v.clone() for k, v in self.cycles._carry.items()}
+        outputs = updates()
+        learner.load_state_dict(saved)
+        for key, value in carry.items():
+            self.cycles._carry[key].copy_(value)
+        return self.Graph(updates, outputs), outputs
+
+    class Graph:
+        def __init__(self, updates, outputs):
+            self.updates, self.outputs = updates, outputs
+
+        def replay(self):
+            for old, new in zip(self.outputs, self.updates()):
+                for key in old:
+                    old[key].copy_(new[key])
+
+
+@pytest.mark.parametrize("updates", [4, 3])
+@pytest.mark.parametrize("algo", ALGOS)
+def test_capture_and_replay_bookkeeping_matches_eager(algo, updates):
+    # The capture path's own logic - warm-up cycles, one graph per phase of the actor schedule,
+    # the update count rolled back after a capture and advanced after a replay, capturable flags
+    # only during a capture, static outputs - run against an emulated graph: bit for bit the eager loop.
+    (eager, replay_a, layout), (static, replay_b, _) = build(algo, updates=updates), build(algo, updates=updates)
+    emulated = EmulatedGraphs()
+    cycles = CycleUpdates(static, layout.obs_dim, 2, B, updates, capture=True, warmup_cycles=2, graphs=emulated)
+    emulated.cycles = cycles
+    captures = []
+    for _ in range(-(-20 // updates)):
+        captures.append(cycles.captures_next)
+        want = eager_cycle(eager, replay_a)
+        cycles.sample(replay_b)
+        assert_same(want, cycles.run(), "metrics")
+        assert static.num_updates == eager.num_updates
+    phases = 1 if updates % static.hp.policy_frequency == 0 else static.hp.policy_frequency
+    assert emulated.warmups == 2 and cycles.graphs == phases
+    assert captures[:2] == [False, False] and sum(captures) == phases
+    assert sorted(emulated.captured_phases) == list(range(phases))
+    assert all(all(flags) for flags in emulated.flags)
+    assert not any(g["capturable"] for o in optimizers(static.state) for g in o.param_groups)
+    assert_same(eager.state_dict(), static.state_dict())
+
+
+def test_warm_up_lasts_until_every_optimiser_has_its_moments():
+    p, q = torch.zeros(3, requires_grad=True), torch.zeros(3, requires_grad=True)
+    opt = adamw([p, q], 1e-3, (0.9, 0.95), 0.0)
+    assert not has_state([opt])
+    p.sum().backward()
+    opt.step()
+    assert has_state([opt])  # q never had a gradient: the step skips it, and so would a capture
+    q.grad = torch.ones(3)
+    assert not has_state([opt])
+
+
 HOST_READS = ("item", "tolist", "numpy", "cpu", "__bool__", "__float__", "__int__", "__index__")
 
 

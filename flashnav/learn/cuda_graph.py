@@ -27,7 +27,9 @@ What makes the update capturable, and where it lives:
   (it is set for the capture and restored after; the fused kernel does not read it);
 - random draws come from ``state.update_gen``, registered with the graph, so each replay advances
   it exactly as the eager updates would;
-- outputs (metrics) are the graph's static tensors, overwritten by the next replay of that graph.
+- outputs (metrics) are the graph's static tensors, overwritten by the next replay of that graph;
+  the actor metrics that the updates before a cycle's first actor step repeat are carried between
+  cycles in tensors of their own (copied in and out inside the cycle).
 
 Why manual capture, not ``torch.compile(mode="reduce-overhead")``: on a CPU reduce-overhead is
 inductor without CUDA graphs (different kernels, different rounding, and half the eager speed on
@@ -40,7 +42,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import torch
 
@@ -70,9 +72,11 @@ def check_fused(opts: list[torch.optim.Optimizer]) -> None:
 
 
 def has_state(opts: list[torch.optim.Optimizer]) -> bool:
-    """True when every parameter of every optimiser has its moments: a capture must not create them
-    (their zero fill would be recorded and replayed every cycle)."""
-    return all(p in opt.state for opt in opts for group in opt.param_groups for p in group["params"])
+    """True when every optimiser has stepped and holds the moments of every parameter that has a
+    gradient: a capture must not create them (their zero fill would be recorded and replayed every
+    cycle). A parameter without a gradient is skipped by the step, in the capture as well."""
+    return all(opt.state and all(p in opt.state for group in opt.param_groups for p in group["params"]
+                                 if p.grad is not None) for opt in opts)
 
 
 @contextlib.contextmanager
@@ -102,29 +106,64 @@ def static_batches(updates: int, batch_size: int, obs_dim: int, action_dim: int,
                       next_obs=torch.zeros(updates, batch_size, obs_dim, **f32))
 
 
+class CudaGraphs:
+    """How :class:`CycleUpdates` launches on a CUDA device: warm-up cycles on a side stream, captures
+    into ``torch.cuda.CUDAGraph`` on that stream. (The CPU tests pass an emulation with the same two
+    methods, tests/test_cuda_graph.py, to run the capture-and-replay bookkeeping without a GPU.)"""
+
+    def __init__(self, device: torch.device):
+        self.stream = torch.cuda.Stream(device)
+        self.device = device
+
+    def warmup(self, updates: Callable[[], list]) -> list:
+        """Run ``updates`` eagerly on the side stream (torch's recipe: what a capture must find
+        initialised is initialised outside it), ordered after and before the caller's stream."""
+        caller = torch.cuda.current_stream(self.device)
+        self.stream.wait_stream(caller)
+        with torch.cuda.stream(self.stream):
+            out = updates()
+        caller.wait_stream(self.stream)
+        return out
+
+    def capture(self, updates: Callable[[], list], generator: torch.Generator) -> tuple[Any, list]:
+        """Record ``updates`` (nothing runs on the device) with ``generator`` registered, so each
+        replay draws what the eager calls would; returns the graph and its static outputs."""
+        graph = torch.cuda.CUDAGraph()
+        graph.register_generator_state(generator)
+        with torch.cuda.graph(graph, stream=self.stream):
+            outputs = updates()
+        return graph, outputs
+
+
 class CycleUpdates:
     """The U updates of a cycle of ``learner`` on static batch buffers ``batches [U, B, ...]``.
 
     ``capture``: record them as a CUDA graph after ``warmup_cycles`` eager cycles and replay it
-    (the learner must be on a CUDA device); ``False`` runs the same updates eagerly every cycle.
+    (the learner must be on a CUDA device; ``graphs`` replaces :class:`CudaGraphs`, for tests);
+    ``False`` runs the same updates eagerly every cycle. Once built, every update of the learner
+    goes through :meth:`run` (it carries the actor metrics from cycle to cycle).
     """
 
     def __init__(self, learner, obs_dim: int, action_dim: int, batch_size: int, updates: int,
-                 capture: bool, warmup_cycles: int = 1):
+                 capture: bool, warmup_cycles: int = 1, graphs: Any = None):
         if min(obs_dim, action_dim, batch_size, updates) <= 0 or warmup_cycles < 1:
             raise ValueError(f"CycleUpdates needs obs_dim, action_dim, batch_size, updates > 0 and warmup_cycles "
                              f">= 1, got {obs_dim}, {action_dim}, {batch_size}, {updates}, {warmup_cycles}")
         device = learner.device
-        if capture and device.type != "cuda":
+        if capture and graphs is None and device.type != "cuda":
             raise ValueError(f"CUDA-graph capture needs a learner on a CUDA device, this one is on {device} "
                              "(capture=False runs the same static-buffer updates eagerly)")
         self.learner, self.updates, self.batch_size = learner, updates, batch_size
         self.capture, self.warmup_cycles = capture, warmup_cycles
         self.batches = static_batches(updates, batch_size, obs_dim, action_dim, device)
         self.cycles = 0                                        # run() calls so far
-        self._graphs: dict[int, Any] = {}                      # phase -> torch.cuda.CUDAGraph
+        self._graphs: dict[int, Any] = {}                      # phase -> captured graph
         self._outputs: dict[int, list[dict[str, torch.Tensor]]] = {}
-        self._stream = torch.cuda.Stream(device) if capture else None
+        self._backend = (graphs or CudaGraphs(device)) if capture else None
+        # The actor metrics carried from one cycle into the next (repeated by the updates before the
+        # cycle's first actor step), in tensors of their own: a replay must read the last cycle's values
+        # from memory it owns, not from whatever tensors the capture happened to see.
+        self._carry = {k: v.detach().clone() for k, v in learner.state.last_actor_metrics.items()}
 
     @property
     def graphs(self) -> int:
@@ -153,7 +192,7 @@ class CycleUpdates:
         if not self.capture:
             metrics = self._updates()
         elif not self._ready():
-            metrics = self._on_side_stream()
+            metrics = self._backend.warmup(self._updates)
         else:
             state = self.learner.state
             start, phase = state.num_updates, self._phase()
@@ -166,29 +205,22 @@ class CycleUpdates:
         return metrics
 
     def _updates(self) -> list[dict[str, torch.Tensor]]:
-        """The update code itself: the same on every device and in every mode."""
-        return [self.learner.update(self.batches.at(i)) for i in range(self.updates)]
-
-    def _on_side_stream(self) -> list[dict[str, torch.Tensor]]:
-        """Eager warm-up cycle on the capture stream (torch's recipe for what a capture must find
-        initialised), ordered after and before the caller's stream."""
-        caller = torch.cuda.current_stream(self.learner.device)
-        self._stream.wait_stream(caller)
-        with torch.cuda.stream(self._stream):
-            metrics = self._updates()
-        caller.wait_stream(self._stream)
+        """The update code itself: the same on every device and in every mode (the carried actor
+        metrics are copied in and out; their values are those of the plain eager loop)."""
+        state = self.learner.state
+        state.last_actor_metrics = {k: v.clone() for k, v in self._carry.items()}
+        metrics = [self.learner.update(self.batches.at(i)) for i in range(self.updates)]
+        for key, carried in self._carry.items():
+            carried.copy_(state.last_actor_metrics[key])
         return metrics
 
     def _capture(self, phase: int) -> None:
-        """Record the U updates of ``phase`` (nothing runs on the device; Python's side effects -
-        the update count - are rolled back, the first replay does the work)."""
+        """Record the U updates of ``phase``. Nothing runs on the device; Python's side effect, the
+        update count, is rolled back: the first replay does the work."""
         state = self.learner.state
         opts = optimizers(state)
         check_fused(opts)
-        graph = torch.cuda.CUDAGraph()
-        graph.register_generator_state(state.update_gen)
         start = state.num_updates
-        with capturable(opts), torch.cuda.graph(graph, stream=self._stream):
-            outputs = self._updates()
+        with capturable(opts):
+            self._graphs[phase], self._outputs[phase] = self._backend.capture(self._updates, state.update_gen)
         state.num_updates = start
-        self._graphs[phase], self._outputs[phase] = graph, outputs
