@@ -84,6 +84,12 @@ class TrainConfig(KnownKeys):
         check_device_name(value)
         return value
 
+    @field_validator("cuda_graph", mode="before")
+    @classmethod
+    def _yaml_switch(cls, value: Any) -> Any:
+        """YAML reads a bare ``on`` / ``off`` (``cuda_graph=on``, ``cuda_graph: off``) as a boolean."""
+        return {True: "on", False: "off"}.get(value, value) if isinstance(value, bool) else value
+
     @field_validator("overrides")
     @classmethod
     def _prefixed(cls, v: dict[str, Any]) -> dict[str, Any]:

@@ -21,7 +21,7 @@ from flashnav.learn.learners import make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.presets import load_robot
-from flashnav.spec import TrainConfig, resolve, resolve_cuda_graph, RunSpec
+from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve, resolve_cuda_graph
 
 ALGOS = ("fastdsac", "fastsac", "fasttd3")
 N, B = 16, 64
@@ -220,6 +220,9 @@ def test_cuda_graph_option_resolves_by_device():
         resolve_cuda_graph("fast", "cpu")
     with pytest.raises(ValueError, match="cuda_graph"):
         TrainConfig(cuda_graph="fast")
+    # the command line and YAML read a bare on / off as booleans
+    assert [config_from_cli(None, {}, [f"cuda_graph={v}"]).cuda_graph for v in ("on", "off", "auto")] == \
+        ["on", "off", "auto"]
     spec = resolve(TrainConfig(device="cpu"))
     assert spec.cuda_graph is False and spec.to_dict()["cuda_graph"] == "off"
     on = resolve(TrainConfig(device="cpu", cuda_graph="on"))
@@ -227,22 +230,47 @@ def test_cuda_graph_option_resolves_by_device():
     assert RunSpec.from_dict(spec.to_dict()).cuda_graph is False
 
 
+def gap(a, b) -> float:
+    """Largest ``|a - b| / (1 + |a|)`` over the float tensors of two nested states / metrics; every
+    other value (integers, RNG states, step counts kept as ints) must be equal."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        return max([gap(a[k], b[k]) for k in a], default=0.0)
+    if isinstance(a, (list, tuple)):
+        return max([gap(x, y) for x, y in zip(a, b)], default=0.0)
+    if isinstance(a, torch.Tensor) and a.is_floating_point():
+        a, b = a.detach().double().cpu(), b.detach().double().cpu()
+        return float(((a - b).abs() / (1 + a.abs())).max()) if a.numel() else 0.0
+    if isinstance(a, torch.Tensor):
+        assert torch.equal(a.cpu(), b.cpu())
+    else:
+        assert a == b
+    return 0.0
+
+
 @CUDA
 @pytest.mark.parametrize("algo", ALGOS)
 def test_graph_replay_matches_eager_updates_on_cuda(algo):
-    # Same seed, same batches: the captured graph replayed against the eager loop, ~20 updates.
-    # Close, not bitwise: cuBLAS may pick other kernels for a capture (workspace), and fused AdamW's
-    # step is the same kernel but launched from the graph; any larger gap is a bug in the path.
-    (eager, replay_a, layout), (static, replay_b, _) = build(algo, "cuda"), build(algo, "cuda")
+    # Same seed, same batches, ~20 updates: the captured graph replayed against the eager loop. The
+    # GPU itself need not be bitwise reproducible (atomics in the C51 projection's scatter_add and in
+    # index backward, cuBLAS kernel choice), so the graph's distance from eager is held to that of
+    # a second eager run (times 10, plus float32 rounding); a missed, repeated or stale update is
+    # orders of magnitude larger. RNG states and update counts must match exactly.
+    (eager, replay_a, layout), (again, replay_c, _) = build(algo, "cuda"), build(algo, "cuda")
+    static, replay_b, _ = build(algo, "cuda")
     cycles = CycleUpdates(static, layout.obs_dim, 2, B, 4, capture=True)
-    for cycle in range(5):
-        want = eager_cycle(eager, replay_a)
+    metric_gaps = []
+    for _ in range(5):
+        want, other = eager_cycle(eager, replay_a), eager_cycle(again, replay_c)
         cycles.sample(replay_b)
         got = cycles.run()
-        assert_same([dict(m) for m in want], [dict(m) for m in got], f"metrics of cycle {cycle}", exact=False)
-    assert cycles.graphs >= 1 and static.num_updates == eager.num_updates == 20
-    assert_same(eager.state_dict(), static.state_dict(), exact=False)
+        metric_gaps.append((gap(want, other), gap(want, got)))
     torch.cuda.synchronize()
+    assert cycles.graphs == 1 and cycles.cycles == 5 and static.num_updates == eager.num_updates == 20
+    noise, graph = gap(eager.state_dict(), again.state_dict()), gap(eager.state_dict(), static.state_dict())
+    assert graph <= 10 * noise + 1e-5, (graph, noise)
+    for noise, graph in metric_gaps:
+        assert graph <= 10 * noise + 1e-5, (graph, noise)
 
 
 @CUDA
