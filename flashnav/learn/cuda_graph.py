@@ -24,7 +24,8 @@ What makes the update capturable, and where it lives:
   advanced by U on the host after each replay;
 - the optimisers are fused AdamW (:func:`flashnav.learn.common.adamw`): their step counters and
   bias corrections live on the device, so ``capturable`` only has to pass torch's capture check
-  (it is set for the capture and restored after; the fused kernel does not read it);
+  (it is set for the capture and restored after; the fused kernel does not read it); learning
+  rates and every other hyperparameter are constants of the capture (no schedule exists to freeze);
 - random draws come from ``state.update_gen``, registered with the graph, so each replay advances
   it exactly as the eager updates would;
 - outputs (metrics) are the graph's static tensors, overwritten by the next replay of that graph;
@@ -47,6 +48,7 @@ from typing import Any, Callable, Iterator
 import torch
 
 from flashnav.learn.replay import Replay, Transition
+
 
 def optimizers(state: Any) -> list[torch.optim.Optimizer]:
     """Every optimiser of a learner state (dataclass fields, nested dataclasses such as the
