@@ -27,6 +27,9 @@ DEFAULT_RAYCASTER = RAYCASTERS[0]
 GOAL_SAMPLINGS = ("euclidean", "geodesic")
 #: Families of generated maps (:mod:`flashnav.maps.families`).
 MAP_FAMILIES = ("rooms", "offices", "halls", "warehouses", "mazes", "clutter")
+#: ``TrainConfig.cuda_graph``: a cycle's updates on static buffers captured as a CUDA graph (``on``;
+#: eager with capture skipped on a CPU), the plain eager loop (``off``), or ``auto`` (on for cuda only).
+CUDA_GRAPH_MODES = ("auto", "on", "off")
 #: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
 #: metric names (``time_to_90``).
 THRESHOLDS = (0.9, 0.95, 1.0)

@@ -24,7 +24,7 @@ from pydantic import Field, ValidationError, field_validator
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
 from flashnav.maps.grid import OccupancyMap
-from flashnav.names import ALGORITHMS, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_robot
+from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_name, check_robot
 from flashnav.presets import load_robot
 
 #: Prefixes of the keys in ``TrainConfig.overrides``: into the hyperparameters, into the robot preset.
@@ -69,6 +69,9 @@ class TrainConfig(KnownKeys):
     threads: int | None = Field(None, gt=0, description="learner torch CPU threads (None = 1 beside the collector "
                                                         "thread on a CPU, else torch's default)")
     overlap: bool = Field(True, description="overlap collection and learning (False = the plain sequential loop)")
+    cuda_graph: Literal[CUDA_GRAPH_MODES] = Field(  # type: ignore[valid-type]
+        "auto", description="the U updates of a cycle on static batch buffers, captured as one CUDA graph on a "
+                            "GPU (on a CPU: the same updates eagerly, capture skipped); auto = on for cuda, off for cpu")
 
     @field_validator("robot")
     @classmethod
@@ -80,6 +83,12 @@ class TrainConfig(KnownKeys):
     def _device(cls, value: str) -> str:
         check_device_name(value)
         return value
+
+    @field_validator("cuda_graph", mode="before")
+    @classmethod
+    def _yaml_switch(cls, value: Any) -> Any:
+        """YAML reads a bare ``on`` / ``off`` (``cuda_graph=on``, ``cuda_graph: off``) as a boolean."""
+        return {True: "on", False: "off"}.get(value, value) if isinstance(value, bool) else value
 
     @field_validator("overrides")
     @classmethod
@@ -173,6 +182,18 @@ def resolve_device(device: str) -> str:
     return device
 
 
+def resolve_cuda_graph(mode: str, device: str) -> bool:
+    """``TrainConfig.cuda_graph`` on a resolved ``device``: whether the loop runs a cycle's updates on
+    static buffers (:class:`flashnav.learn.cuda_graph.CycleUpdates`; captured as a CUDA graph only on
+    a CUDA device). ``auto`` -> off on every device for now: the capture has never run on a GPU (no GPU
+    was lent to the session that built it), so a GPU user opts in with ``on`` until the CUDA tests and
+    ``flashnav bench update --device cuda --ways eager,cuda-graph`` have been run (docs/benchmarks.md
+    "GPU fast path"); then ``auto`` becomes on for cuda if the measurement says it pays."""
+    check_name("cuda_graph", mode, CUDA_GRAPH_MODES)
+    del device  # kept in the signature: auto will depend on it once measured
+    return mode == "on"
+
+
 def resolve_recipe(recipe: str, device: str) -> str:
     """``auto`` -> ``paper`` on a GPU, ``cpu`` otherwise."""
     if recipe != "auto":
@@ -192,6 +213,7 @@ class RunSpec:
     recipe: str                   # paper or cpu (never auto)
     goal_distance_max: float      # metres: the map's diagonal (observation bound, network scale)
     grid: OccupancyMap | None = field(default=None, repr=False, compare=False)  # the loaded map
+    cuda_graph: bool = False      # static-buffer updates, CUDA-graph captured on cuda (resolve_cuda_graph)
 
     @property
     def algorithm(self) -> str:
@@ -226,10 +248,11 @@ class RunSpec:
         return self.robot.name
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data (YAML/JSON): the TrainConfig's fields with device and recipe resolved, plus
-        ``hparams``, ``robot_preset`` and ``goal_distance_max``."""
+        """Plain data (YAML/JSON): the TrainConfig's fields with device, recipe and cuda_graph resolved,
+        plus ``hparams``, ``robot_preset`` and ``goal_distance_max``."""
         data = self.config.model_dump(mode="json")
-        data.update(device=self.device, recipe=self.recipe, hparams=self.hparams.model_dump(mode="json"),
+        data.update(device=self.device, recipe=self.recipe, cuda_graph="on" if self.cuda_graph else "off",
+                    hparams=self.hparams.model_dump(mode="json"),
                     robot_preset=self.robot.model_dump(mode="json"), goal_distance_max=self.goal_distance_max)
         return data
 
@@ -248,8 +271,9 @@ class RunSpec:
         except ValidationError as exc:
             raise ValueError(f"{source}: not a valid run config:\n{exc}") from None
         goal = data.get("goal_distance_max") or math.hypot(*robot.map_size)
-        return cls(config, robot, hparams, str(data.get("device", config.device)),
-                   str(data.get("recipe", config.recipe)), float(goal))
+        device = str(data.get("device", config.device))
+        return cls(config, robot, hparams, device, str(data.get("recipe", config.recipe)), float(goal),
+                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device))
 
 
 def resolve(config: TrainConfig | None = None) -> RunSpec:
@@ -265,4 +289,5 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     robot = load_robot(config.robot, **config.robot_overrides())
     hparams = load_hparams(config.algorithm, robot.name, recipe, config.algo_overrides())
     grid = resolve_map(config.map, robot.map)
-    return RunSpec(config, robot, hparams, device, recipe, grid.diagonal_m, grid)
+    return RunSpec(config, robot, hparams, device, recipe, grid.diagonal_m, grid,
+                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device))

@@ -78,3 +78,24 @@ def test_bf16_autocast_way_times_updates_of_every_learner(algo):
     with torch.autocast("cpu", dtype=torch.bfloat16):
         assert torch.ones(2, 2).matmul(torch.ones(2, 2)).dtype == torch.bfloat16  # autocast really applies
 
+
+
+@pytest.mark.parametrize("algo", ["fastdsac", "fasttd3"])
+def test_cuda_graph_way_times_whole_cycles(algo):
+    # On a CPU the way runs a cycle's updates on static buffers with the capture skipped: whole
+    # cycles of U updates are timed, and the row says no graph was captured.
+    spec = run_spec(algo, "turtlebot2", "cpu", "cpu", ["batch_size=32", "updates_per_step=3"])
+    row = time_updates(spec, "cuda-graph", seconds=0.1, warmup=2)
+    assert row["way"] == "cuda-graph" and row["captured"] is False
+    assert row["updates"] >= 3 and row["updates"] % 3 == 0 and row["ms_per_update"] > 0
+    assert "cuda-graph" in parse_ways("eager,cuda-graph")
+
+
+def test_bench_update_shows_the_cuda_graph_way_beside_eager(tmp_path, capsys):
+    out = tmp_path / "update.json"
+    code = cli_main(["bench", "update", "--ways", "eager,cuda-graph", "--seconds", "0.2", "--warmup", "2",
+                     "--device", "cpu", "--json", str(out), "algo.batch_size=32", "algo.updates_per_step=2"])
+    assert code == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["way"] for r in rows] == ["eager", "cuda-graph"] and rows[1]["captured"] is False
+    assert "capture skipped" in " ".join(capsys.readouterr().out.split())  # rich wraps at 80 columns

@@ -88,3 +88,35 @@ def test_errors_and_clear():
     fill(replay, 2)
     replay.clear()
     assert replay.size == 0
+
+
+def test_sample_into_static_buffers_gives_the_same_rows_and_draws():
+    # Replay.sample(out=...) is how the CUDA-graph path fills its static buffers: the same values as a
+    # fresh sample from the same generator state, written in place, and the generator advanced alike.
+    a, b = Replay(N, D, A, capacity=30, seed=4), Replay(N, D, A, capacity=30, seed=4)
+    fill(a, 12)  # wrapped: rows from every slot
+    fill(b, 12)
+    out = Transition(torch.full((3, 7, D), -1.0), torch.full((3, 7, A), -1.0), torch.full((3, 7), -1.0),
+                     torch.full((3, 7), -1.0), torch.full((3, 7, D), -1.0))
+    addresses = [x.data_ptr() for x in out]
+    for _ in range(2):
+        want, got = a.sample(7, 3), b.sample(7, 3, out=out)
+        assert got is out and [x.data_ptr() for x in got] == addresses
+        for name, w, g in zip(Transition._fields, want, got):
+            assert torch.equal(w, g), name
+    assert torch.equal(a.generator.get_state(), b.generator.get_state())
+
+
+def test_sample_out_names_the_field_that_does_not_fit():
+    replay = Replay(N, D, A, capacity=12)
+    fill(replay, 2)
+    good = [torch.zeros(2, 4, D), torch.zeros(2, 4, A), torch.zeros(2, 4), torch.zeros(2, 4), torch.zeros(2, 4, D)]
+    bad_shape = Transition(*good[:1], torch.zeros(2, 4, A + 1), *good[2:])
+    with pytest.raises(ValueError, match=r"action must be .*\(2, 4, 2\).*got .*\(2, 4, 3\)"):
+        replay.sample(4, 2, out=bad_shape)
+    bad_dtype = Transition(*good[:2], torch.zeros(2, 4, dtype=torch.float64), *good[3:])
+    with pytest.raises(ValueError, match="reward must be a contiguous torch.float32"):
+        replay.sample(4, 2, out=bad_dtype)
+    strided = Transition(*good[:4], torch.zeros(2, 4, D * 2)[..., ::2])
+    with pytest.raises(ValueError, match="next_obs must be a contiguous"):
+        replay.sample(4, 2, out=strided)

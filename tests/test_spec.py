@@ -141,10 +141,11 @@ def test_run_spec_round_trips_through_plain_data():
     spec = resolve(TrainConfig(device="auto", seed=4, overrides={"algo.batch_size": 64}))
     data = yaml.safe_load(yaml.safe_dump(spec.to_dict()))  # what config.yaml holds
     back = RunSpec.from_dict(data)
-    # config.yaml records the device and recipe as resolved, so reading it back re-runs the same run
-    assert back.config == spec.config.model_copy(update={"device": spec.device, "recipe": spec.recipe})
-    assert (back.robot, back.hparams, back.device, back.recipe, back.goal_distance_max) == (
-        spec.robot, spec.hparams, spec.device, spec.recipe, spec.goal_distance_max)
+    # config.yaml records the device, recipe and cuda_graph as resolved, so reading it back re-runs the same run
+    resolved = {"device": spec.device, "recipe": spec.recipe, "cuda_graph": "on" if spec.cuda_graph else "off"}
+    assert back.config == spec.config.model_copy(update=resolved)
+    assert (back.robot, back.hparams, back.device, back.recipe, back.goal_distance_max, back.cuda_graph) == (
+        spec.robot, spec.hparams, spec.device, spec.recipe, spec.goal_distance_max, spec.cuda_graph)
     assert resolve(back.config) == back  # the loaded map is not part of the comparison
     assert back.hparams.batch_size == 64 and back.seed == 4
     with pytest.raises(ValueError, match="robot_preset"):

@@ -8,7 +8,11 @@ optimiser stay eager). Every way starts from the same seed and the same batches;
 warm-up seconds (compilation, which a training clock would pay) apart from the timed updates, and its
 speed as a ratio to eager. ``bf16-autocast`` keeps the networks eager and runs the whole update under
 ``torch.autocast(dtype=torch.bfloat16)`` (matrix products in bf16: AVX-512 BF16 / AMX on this CPU
-family, tensor cores on GPUs). Use it to decide whether a way pays on a machine before turning it on.
+family, tensor cores on GPUs). ``cuda-graph`` runs the updates a cycle at a time (U =
+``updates_per_step``) through :class:`flashnav.learn.cuda_graph.CycleUpdates`, what ``flashnav train``
+runs with ``cuda_graph=on``: on a GPU one captured graph replay per cycle (the capture is in the
+warm-up), on a CPU the same updates on static buffers, eagerly (its ratio to eager is then the
+static-buffer path's own overhead). Use it to decide whether a way pays on a machine before turning it on.
 """
 
 from __future__ import annotations
@@ -24,14 +28,18 @@ from rich.table import Table
 from flashnav.names import ALGORITHMS, RECIPE_CHOICES
 
 #: ``--ways`` values: eager, or a torch.compile mode ("default" is torch's default mode).
-WAYS = ("eager", "bf16-autocast", "default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+WAYS = ("eager", "bf16-autocast", "cuda-graph", "default", "reduce-overhead", "max-autotune",
+        "max-autotune-no-cudagraphs")
 #: Ways that keep the networks eager and change the arithmetic instead: the update runs under
 #: ``torch.autocast`` in bfloat16 (matrix products in bf16, on CPUs with AVX-512 BF16 / AMX and on GPUs).
 AUTOCAST_WAYS = ("bf16-autocast",)
+#: Ways that keep the networks eager and run a cycle's U updates on static buffers, captured as one
+#: CUDA graph on a GPU (:mod:`flashnav.learn.cuda_graph`).
+GRAPH_WAYS = ("cuda-graph",)
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
-    p = bsub.add_parser("update", help="ms per learner update: eager vs torch.compile modes")
+    p = bsub.add_parser("update", help="ms per learner update: eager vs torch.compile modes, bf16, CUDA graph")
     p.add_argument("--robot", default="turtlebot2")
     p.add_argument("--algo", default="fastdsac", choices=ALGORITHMS)
     p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
@@ -69,7 +77,7 @@ def compile_networks(learner, way: str) -> None:
     nothing for ``"eager"``)."""
     if way not in WAYS:
         raise ValueError(f"unknown way {way!r}: use one of {', '.join(WAYS)}")
-    if way == "eager" or way in AUTOCAST_WAYS:
+    if way == "eager" or way in AUTOCAST_WAYS or way in GRAPH_WAYS:
         return
     s = learner.state
     for module in (s.actor, s.critic, s.critic_target):
@@ -109,6 +117,8 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
     learner = make_learner(spec.algorithm, hp, layout, 2, hp.num_envs, device, seed)
     compile_networks(learner, way)
     batches = random_batches(layout.obs_dim, hp.batch_size, device, seed, num_batches)
+    if way in GRAPH_WAYS:
+        return _time_cycles(learner, layout.obs_dim, batches, hp, device, seconds=seconds, warmup=warmup)
 
     def sync():
         if str(device).startswith("cuda"):
@@ -138,6 +148,44 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
             "ms_per_update": 1000.0 * elapsed / updates}
 
 
+def _time_cycles(learner, obs_dim: int, batches: list, hp, device, *, seconds: float, warmup: int) -> dict:
+    """:func:`time_updates` for the ``cuda-graph`` way: whole cycles of U updates through
+    :class:`~flashnav.learn.cuda_graph.CycleUpdates` (captured on a GPU), static batch i = ``batches[i %
+    len(batches)]``; at least 2 warm-up cycles (the eager one and the capture), more to cover ``warmup``."""
+    import math
+
+    import torch
+
+    from flashnav.learn.cuda_graph import CycleUpdates
+
+    dev = torch.device(device)
+    u = hp.updates_per_step
+    cycles = CycleUpdates(learner, obs_dim, 2, hp.batch_size, u, capture=dev.type == "cuda")
+    for i in range(u):
+        for dst, src in zip(cycles.batches, batches[i % len(batches)]):
+            dst[i].copy_(src)
+
+    def sync():
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+
+    start = time.perf_counter()
+    for _ in range(max(2, math.ceil(warmup / u))):
+        cycles.run()
+    sync()
+    warmup_s = time.perf_counter() - start
+    updates, start = 0, time.perf_counter()
+    while True:
+        cycles.run()
+        updates += u
+        sync()
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds:
+            break
+    return {"way": "cuda-graph", "batch_size": hp.batch_size, "warmup_s": warmup_s, "updates": updates,
+            "ms_per_update": 1000.0 * elapsed / updates, "captured": cycles.graphs > 0}
+
+
 def run_bench_update(args) -> int:
     import torch
 
@@ -160,7 +208,8 @@ def run_bench_update(args) -> int:
     for way in ways:
         row = time_updates(spec, way, seconds=args.seconds, warmup=args.warmup)
         rows.append(row)
-        console.print(f"  {way:28s} {row['ms_per_update']:8.2f} ms/update (warm-up {row['warmup_s']:.1f} s)")
+        note = "" if row.get("captured", True) else ", capture skipped: static buffers, eager"
+        console.print(f"  {way:28s} {row['ms_per_update']:8.2f} ms/update (warm-up {row['warmup_s']:.1f} s{note})")
     ref = next((r for r in rows if r["way"] == "eager"), rows[0])   # the ratio's baseline
     t = Table(title=f"learner update, batch {rows[0]['batch_size']}, device {device}")
     for col in ("way", "ms / update", f"speed vs {ref['way']}", "warm-up s", "updates timed"):

@@ -7,6 +7,13 @@ before the collector's step, so the cycle takes as long as the slower side (the 
 producer-consumer pipeline; on a CPU each side gets one core). ``overlap=False`` is the plain
 sequential loop.
 
+With ``spec.cuda_graph`` (``TrainConfig.cuda_graph``; auto = off until measured on a GPU) the replay gathers each
+cycle's batches into static buffers and the U updates run through
+:class:`flashnav.learn.cuda_graph.CycleUpdates`: captured once as a CUDA graph and replayed on a GPU
+(the capture cycle runs without the collector beside it), the same updates eagerly on a CPU.
+On a GPU the collector's kernels go to a stream of its own, ordered after the cycle's sample and
+weight sync and before the next sample.
+
 The training clock counts cycles only (the device synchronised before it is read): never
 evaluation, logging, progress or the ``on_eval`` callback.
 """
@@ -23,6 +30,7 @@ from typing import Any, Callable
 import torch
 
 from flashnav.evaluate import ThresholdTracker, evaluate
+from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
@@ -125,6 +133,8 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
     layout = ObsLayout.from_robot(preset, spec.goal_distance_max)
     learner = make_learner(config.algorithm, hp, layout, 2, hp.num_envs, dev, config.seed)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
+    updates = (CycleUpdates(learner, preset.obs_dim, 2, hp.batch_size, hp.updates_per_step, capture=dev.type == "cuda")
+               if spec.cuda_graph else None)
 
     cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     eval_every = spec.eval_every
@@ -136,7 +146,8 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
     obs_box = [env.reset(seed=config.seed)[0]]
 
     # On a GPU the collector thread issues its kernels on a stream of its own, so they can run
-    # beside the learner's (the default stream waits for it before the next sample).
+    # beside the learner's: it waits for the cycle's sample and collector sync (it overwrites the
+    # replay's oldest rows and reads the collector's weights), and the next sample waits for it.
     collector_stream = torch.cuda.Stream(dev) if overlap and dev.type == "cuda" else None
 
     def collect() -> None:
@@ -157,8 +168,16 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
             learner.on_episode_end(terminated | truncated)
             obs_box[0] = next_obs
 
+    def sample():
+        if updates is not None:
+            return updates.sample(replay)
+        return replay.sample(hp.batch_size, hp.updates_per_step)
+
     def learn(batches) -> None:
         with learn_t:
+            if updates is not None:
+                updates.run()  # the same updates on updates.batches (= batches), one graph replay on a GPU
+                return
             for i in range(hp.updates_per_step):
                 learner.update(batches.at(i))
 
@@ -170,17 +189,20 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
             learning = replay.size >= hp.learning_start
             t0 = time.perf_counter()
             with cycle_t:
-                batches = replay.sample(hp.batch_size, hp.updates_per_step) if learning else None
-                if pool is not None and learning:
+                batches = sample() if learning else None
+                if collector_stream is not None:
+                    collector_stream.wait_stream(torch.cuda.current_stream(dev))
+                capturing = updates is not None and learning and updates.captures_next
+                if pool is not None and learning and not capturing:
                     pending = pool.submit(collect)  # collector steps while the learner updates
                     learn(batches)
                     pending.result()
-                    if collector_stream is not None:
-                        torch.cuda.current_stream(dev).wait_stream(collector_stream)
                 else:
                     collect()
                     if learning:
                         learn(batches)
+                if collector_stream is not None:
+                    torch.cuda.current_stream(dev).wait_stream(collector_stream)
                 if cycle % hp.env_steps_per_sync == 0:
                     learner.sync_collector()
             if learning:

@@ -89,15 +89,35 @@ class Replay:
         self._pos = (t + 1) % self.rows_per_env
         self._filled = min(self._filled + 1, self.rows_per_env)
 
-    def sample(self, batch_size: int, n_batches: int = 1) -> Transition:
+    def sample(self, batch_size: int, n_batches: int = 1, out: Transition | None = None) -> Transition:
         """``n_batches`` (U) batches of ``batch_size`` (B) transitions at once: ``Transition`` of
-        ``[U, B, ...]`` tensors, rows drawn uniformly with replacement from the stored ones."""
+        ``[U, B, ...]`` tensors, rows drawn uniformly with replacement from the stored ones.
+
+        ``out``: static ``[U, B, ...]`` tensors (float32, on this buffer's device) to gather into
+        and return, e.g. the batch buffers a CUDA graph reads (:mod:`flashnav.learn.cuda_graph`);
+        the same rows, the same values and the same generator draws as without it."""
         if self._filled == 0:
             raise ValueError("cannot sample from an empty replay buffer")
+        if out is not None:
+            self._check_out(out, batch_size, n_batches)
         rows = torch.randint(self.size, (n_batches, batch_size), generator=self.generator, device=self.device)
         flat = lambda x: x.view(self.capacity, *x.shape[2:])  # noqa: E731 - [T, N, ...] -> [T*N, ...]
-        return Transition(flat(self.obs)[rows], flat(self.action)[rows], flat(self.reward)[rows],
-                          flat(self.terminated)[rows], flat(self.next_obs)[rows])
+        stored = (self.obs, self.action, self.reward, self.terminated, self.next_obs)
+        if out is None:
+            return Transition(*(flat(x)[rows] for x in stored))
+        for src, dst in zip(stored, out):
+            torch.index_select(flat(src), 0, rows.view(-1), out=dst.view(-1, *dst.shape[2:]))
+        return out
+
+    def _check_out(self, out: Transition, batch_size: int, n_batches: int) -> None:
+        """A ValueError naming the first field of ``out`` that cannot take a ``[U, B, ...]`` sample."""
+        for name, src, dst in zip(Transition._fields, (self.obs, self.action, self.reward, self.terminated,
+                                                       self.next_obs), out):
+            want = (n_batches, batch_size, *src.shape[2:])
+            if tuple(dst.shape) != want or dst.dtype != src.dtype or dst.device != self.device \
+                    or not dst.is_contiguous():
+                raise ValueError(f"sample(out=...): {name} must be a contiguous {src.dtype} tensor of shape "
+                                 f"{want} on {self.device}, got {dst.dtype} {tuple(dst.shape)} on {dst.device}")
 
     def clear(self) -> None:
         """Forget all transitions (storage is kept)."""
