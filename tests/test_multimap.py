@@ -204,3 +204,45 @@ def test_resolve_maps_directory_glob_and_list(tmp_path, maps):
         resolve_maps(str(tmp_path / "*.yml"), "turtlebot2")
     with pytest.raises(ValueError, match="at least one map"):
         resolve_maps([], "turtlebot2")
+
+
+# ---- configuration and training over many maps ---------------------------------------------------
+def test_spec_resolves_maps_with_one_goal_scale(tmp_path, maps):
+    from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
+
+    for g in maps[:3]:
+        save_ros_map(g, tmp_path / f"{g.name}.yaml")
+    spec = resolve(config_from_cli(None, {"maps": str(tmp_path), "device": "cpu"}, ["map_weights=[1, 2, 1]"]))
+    assert [g.name for g in spec.grids] == ["a", "b", "c"]
+    assert spec.goal_distance_max == max(g.diagonal_m for g in maps[:3])
+    back = RunSpec.from_dict(spec.to_dict())  # config.yaml round trip: the maps load again
+    assert back.goal_distance_max == spec.goal_distance_max
+    assert [g.name for g in back.env_maps()] == ["a", "b", "c"]
+    with pytest.raises(ValueError, match="either map or maps"):
+        TrainConfig(map="turtlebot2", maps=str(tmp_path))
+    with pytest.raises(ValueError, match="map_weights has 2 entries for the 3 maps"):
+        resolve(TrainConfig(maps=str(tmp_path), map_weights=[1, 1], device="cpu"))
+    with pytest.raises(ValueError, match="matches no file"):
+        resolve(TrainConfig(maps=str(tmp_path / "*.yml"), device="cpu"))
+
+
+def test_train_command_over_a_maps_directory(tmp_path, maps):
+    import json
+
+    from flashnav.cli import main as cli_main
+
+    (tmp_path / "maps").mkdir()
+    for g in maps[:2]:
+        save_ros_map(g, tmp_path / "maps" / f"{g.name}.yaml")
+    out = tmp_path / "run"
+    tiny = ["algo.num_envs=16", "algo.learning_start=32", "algo.updates_per_step=1", "algo.batch_size=32",
+            "algo.eval_every=4", "budget.max_env_steps=64", "eval.episodes=8"]
+    assert cli_main(["train", "--recipe", "cpu", "--device", "cpu", "--maps", str(tmp_path / "maps"),
+                     "--out", str(out), *tiny]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["env_steps"] == 64
+    import yaml
+
+    config = yaml.safe_load((out / "config.yaml").read_text())
+    assert config["maps"] == str(tmp_path / "maps")
+    assert config["goal_distance_max"] == pytest.approx(max(g.diagonal_m for g in maps[:2]))
