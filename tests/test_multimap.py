@@ -246,3 +246,36 @@ def test_train_command_over_a_maps_directory(tmp_path, maps):
     config = yaml.safe_load((out / "config.yaml").read_text())
     assert config["maps"] == str(tmp_path / "maps")
     assert config["goal_distance_max"] == pytest.approx(max(g.diagonal_m for g in maps[:2]))
+
+
+# ---- the oracle, per slot on its map ---------------------------------------------------------------
+def test_oracle_acts_per_slot_as_on_each_single_map(maps):
+    from flashnav.sim.oracle import OracleController
+
+    n = 12
+    env = make_env("turtlebot2", n, maps=maps, seed=2)
+    env.reset(seed=2)
+    mi = env.map_index.clone()
+    pose, goal = env.world_pose(), env.world_goal()
+    singles = {m: make_env("turtlebot2", int((mi == m).sum()), map=maps[m], seed=0) for m in mi.unique().tolist()}
+    oracle = OracleController(env)
+    oracle.plan()
+    refs = {}
+    for m, single in singles.items():
+        single.set_state(pose[mi == m], goal[mi == m])
+        refs[m] = OracleController(single)
+        refs[m].plan()
+    for _ in range(8):
+        action = oracle.act()
+        for m, single in singles.items():
+            assert torch.equal(action[mi == m], refs[m].act()), f"map {maps[m].name}: oracle actions differ"
+            single.step_slots(torch.arange(single.num_envs), action[mi == m])
+        env.step_slots(torch.arange(n), action)
+
+
+def test_oracle_solves_episodes_on_many_maps(maps):
+    from flashnav.sim.oracle import run_oracle
+
+    env = make_env("turtlebot2", 32, maps=maps, seed=4)
+    result = run_oracle(env, episodes=96, seed=4)
+    assert result["success"] >= 0.95, result

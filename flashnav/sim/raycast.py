@@ -64,6 +64,7 @@ class NumbaExactRaycaster(Raycaster):
         f64 = lambda values: np.array(values, dtype=np.float64)  # noqa: E731
         self._sectors = i64([f.shape[0] for f in fields])
         self._hs, self._ws = i64([g.shape[0] for g in self.grids]), i64([g.shape[1] for g in self.grids])
+        self._hps, self._wps = i64([f.shape[1] for f in fields]), i64([f.shape[2] for f in fields])
         self._ox, self._oy = f64([g.origin[0] for g in self.grids]), f64([g.origin[1] for g in self.grids])
         self._res = f64([g.resolution for g in self.grids])
         self._zeros = np.zeros(0, dtype=np.int64)  # map_index of a single map, grown on demand
@@ -87,7 +88,7 @@ class NumbaExactRaycaster(Raycaster):
             m = mi.contiguous().numpy()
         out = torch.empty((p.shape[0], self._cos_a.shape[0]), dtype=torch.float32)
         self._kernel(p, m, self._cos_a, self._sin_a, self._angles, self._field, self._base0, self._sectors,
-                     self._hs, self._ws, self._ox, self._oy, self._res, PAD, self.max_range, JUMP_MIN_CELLS,
+                     self._hs, self._ws, self._hps, self._wps, self._ox, self._oy, self._res, PAD, self.max_range, JUMP_MIN_CELLS,
                      out.numpy())
         return out
 

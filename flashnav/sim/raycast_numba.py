@@ -139,8 +139,8 @@ JUMP_PASSES = 2
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def cast_exact(pose, map_index, cos_a, sin_a, angles, flat, base0, sectors_of, hs, ws, ox_of, oy_of, res_of,
-               pad, max_range, jump_min, out):
+def cast_exact(pose, map_index, cos_a, sin_a, angles, flat, base0, sectors_of, hs, ws, hps, wps, ox_of, oy_of,
+               res_of, pad, max_range, jump_min, out):
     """Exact ranges for every (pose, beam) pair, each pose on its own map of a set of M maps.
 
     Args:
@@ -148,10 +148,10 @@ def cast_exact(pose, map_index, cos_a, sin_a, angles, flat, base0, sectors_of, h
         map_index: [N] int64, the map of each pose (all 0 for one map).
         cos_a, sin_a: [K] float64 cos/sin of the beam angles (rad, relative to the heading).
         angles: [K] float64 the beam angles (rad; only pick each beam's sector).
-        flat: every map's :func:`cone_field` ([S_m, h_m + 2 pad, w_m + 2 pad] uint8) flattened and
-            concatenated; map m's starts at ``base0[m]``.
-        base0, sectors_of, hs, ws: [M] int64 per map: field offset in ``flat``, sectors, unpadded
-            shape (cells).
+        flat: every map's :func:`cone_field` ([S_m, hps_m, wps_m] uint8, the map inside at least
+            ``pad`` occupied cells) flattened and concatenated; map m's starts at ``base0[m]``.
+        base0, sectors_of, hs, ws, hps, wps: [M] int64 per map: field offset in ``flat``, sectors,
+            unpadded shape and the field's plane shape (cells).
         ox_of, oy_of, res_of: [M] float64 per map: origin (m) and resolution (m / cell).
         pad: padding of every field (cells).
         max_range: metres.
@@ -167,8 +167,8 @@ def cast_exact(pose, map_index, cos_a, sin_a, angles, flat, base0, sectors_of, h
         w = ws[m]
         sectors = sectors_of[m]
         res = res_of[m]
-        wp = w + 2 * pad
-        plane = (h + 2 * pad) * wp
+        wp = wps[m]
+        plane = hps[m] * wp
         cell0 = base0[m] + pad * wp + pad  # flat index of cell (0, 0) within the map's first plane
         inv = 1.0 / res
         maxc = max_range * inv
