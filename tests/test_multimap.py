@@ -279,3 +279,16 @@ def test_oracle_solves_episodes_on_many_maps(maps):
     env = make_env("turtlebot2", 32, maps=maps, seed=4)
     result = run_oracle(env, episodes=96, seed=4)
     assert result["success"] >= 0.95, result
+
+
+def test_bench_sim_times_many_maps_beside_the_bundled_map(tmp_path):
+    import json
+
+    from flashnav.cli import main as cli_main
+
+    out = tmp_path / "bench.json"
+    assert cli_main(["bench", "sim", "--robots", "turtlebot2", "--raycasters", "exact", "--num-envs", "8",
+                     "--seconds", "0.05", "--max-steps", "8", "--no-irsim", "--maps", "3", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["maps"], r["num_envs"]) for r in rows] == [(1, 8), (3, 8)]
+    assert all(r["steps"] >= 2 and r["env_steps_per_s"] > 0 for r in rows)

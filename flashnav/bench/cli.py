@@ -68,8 +68,7 @@ def run_sim(args) -> int:
             for rc in raycasters:
                 # march is orders of magnitude slower: a couple of steps give its rate
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
-                for maps in ([None] if many is None else [None, many]):
-                    row = sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=maps)
+                for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many):
                     rows.append(row.to_dict(1080))
                     console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d}: "
                                   f"{row.env_steps_per_s:12,.0f} env-steps/s")

@@ -5,9 +5,9 @@ Every figure is measured in the same process, side by side, so ratios against th
 A step here is the whole environment step (motion, full 1,080-beam scan, collision, reward,
 observation, sparse reset of finished slots) driven by uniformly random actions.
 
-With ``--maps`` every row is measured twice, right after each other: on the robot's bundled map and
-on a set of many maps (each slot on its own map, drawing a new one at every reset), so the ratio
-of the two is the cost of many maps.
+With ``--maps`` every row is measured twice, in alternating blocks of steps: on the robot's bundled
+map and on a set of many maps (each slot on its own map, drawing a new one at every reset), so the
+ratio of the two is the cost of many maps, under the same load.
 """
 
 from __future__ import annotations
@@ -64,28 +64,34 @@ def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
 
 
 def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
-               max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None) -> StepRow:
+               max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None) -> list[StepRow]:
     """Step ``num_envs`` environments with random actions for at least ``min_seconds`` (at least 2
-    steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches); on the robot's
-    bundled map, or with ``maps`` on those (each slot drawing its map at every reset)."""
-    env = make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster)
-    env.reset(seed=seed)
-    dev = env.device
+    steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches), on the robot's
+    bundled map. With ``maps``, a second env of the same size on those maps (each slot drawing its
+    map at every reset) is stepped too, in alternating blocks of 4 steps, so that both rows see the
+    same load; each gets ``min_seconds`` of its own. Returns one row, or two (bundled map first)."""
+    envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
+    if maps is not None:
+        envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
+    dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
     actions = [torch.rand(num_envs, 2, generator=gen, device=dev) * 2 - 1 for _ in range(16)]
-    for i in range(2):
-        env.step(actions[i])
+    for env in envs:
+        env.reset(seed=seed)
+        for i in range(2):
+            env.step(actions[i])
     _sync(dev)
-    steps, start = 0, time.perf_counter()
-    while steps < max_steps:
-        env.step(actions[steps % len(actions)])
-        steps += 1
-        if steps >= 2 and steps % 4 == 0:
+    steps, seconds = [0] * len(envs), [0.0] * len(envs)
+    while min(steps) < max_steps and (min(steps) < 2 or min(seconds) < min_seconds):
+        for k, env in enumerate(envs):
+            start = time.perf_counter()
+            for _ in range(min(4, max_steps - steps[k])):
+                env.step(actions[steps[k] % len(actions)])
+                steps[k] += 1
             _sync(dev)
-            if time.perf_counter() - start >= min_seconds:
-                break
-    _sync(dev)
-    return StepRow(robot, raycaster, num_envs, str(dev), steps, time.perf_counter() - start, env.num_maps)
+            seconds[k] += time.perf_counter() - start
+    return [StepRow(robot, raycaster, num_envs, str(dev), steps[k], seconds[k], env.num_maps)
+            for k, env in enumerate(envs)]
 
 
 def accuracy(robot: str, raycaster: str, device: str, num_poses: int = 256, seed: int = 1) -> dict:
