@@ -4,7 +4,8 @@ stack of the maps padded to a common shape, for the raycasters that read them.
 Both layouts run through the same kernels (the numba "exact" kernel and the torch "exact-torch"
 raycaster take per-map offsets and plane shapes; a stack is the case of equal planes at a fixed
 stride), on the same poses, alternating, so their ratio holds on a busy machine. The ranges must be
-equal. Usage::
+equal. For the numba kernel it also times casting the poses in slot order instead of grouped by map
+(the cache effect of reading many maps' fields at once). Usage::
 
     python scripts/multimap_layout.py [--maps 64] [--envs 1024] [--repeats 7] [--torch-envs 64]
 """
@@ -21,6 +22,7 @@ import torch
 from flashnav.maps.generate import generate_map
 from flashnav.sim.env import beam_angles
 from flashnav.sim.raycast import NumbaExactRaycaster, random_free_poses
+from flashnav.sim.raycast_base import JUMP_MIN_CELLS, PAD
 from flashnav.sim.raycast_torch import TorchExactRaycaster
 
 
@@ -80,12 +82,37 @@ def timed(rc, layouts: dict, pose, mi, repeats: int) -> dict[str, list[float]]:
     return times
 
 
+def timed_kernel(rc: NumbaExactRaycaster, layouts: dict, pose, mi, repeats: int) -> dict[str, list[float]]:
+    """Seconds per call of the numba kernel itself per (layout, cast order), alternating: "flat"
+    (FlashNav: flat buffer, poses grouped by map), "flat, slot order" (poses in slot order) and
+    "stack" (grouped)."""
+    p, m = pose.numpy(), mi.numpy()
+    grouped, slots = np.argsort(m, kind="stable"), np.arange(len(m), dtype=np.int64)
+    ways = {"flat": (layouts["flat"], grouped), "flat, slot order": (layouts["flat"], slots),
+            "stack": (layouts["stack"], grouped)}
+    times: dict[str, list[float]] = {name: [] for name in ways}
+    outs = {}
+    for _ in range(repeats):
+        for name, (lay, order) in ways.items():
+            out = np.empty((len(m), rc._cos_a.shape[0]), dtype=np.float32)
+            t0 = time.perf_counter()
+            rc._kernel(p, m, order, rc._cos_a, rc._sin_a, rc._angles, lay["_field"], lay["_base0"], rc._sectors,
+                       rc._hs, rc._ws, lay["_hps"], lay["_wps"], rc._ox, rc._oy, rc._res, PAD, rc.max_range,
+                       JUMP_MIN_CELLS, out)
+            times[name].append(time.perf_counter() - t0)
+            outs[name] = out
+    first, *others = outs.values()
+    for other in others:
+        assert np.array_equal(first, other), "the layouts disagree"
+    return times
+
+
 def report(title: str, times: dict[str, list[float]], nbytes: dict[str, int]) -> None:
     print(title)
     base = statistics.median(times["flat"])
     for name, values in times.items():
         med = statistics.median(values)
-        print(f"  {name:5s}: median {med * 1e3:8.2f} ms, min {min(values) * 1e3:8.2f} ms per call "
+        print(f"  {name:16s}: median {med * 1e3:8.2f} ms, min {min(values) * 1e3:8.2f} ms per call "
               f"({med / base:.3f}x the flat layout's time), buffer {nbytes[name] / 2**20:.1f} MiB")
 
 
@@ -112,8 +139,10 @@ def main() -> None:
     flat = {k: getattr(rc, k) for k in ("_field", "_base0", "_hps", "_wps")}
     stack = stack_numba(rc)
     rc(pose[:8], mi[:8])  # compile
-    report(f"numba exact, {a.envs} envs x 1080 beams", timed(rc, {"flat": flat, "stack": stack}, pose, mi, a.repeats),
-           {"flat": flat["_field"].nbytes, "stack": stack["_field"].nbytes})
+    size = {"flat": flat["_field"].nbytes, "stack": stack["_field"].nbytes}
+    size["flat, slot order"] = size["flat"]
+    report(f"numba exact kernel, {a.envs} envs x 1080 beams",
+           timed_kernel(rc, {"flat": flat, "stack": stack}, pose, mi, a.repeats), size)
 
     trc = TorchExactRaycaster(grids, angles, 20.0)
     flat_t = {k: getattr(trc, k) for k in ("_cone", "_flat", "_maps")}

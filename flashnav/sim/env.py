@@ -39,6 +39,7 @@ with several maps the largest diagonal among them: one fixed scale for every map
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -47,14 +48,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from flashnav.config import RobotPreset
-from collections.abc import Sequence
-
 from flashnav.maps.bundled import resolve_map, resolve_maps
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.collision import make_collision_checker
-from flashnav.sim.mapset import MapDraw, as_grids, check_map_index
+from flashnav.sim.mapset import MapDraw, as_grids, check_map_index, goals_outside
 from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.sampling import EpisodeSampler
@@ -248,23 +247,14 @@ class NavVecEnv(VectorEnv):
         n = self.num_envs
         pose = self._batch(pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
         goal = self._batch(goal, "goal", (n, 2), "x, y m", torch.float64)
-        if map_index is not None:
-            mi = check_map_index(map_index, n, len(self.maps), self.device)
-            if self.device.type != "cpu" and not bool(((mi >= 0) & (mi < len(self.maps))).all()):
-                raise ValueError(f"map_index holds values outside [0, {len(self.maps)}) ({len(self.maps)} maps)")
-        else:
-            mi = self.map_index
-        bounds = torch.tensor([g.bounds for g in self.maps], dtype=torch.float64, device=self.device)[mi]
-        tol = torch.tensor([g.resolution for g in self.maps], dtype=torch.float64, device=self.device)[mi]
-        # world coordinates, checked before the frame shift; float32 goals on the map's edge may round
-        # a hair outside it
-        gx, gy = goal[:, 0], goal[:, 1]
-        outside = ((gx < bounds[:, 0] - tol) | (gx > bounds[:, 2] + tol) | (gy < bounds[:, 1] - tol)
-                   | (gy > bounds[:, 3] + tol))
-        ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any()
+        mi = self.map_index if map_index is None else check_map_index(map_index, n, len(self.maps), self.device)
+        outside = goals_outside(self.maps, goal, mi)  # in world coordinates, before the frame shift
+        in_range = ((mi >= 0) & (mi < len(self.maps))).all()
+        ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & in_range
         if not bool(ok):  # one host sync for all checks; the details only on failure
             _check_finite(pose, "pose")
             _check_finite(goal, "goal")
+            check_map_index(mi.cpu(), n, len(self.maps), torch.device("cpu"))
             row = int(outside.nonzero()[0, 0])
             g = self.maps[int(mi[row])]
             xmin, ymin, xmax, ymax = g.bounds

@@ -139,13 +139,15 @@ JUMP_PASSES = 2
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def cast_exact(pose, map_index, cos_a, sin_a, angles, flat, base0, sectors_of, hs, ws, hps, wps, ox_of, oy_of,
+def cast_exact(pose, map_index, order, cos_a, sin_a, angles, flat, base0, sectors_of, hs, ws, hps, wps, ox_of, oy_of,
                res_of, pad, max_range, jump_min, out):
     """Exact ranges for every (pose, beam) pair, each pose on its own map of a set of M maps.
 
     Args:
         pose: [N, 3] float32 (x m, y m, yaw rad), each in its map's coordinates.
         map_index: [N] int64, the map of each pose (all 0 for one map).
+        order: [N] int64, the order in which the poses are cast (a permutation of 0..N-1): poses of
+            one map together, so that the threads read one map's field at a time from the cache.
         cos_a, sin_a: [K] float64 cos/sin of the beam angles (rad, relative to the heading).
         angles: [K] float64 the beam angles (rad; only pick each beam's sector).
         flat: every map's :func:`cone_field` ([S_m, hps_m, wps_m] uint8, the map inside at least
@@ -161,7 +163,8 @@ def cast_exact(pose, map_index, cos_a, sin_a, angles, flat, base0, sectors_of, h
     n_env = pose.shape[0]
     k_beam = cos_a.shape[0]
     two_pi = 2.0 * math.pi
-    for n in prange(n_env):
+    for q in prange(n_env):
+        n = order[q]
         m = map_index[n]
         h = hs[m]
         w = ws[m]
