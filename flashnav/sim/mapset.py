@@ -4,9 +4,10 @@ Every environment slot holds a map index (``NavVecEnv.map_index`` [N] long); a s
 when it resets, uniformly or by the set's weights, with the environment's torch generator (same seed,
 same maps). The raycasters and the collision checker read all M maps from *one flat buffer with
 per-map offsets* (:func:`pack`): each map keeps its own shape, resolution and padding, so memory is
-the sum of the maps' fields, not M times the largest (a stack padded to a common shape was measured
-no faster, see docs/benchmarks.md). Per-map values that the kernels need (offsets, shapes, origins,
-resolutions) are small [M] arrays, gathered per slot.
+the sum of the maps' fields, not M times the largest. A stack padded to a common shape ran at the
+same speed within noise and took 2.2x the memory for 64 maps of 6-20 m (docs/benchmarks.md, "Many
+maps in one env"). Per-map values that the kernels need (offsets, shapes, origins, resolutions) are
+small [M] arrays, gathered per slot.
 
 Each map is simulated in its own frame (:func:`flashnav.sim.env.sim_frame`: world coordinates, or the
 map's origin for far maps); a slot's pose and goal are in its map's frame.

@@ -86,8 +86,8 @@ class NumbaExactRaycaster(Raycaster):
                 self._zeros, self._order = np.zeros(p.shape[0], dtype=np.int64), np.arange(p.shape[0], dtype=np.int64)
             m, order = self._zeros[: p.shape[0]], self._order[: p.shape[0]]
         else:
-            # poses grouped by map: with 64 maps of 10 x 10 m (~85 MB of fields) casting in slot
-            # order took ~1.45x the single-map time (cache misses), grouped ~1.1x (see docs/benchmarks.md)
+            # cast the poses grouped by map, so the threads read one map's field at a time: slot
+            # order took 1.17x as long with 64 maps (docs/benchmarks.md, "Many maps in one env")
             m = mi.contiguous().numpy()
             order = np.argsort(m, kind="stable")
         out = torch.empty((p.shape[0], self._cos_a.shape[0]), dtype=torch.float32)
