@@ -13,7 +13,7 @@ from flashnav.maps.generate import generate_map
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.ros import save_ros_map
 from flashnav.sim.collision import make_collision_checker
-from flashnav.sim.env import beam_angles, make_env
+from flashnav.sim.env import beam_angles, make_env, sim_frame
 from flashnav.sim.raycast import make_raycaster, random_free_poses
 
 
@@ -96,7 +96,7 @@ def test_env_steps_on_many_maps_equal_single_map_envs(maps, robot):
     for m, g in enumerate(maps):
         sel = (mi == m).nonzero().squeeze(1)
         p, q = env.samplers[m].sample(len(sel), torch.Generator().manual_seed(m))
-        off = torch.tensor(env._frame_origins[m].tolist(), dtype=torch.float64)
+        off = torch.tensor(sim_frame(g), dtype=torch.float64)  # the map's simulator frame -> world
         pose[sel] = torch.cat([p.double()[:, :2] + off, p.double()[:, 2:]], dim=1)
         goal[sel] = q.double() + off
     singles = [make_env(robot, int((mi == m).sum()), map=g, seed=0) for m, g in enumerate(maps)]
