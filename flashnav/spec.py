@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
@@ -58,6 +58,11 @@ class TrainConfig(KnownKeys):
     seed: int = Field(0, description="training seed")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
     map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")
+    maps: str | list[str] | None = Field(
+        None, description="train over many maps instead of one: a directory or glob pattern of ROS map YAML "
+                          "files, or a list of maps as `map` takes; every slot draws a map when it resets")
+    map_weights: list[float] | None = Field(None, description="with `maps` (a list): each map's relative "
+                                                             "probability; None = uniform")
     raycaster: Literal[RAYCASTERS] | None = Field(  # type: ignore[valid-type]
         None, description="None = the simulator's default (exact)")
     overrides: dict[str, Any] = Field(
@@ -77,6 +82,14 @@ class TrainConfig(KnownKeys):
     @classmethod
     def _robot(cls, value: str) -> str:
         return check_robot(value)
+
+    @model_validator(mode="after")
+    def _one_map_source(self) -> "TrainConfig":
+        if self.map is not None and self.maps is not None:
+            raise ValueError("give either map or maps, not both")
+        if self.map_weights is not None and self.maps is None:
+            raise ValueError("map_weights needs maps")
+        return self
 
     @field_validator("device")
     @classmethod
@@ -211,9 +224,23 @@ class RunSpec:
     hparams: AnyHParams           # the recipe with its algo.* overrides applied
     device: str                   # cpu, cuda, cuda:N (never auto)
     recipe: str                   # paper or cpu (never auto)
-    goal_distance_max: float      # metres: the map's diagonal (observation bound, network scale)
-    grid: OccupancyMap | None = field(default=None, repr=False, compare=False)  # the loaded map
+    goal_distance_max: float      # metres: the map's diagonal, the largest one over many maps
+                                  # (observation bound, network scale; one fixed scale for all maps)
+    grid: OccupancyMap | None = field(default=None, repr=False, compare=False)  # the loaded map (the first of many)
+    grids: tuple[OccupancyMap, ...] | None = field(default=None, repr=False, compare=False)  # every loaded map
     cuda_graph: bool = False      # static-buffer updates, CUDA-graph captured on cuda (resolve_cuda_graph)
+
+    def env_maps(self) -> OccupancyMap | tuple[OccupancyMap, ...]:
+        """What ``NavVecEnv(grid=...)`` takes for this run: the one map, or every map (loaded here
+        for a spec read back from a file)."""
+        from flashnav.maps.bundled import resolve_map, resolve_maps
+
+        grids = self.grids
+        if grids is None:
+            if self.config.maps is None:
+                return self.grid if self.grid is not None else resolve_map(self.config.map, self.robot.map)
+            grids = tuple(resolve_maps(self.config.maps, self.robot.map))
+        return grids[0] if len(grids) == 1 else grids
 
     @property
     def algorithm(self) -> str:
@@ -281,13 +308,21 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
 
     Raises ValueError naming the bad input (an unknown override key, a missing map, no CUDA, ...).
     """
-    from flashnav.maps.bundled import resolve_map
+    from flashnav.maps.bundled import resolve_map, resolve_maps
 
     config = config or TrainConfig()
     device = resolve_device(config.device)
     recipe = resolve_recipe(config.recipe, device)
     robot = load_robot(config.robot, **config.robot_overrides())
     hparams = load_hparams(config.algorithm, robot.name, recipe, config.algo_overrides())
-    grid = resolve_map(config.map, robot.map)
-    return RunSpec(config, robot, hparams, device, recipe, grid.diagonal_m, grid,
-                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device))
+    cuda_graph = resolve_cuda_graph(config.cuda_graph, device)
+    if config.maps is None:
+        grid = resolve_map(config.map, robot.map)
+        return RunSpec(config, robot, hparams, device, recipe, grid.diagonal_m, grid, cuda_graph=cuda_graph)
+    grids = tuple(resolve_maps(config.maps, robot.map))
+    if config.map_weights is not None and len(config.map_weights) != len(grids):
+        raise ValueError(f"map_weights has {len(config.map_weights)} entries for the {len(grids)} maps of "
+                         f"maps = {config.maps!r}")
+    # one fixed goal-distance scale for every map: the largest diagonal
+    return RunSpec(config, robot, hparams, device, recipe, max(g.diagonal_m for g in grids), grids[0], grids,
+                   cuda_graph=cuda_graph)

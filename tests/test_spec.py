@@ -152,6 +152,16 @@ def test_run_spec_round_trips_through_plain_data():
         RunSpec.from_dict({"algorithm": "fastdsac"})
 
 
+def test_a_config_written_before_the_newer_options_reads_back_with_them_off():
+    # tests/fixtures/deploy_policy/config.yaml was written by main 86fe09a: no layer_norm, obs_norm,
+    # policy_averaging (hparams), cuda_graph or maps
+    data = yaml.safe_load((FIXTURES / "deploy_policy" / "config.yaml").read_text())
+    assert "layer_norm" not in data["hparams"] and "cuda_graph" not in data
+    spec = RunSpec.from_dict(data)
+    assert (spec.hparams.layer_norm, spec.hparams.obs_norm, spec.hparams.policy_averaging) == (False, False, 0.0)
+    assert spec.cuda_graph is False and spec.config.maps is None
+
+
 # ---- names defined once -------------------------------------------------------------------------------
 
 

@@ -24,6 +24,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-irsim", action="store_true", help="skip the ir-sim peer")
     p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     p.add_argument("--quick", action="store_true", help="a fast smoke run: turtlebot2, 64 envs, 0.5 s rows")
+    p.add_argument("--maps", metavar="K|DIR|GLOB",
+                   help="also time every row on many maps, right after the bundled map: K generated maps like "
+                        "the robot's own (seeds 1000...), or a directory / glob of ROS map YAML files")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -58,13 +61,17 @@ def run_sim(args) -> int:
     console.print(f"[bold]flashnav bench sim[/] {when} on {on}; each row >= {seconds} s of whole env steps")
     rows, accuracy = [], []
     for robot in robots:
+        many = _many_maps(robot, args.maps)
+        if many is not None:
+            console.print(f"  {robot}: {len(many)} maps for the many-map rows")
         for n in sizes:
             for rc in raycasters:
                 # march is orders of magnitude slower: a couple of steps give its rate
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
-                row = sim.time_steps(robot, rc, n, args.device, seconds, max_steps)
-                rows.append(row.to_dict(1080))
-                console.print(f"  {robot:10s} {rc:12s} N={n:5d}: {row.env_steps_per_s:12,.0f} env-steps/s")
+                for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many):
+                    rows.append(row.to_dict(1080))
+                    console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d}: "
+                                  f"{row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
                 accuracy.append(sim.accuracy(robot, rc, args.device))
@@ -83,19 +90,38 @@ def run_sim(args) -> int:
     return 0
 
 
+def _many_maps(robot: str, spec: str | None):
+    """The many-map set of ``--maps`` for ``robot`` (None without it)."""
+    if spec is None:
+        return None
+    from flashnav.bench import sim
+    from flashnav.maps.bundled import resolve_maps
+
+    if spec.isdigit():
+        return sim.bench_maps(robot, int(spec))
+    return resolve_maps(spec, robot)
+
+
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
-    base = {(r["robot"], r["num_envs"]): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
+    base = {(r["robot"], r["num_envs"], r["maps"]): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
+    one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows if r["maps"] == 1}
+    many = any(r["maps"] > 1 for r in rows)
     t = Table(title="whole env step, random actions (full 1,080-beam scans)")
-    for col in ("robot", "raycaster", "envs", "env-steps/s", "rays/s", "x march"):
+    for col in ("robot", "raycaster", "envs", *(("maps",) if many else ()), "env-steps/s", "rays/s", "x march",
+                *(("x 1 map",) if many else ())):
         t.add_column(col, justify="right")
     for r in rows:
-        ref = base.get((r["robot"], r["num_envs"]))
+        ref = base.get((r["robot"], r["num_envs"], r["maps"]))
         ratio = f"{r['env_steps_per_s'] / ref:,.0f}x" if ref else "-"
-        t.add_row(r["robot"], r["raycaster"], str(r["num_envs"]), f"{r['env_steps_per_s']:,.0f}",
-                  f"{r['rays_per_s']:,.3g}", ratio)
+        cells = [r["robot"], r["raycaster"], str(r["num_envs"])] + ([str(r["maps"])] if many else [])
+        cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
+        if many:
+            single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
+            cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and r["maps"] > 1 else "-")
+        t.add_row(*cells)
     for p in peer:
-        t.add_row(p["robot"], "ir-sim (peer)", "1", f"{p['env_steps_per_s']:,.1f}",
-                  f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-")
+        t.add_row(p["robot"], "ir-sim (peer)", "1", *(("1",) if many else ()), f"{p['env_steps_per_s']:,.1f}",
+                  f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-", *(("-",) if many else ()))
     console.print(t)
     if accuracy:
         a = Table(title="range error vs the exact raycaster (random free poses, metres)")

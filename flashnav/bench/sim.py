@@ -4,6 +4,10 @@ Every figure is measured in the same process, side by side, so ratios against th
 ``march`` raycaster (and the peer simulator ir-sim, when installed) hold on a noisy machine.
 A step here is the whole environment step (motion, full 1,080-beam scan, collision, reward,
 observation, sparse reset of finished slots) driven by uniformly random actions.
+
+With ``--maps`` every row is measured twice, in alternating blocks of steps: on the robot's bundled
+map and on a set of many maps (each slot on its own map, drawing a new one at every reset), so the
+ratio of the two is the cost of many maps, under the same load.
 """
 
 from __future__ import annotations
@@ -13,6 +17,9 @@ from dataclasses import asdict, dataclass
 
 import torch
 
+from flashnav.maps.generate import generate_map
+from flashnav.maps.grid import OccupancyMap
+from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.raycast import error_stats, make_raycaster, random_free_poses
 
@@ -25,6 +32,7 @@ class StepRow:
     device: str
     steps: int
     seconds: float
+    maps: int = 1
 
     @property
     def env_steps_per_s(self) -> float:
@@ -42,28 +50,48 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
+def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
+    """``count`` different maps like the robot's bundled one (its size, 0.05 m cells, passages for
+    its footprint at its start clearance), generated with seeds ``seed``, ``seed + 1``, ...: the
+    many-map rows then differ from the single-map ones only in the number of maps."""
+    if count < 1:
+        raise ValueError(f"--maps must be >= 1 maps, got {count}")
+    preset = load_robot(robot)
+    width, height = preset.map_size
+    radius = preset.footprint.circumscribed_radius + preset.episode.start_clearance
+    return [generate_map(width, height, 0.05, seed + i, robot_radius=radius, name=f"{robot}-bench-{seed + i}")
+            for i in range(count)]
+
+
 def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
-               max_steps: int, seed: int = 0) -> StepRow:
+               max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None) -> list[StepRow]:
     """Step ``num_envs`` environments with random actions for at least ``min_seconds`` (at least 2
-    steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches)."""
-    env = make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)
-    env.reset(seed=seed)
-    dev = env.device
+    steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches), on the robot's
+    bundled map. With ``maps``, a second env of the same size on those maps (each slot drawing its
+    map at every reset) is stepped too, in alternating blocks of 4 steps, so that both rows see the
+    same load; each gets ``min_seconds`` of its own. Returns one row, or two (bundled map first)."""
+    envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
+    if maps is not None:
+        envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
+    dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
     actions = [torch.rand(num_envs, 2, generator=gen, device=dev) * 2 - 1 for _ in range(16)]
-    for i in range(2):
-        env.step(actions[i])
+    for env in envs:
+        env.reset(seed=seed)
+        for i in range(2):
+            env.step(actions[i])
     _sync(dev)
-    steps, start = 0, time.perf_counter()
-    while steps < max_steps:
-        env.step(actions[steps % len(actions)])
-        steps += 1
-        if steps >= 2 and steps % 4 == 0:
+    steps, seconds = [0] * len(envs), [0.0] * len(envs)
+    while min(steps) < max_steps and (min(steps) < 2 or min(seconds) < min_seconds):
+        for k, env in enumerate(envs):
+            start = time.perf_counter()
+            for _ in range(min(4, max_steps - steps[k])):
+                env.step(actions[steps[k] % len(actions)])
+                steps[k] += 1
             _sync(dev)
-            if time.perf_counter() - start >= min_seconds:
-                break
-    _sync(dev)
-    return StepRow(robot, raycaster, num_envs, str(dev), steps, time.perf_counter() - start)
+            seconds[k] += time.perf_counter() - start
+    return [StepRow(robot, raycaster, num_envs, str(dev), steps[k], seconds[k], env.num_maps)
+            for k, env in enumerate(envs)]
 
 
 def accuracy(robot: str, raycaster: str, device: str, num_poses: int = 256, seed: int = 1) -> dict:

@@ -25,6 +25,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--recipe", choices=RECIPE_CHOICES, help="hyperparameters: paper (GPU), cpu, auto (by device)")
     p.add_argument("--device", help="auto (default), cpu, cuda, cuda:N")
     p.add_argument("--map", help="ROS map YAML (default: the preset's bundled map)")
+    p.add_argument("--maps", metavar="DIR_OR_GLOB",
+                   help="train over many maps: a directory or glob pattern of ROS map YAML files (quote the "
+                        "pattern); each env slot draws a map when it resets")
     p.add_argument("--seed", type=int, help="training seed (default 0)")
     p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
     p.add_argument("--config", help="a TrainConfig YAML; flags and overrides apply on top")
@@ -36,7 +39,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
 
 def config_from_args(args) -> TrainConfig:
     """The TrainConfig of ``flashnav train``'s arguments (through :func:`flashnav.spec.config_from_cli`)."""
-    flags = {name: getattr(args, name) for name in ("robot", "algorithm", "recipe", "device", "map", "seed")}
+    flags = {name: getattr(args, name) for name in ("robot", "algorithm", "recipe", "device", "map", "maps", "seed")}
     if args.sequential:
         flags["overlap"] = False
     return config_from_cli(args.config, flags, args.overrides)

@@ -35,9 +35,11 @@ class LearnerHParams(Strict):
     betas: tuple[float, float] = Field(description="AdamW (beta1, beta2)")
     actor_hidden: tuple[int, ...] = Field(min_length=1, description="actor hidden layer widths")
     critic_hidden: tuple[int, ...] = Field(min_length=1, description="critic hidden layer widths")
-    layer_norm: bool = Field(description="LayerNorm before each hidden activation (actor and critics)")
-    policy_averaging: float = Field(ge=0, le=1, description="Polyak rate, after every actor step, of the evaluated and exported policy's weights towards the trained actor (0 = the trained actor itself)")
-    obs_norm: bool = Field(description="running mean/std normalisation of the IPAPRec features, updated from replay batches")
+    # The three below default to "off" only so that run configs written before they existed read back
+    # (RunSpec.from_dict); every preset states them (pipeline.yaml).
+    layer_norm: bool = Field(False, description="LayerNorm before each hidden activation (actor and critics)")
+    policy_averaging: float = Field(0.0, ge=0, le=1, description="Polyak rate, after every actor step, of the evaluated and exported policy's weights towards the trained actor (0 = the trained actor itself)")
+    obs_norm: bool = Field(False, description="running mean/std normalisation of the IPAPRec features, updated from replay batches")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")
     buffer_size: int = Field(gt=0, description="replay capacity, transitions (all envs together)")

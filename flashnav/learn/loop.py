@@ -35,7 +35,6 @@ from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.machine import learner_threads, machine_name
-from flashnav.maps.bundled import resolve_map
 from flashnav.metrics import reaches
 from flashnav.sim.env import NavVecEnv
 from flashnav.spec import RunSpec, TrainConfig, resolve
@@ -121,10 +120,11 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
     config, preset, hp = spec.config, spec.robot, spec.hparams
     dev = torch.device(spec.device)
     torch.manual_seed(config.seed)
-    grid = spec.grid if spec.grid is not None else resolve_map(config.map, preset.map)
-    env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster)
+    grid = spec.env_maps()
+    env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster,
+                    map_weights=config.map_weights)
     eval_env = NavVecEnv(preset, config.eval.episodes, grid=grid, device=dev, seed=config.eval.seed,
-                         raycaster=config.raycaster)
+                         raycaster=config.raycaster, map_weights=config.map_weights)
     if spec.threads:
         # After the environments exist: the first numba parallel kernel of a process starts its
         # OpenMP pool, which resets the thread count torch shares with it (the first run of every

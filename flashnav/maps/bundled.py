@@ -95,3 +95,40 @@ def resolve_map(map: OccupancyMap | str | Path | None, default: str) -> Occupanc
     raise TypeError(
         f"map must be None, an OccupancyMap, a bundled map name or a ROS map YAML path, got {type(map).__name__}"
     )
+
+
+def resolve_maps(maps, default: str) -> list[OccupancyMap]:
+    """Turn what a user names as a set of maps into a list of ``OccupancyMap`` (in a stable order).
+
+    Args:
+        maps: a sequence of what :func:`resolve_map` takes (OccupancyMap, bundled name, ROS YAML
+            path); or one string/path: a directory (its ``*.yaml`` / ``*.yml`` files, sorted by name),
+            a glob pattern (``maps/*.yaml``, sorted matches), or one map as :func:`resolve_map` takes.
+        default: the bundled map for a ``None`` entry.
+
+    Raises:
+        ValueError: an empty sequence, a directory with no map YAML, a pattern matching no file, or
+            an entry :func:`resolve_map` refuses (the message names it).
+    """
+    if isinstance(maps, (str, Path)):
+        text = str(maps)
+        path = Path(text).expanduser()
+        if path.is_dir():
+            files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".yaml", ".yml") and p.is_file())
+            if not files:
+                raise ValueError(f"maps directory {text!r} holds no ROS map YAML file (*.yaml, *.yml)")
+            return [load_ros_map(p) for p in files]
+        if any(ch in text for ch in "*?["):
+            import glob
+
+            files = sorted(glob.glob(str(path)))
+            if not files:
+                raise ValueError(f"maps pattern {text!r} matches no file")
+            return [resolve_map(Path(f), default) for f in files]
+        return [resolve_map(maps, default)]
+    if isinstance(maps, OccupancyMap):
+        return [maps]
+    items = list(maps)
+    if not items:
+        raise ValueError("maps must name at least one map, got an empty list")
+    return [resolve_map(item, default) for item in items]

@@ -1,6 +1,9 @@
 """The batched navigation environment (paper section 2.2).
 
-All N environments share one occupancy map; per-env state lives in tensors [N, ...] on one device.
+All N environments share one occupancy map, or each slot runs on its own map of a set of M maps
+(``make_env(..., maps=[...])``, :mod:`flashnav.sim.mapset`): a slot draws its map when it resets
+(uniformly or by ``map_weights``, with the env's generator), ``map_index`` [N] holds each slot's map,
+and sensing, collision and sampling read that map. Per-env state lives in tensors [N, ...] on one device.
 One step follows the paper's path::
 
     action -> motion -> range scan -> collision / goal / reward / flags -> observation -> sparse reset
@@ -26,12 +29,17 @@ coordinates minus ``frame_origin`` (float64). That is (0, 0) - world coordinates
 maps within FRAME_LIMIT_M of the world origin (every bundled map), else the map's origin, so a map
 at UTM coordinates (500000, 4000000) or at 1e12 m simulates exactly like the same map at (0, 0)
 instead of losing the float32 precision of its coordinates. ``set_state`` takes world coordinates
-(give float64 for far maps); ``world_pose`` / ``world_goal`` return them in float64.
+(give float64 for far maps); ``world_pose`` / ``world_goal`` return them in float64. With several
+maps each map has its own frame, and a slot's pose and goal are in its map's frame.
+
+The goal-distance bound of the observation space (``goal_distance_max``) is the map's diagonal, or
+with several maps the largest diagonal among them: one fixed scale for every map.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -40,11 +48,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from flashnav.config import RobotPreset
-from flashnav.maps.bundled import resolve_map
+from flashnav.maps.bundled import resolve_map, resolve_maps
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.collision import make_collision_checker
+from flashnav.sim.mapset import MapDraw, as_grids, check_map_index, goals_outside
 from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.sampling import EpisodeSampler
@@ -79,27 +88,36 @@ class NavVecEnv(VectorEnv):
         preset: RobotPreset,
         num_envs: int,
         *,
-        grid: OccupancyMap,
+        grid: OccupancyMap | Sequence[OccupancyMap],
         device: torch.device | str = "cpu",
         seed: int = 0,
         raycaster: str | None = None,
+        map_weights: Sequence[float] | None = None,
     ):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.preset, self.map, self.num_envs = preset, grid, num_envs
+        self.maps = as_grids(grid)
+        self.map = self.maps[0]  # the map of a single-map env (with several: the first)
+        self.preset, self.num_envs = preset, num_envs
         self.device = torch.device(device)
-        _check_map_scale(grid, preset)
+        for g in self.maps:
+            _check_map_scale(g, preset)
         lidar = preset.lidar
         self.raycaster_name = raycaster or DEFAULT_RAYCASTER
         self.beam_angles = beam_angles(lidar.fov_deg, lidar.beams).to(self.device)
         # all geometry runs on the map in the simulator frame (the same cells and cached fields)
-        self.frame_origin = sim_frame(grid)
-        self.frame_map = grid if self.frame_origin == (0.0, 0.0) else grid.shifted(self.frame_origin)
-        self._cast = make_raycaster(
-            self.raycaster_name, self.frame_map, self.beam_angles, lidar.max_range, self.device, lidar.march_step
-        )
-        self._collides = make_collision_checker(preset.footprint, self.frame_map, self.device)
-        self.sampler = EpisodeSampler(self.frame_map, preset, self.device)
+        origins = [sim_frame(g) for g in self.maps]
+        self.frame_maps = tuple(g if o == (0.0, 0.0) else g.shifted(o) for g, o in zip(self.maps, origins))
+        self.frame_origin, self.frame_map = origins[0], self.frame_maps[0]
+        self._frame_origins = torch.tensor(origins, dtype=torch.float64, device=self.device)  # [M, 2]
+        geometry = self.frame_map if len(self.maps) == 1 else self.frame_maps
+        self._cast = make_raycaster(self.raycaster_name, geometry, self.beam_angles, lidar.max_range, self.device,
+                                    lidar.march_step)
+        self._collides = make_collision_checker(preset.footprint, geometry, self.device)
+        self.samplers = [EpisodeSampler(g, preset, self.device) for g in self.frame_maps]
+        self.sampler = self.samplers[0]
+        self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
+        self.goal_distance_max = max(g.diagonal_m for g in self.maps)
         self.obs_dim = preset.obs_dim
 
         low, high = self._obs_bounds()
@@ -116,6 +134,7 @@ class NavVecEnv(VectorEnv):
         self.goal_distance = torch.zeros(n, **f32)
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
+        self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
@@ -128,13 +147,21 @@ class NavVecEnv(VectorEnv):
         vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if p.motion.velocity_state_dims == 2 else (
             [v_lo, 0.0, w_lo], [v_hi, 0.0, w_hi])
         low = np.array([0.0] * s + [0.0, -math.pi] + vel_lo, dtype=np.float32)
-        high = np.array([p.lidar.max_range] * s + [self.map.diagonal_m, math.pi] + vel_hi, dtype=np.float32)
+        high = np.array([p.lidar.max_range] * s + [self.goal_distance_max, math.pi] + vel_hi, dtype=np.float32)
         return low, high
 
     # ---- observation ------------------------------------------------------------------------------
     def scan(self) -> torch.Tensor:
         """Noise-free ranges [N, beams] float32 metres at the current poses (before pooling)."""
-        return self._cast(self.pose)
+        return self._cast(self.pose, self._maps_of(slice(None)))
+
+    @property
+    def num_maps(self) -> int:
+        return len(self.maps)
+
+    def _maps_of(self, sel) -> torch.Tensor | None:
+        """The map index of slots ``sel`` for the geometry, or None with a single map."""
+        return None if len(self.maps) == 1 else self.map_index[sel]
 
     def _sensor(self, ranges: torch.Tensor) -> torch.Tensor:
         """Apply the optional range noise and beam dropout (off by default)."""
@@ -161,10 +188,23 @@ class NavVecEnv(VectorEnv):
 
     # ---- episode control --------------------------------------------------------------------------
     def _reset_slots(self, idx: torch.Tensor) -> None:
-        """Start new episodes in slots ``idx`` [k] (long); every other slot is left untouched."""
+        """Start new episodes in slots ``idx`` [k] (long); every other slot is left untouched. With
+        several maps each slot first draws its map; each map's sampler then serves its group."""
         if idx.numel() == 0:
             return
-        pose, goal = self.sampler.sample(idx.numel(), self._gen)
+        if len(self.maps) == 1:
+            pose, goal = self.sampler.sample(idx.numel(), self._gen)
+            self._place(idx, pose, goal)
+            return
+        maps = self._draw_map(idx.numel(), self._gen)
+        self.map_index[idx] = maps
+        pose = torch.empty(idx.numel(), 3, device=self.device)
+        goal = torch.empty(idx.numel(), 2, device=self.device)
+        counts = torch.bincount(maps, minlength=len(self.maps)).tolist()  # one host sync per reset
+        for m, count in enumerate(counts):
+            if count:
+                group = (maps == m).nonzero().squeeze(1)
+                pose[group], goal[group] = self.samplers[m].sample(count, self._gen)
         self._place(idx, pose, goal)
 
     def _place(self, idx: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor) -> None:
@@ -175,7 +215,7 @@ class NavVecEnv(VectorEnv):
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
         self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
-        self.obs[idx] = self._observe(self._cast(pose), pose, goal, zeros)
+        self.obs[idx] = self._observe(self._cast(pose, self._maps_of(idx)), pose, goal, zeros)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Reset all slots, or only ``options["reset_mask"]`` ([N] bool). ``seed`` reseeds the
@@ -195,47 +235,52 @@ class NavVecEnv(VectorEnv):
         self._reset_slots(idx)
         return self.obs.clone(), {}
 
-    def set_state(self, pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    def set_state(self, pose: torch.Tensor, goal: torch.Tensor, map_index=None) -> torch.Tensor:
         """Place every robot at ``pose`` [N, 3] (x, y m world, yaw rad) with ``goal`` [N, 2] (m world;
         float64 keeps the precision of far maps); zero its velocity and step counter; return the
-        recomputed observation [N, obs_dim].
+        recomputed observation [N, obs_dim]. ``map_index`` [N] (integers in [0, num_maps)) moves the
+        slots onto those maps first; None keeps each slot's map.
 
-        Raises ValueError naming ``pose`` / ``goal`` for another shape, a NaN or infinite value, or a
-        goal outside the map's extent (it could never be reached)."""
+        Raises ValueError naming ``pose`` / ``goal`` / ``map_index`` for another shape, a NaN or
+        infinite value, a map index out of range, or a goal outside its map's extent (it could never
+        be reached)."""
         n = self.num_envs
         pose = self._batch(pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
         goal = self._batch(goal, "goal", (n, 2), "x, y m", torch.float64)
-        xmin, ymin, xmax, ymax = self.map.bounds  # world coordinates, checked before the frame shift
-        tol = self.map.resolution  # float32 goals on the map's edge may round a hair outside it
-        gx, gy = goal[:, 0], goal[:, 1]
-        outside = (gx < xmin - tol) | (gx > xmax + tol) | (gy < ymin - tol) | (gy > ymax + tol)
-        ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any()
+        mi = self.map_index if map_index is None else check_map_index(map_index, n, len(self.maps), self.device)
+        outside = goals_outside(self.maps, goal, mi)  # in world coordinates, before the frame shift
+        in_range = ((mi >= 0) & (mi < len(self.maps))).all()
+        ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & in_range
         if not bool(ok):  # one host sync for all checks; the details only on failure
             _check_finite(pose, "pose")
             _check_finite(goal, "goal")
+            check_map_index(mi.cpu(), n, len(self.maps), torch.device("cpu"))
             row = int(outside.nonzero()[0, 0])
-            raise ValueError(f"goal[{row}] = {goal[row].tolist()} lies outside the map {self.map.name!r} "
+            g = self.maps[int(mi[row])]
+            xmin, ymin, xmax, ymax = g.bounds
+            raise ValueError(f"goal[{row}] = {goal[row].tolist()} lies outside the map {g.name!r} "
                              f"(x in [{xmin:g}, {xmax:g}] m, y in [{ymin:g}, {ymax:g}] m)")
+        self.map_index[:] = mi
         pose, goal = self._world_to_frame(pose, goal)
         self._place(torch.arange(n, device=self.device), pose.float(), goal.float())
         return self.obs.clone()
 
     def _world_to_frame(self, pose: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """World (checked float64 pose [N, 3], goal [N, 2]) -> the simulator frame, still float64
-        (returned as they are when the frame is the world's)."""
-        if self.frame_origin == (0.0, 0.0):
+        """World (checked float64 pose [N, 3], goal [N, 2]) -> the simulator frame of each slot's map,
+        still float64 (returned as they are when every frame is the world's)."""
+        if len(self.maps) == 1 and self.frame_origin == (0.0, 0.0):
             return pose, goal
-        off = torch.tensor(self.frame_origin, dtype=torch.float64, device=self.device)
+        off = self._frame_origins[self.map_index]
         return torch.cat([pose[:, :2] - off, pose[:, 2:]], dim=1), goal - off
 
     def world_pose(self) -> torch.Tensor:
         """[N, 3] float64: the current poses in world coordinates (x, y m, yaw rad)."""
-        off = torch.tensor([*self.frame_origin, 0.0], dtype=torch.float64, device=self.device)
-        return self.pose.double() + off
+        off = self._frame_origins[self.map_index]
+        return self.pose.double() + torch.cat([off, torch.zeros_like(off[:, :1])], dim=1)
 
     def world_goal(self) -> torch.Tensor:
         """[N, 2] float64: the current goals in world coordinates (m)."""
-        return self.goal.double() + torch.tensor(self.frame_origin, dtype=torch.float64, device=self.device)
+        return self.goal.double() + self._frame_origins[self.map_index]
 
     def step(self, actions):
         """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped); another shape or a
@@ -295,10 +340,11 @@ class NavVecEnv(VectorEnv):
         steps = self.steps[sel] + 1
         goal = self.goal[sel]
 
-        ranges = self._cast(pose)
+        maps = self._maps_of(sel)
+        ranges = self._cast(pose, maps)
         dist = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
         success = dist < p.episode.goal_threshold
-        collision = self._collides(pose) & ~success  # the goal is checked first
+        collision = self._collides(pose, maps) & ~success  # the goal is checked first
         terminated = success | collision
         truncated = (steps >= p.episode.horizon) & ~terminated
         progress = p.reward.progress * (self.goal_distance[sel] - dist)
@@ -316,7 +362,8 @@ class NavVecEnv(VectorEnv):
         pass
 
     def __repr__(self) -> str:
-        return (f"NavVecEnv({self.preset.name}, num_envs={self.num_envs}, map={self.map.name!r}, "
+        where = f"map={self.map.name!r}" if len(self.maps) == 1 else f"maps={len(self.maps)}"
+        return (f"NavVecEnv({self.preset.name}, num_envs={self.num_envs}, {where}, "
                 f"device={self.device}, raycaster={self.raycaster_name!r})")
 
 
@@ -342,18 +389,31 @@ def _check_map_scale(grid: OccupancyMap, preset: RobotPreset) -> None:
                          f"{cells:.3g} cells (limit {grid_module.MAX_CELLS})")
 
 
-def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=None,
-             device: torch.device | str = "cpu", seed: int = 0, raycaster: str | None = None) -> NavVecEnv:
+def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=None, maps=None,
+             map_weights: Sequence[float] | None = None, device: torch.device | str = "cpu", seed: int = 0,
+             raycaster: str | None = None) -> NavVecEnv:
     """The batched environment.
 
     Args:
         robot: a preset name ("turtlebot2", "go2"), a preset YAML path, or a RobotPreset.
         num_envs: N, the number of parallel environments.
         map: None (the preset's bundled map), an OccupancyMap, a bundled map name, or a ROS YAML path.
+        maps: instead of ``map``, a set of maps for the slots to draw from at every reset: a list of
+            what ``map`` takes, or a directory / glob pattern of ROS map YAML files
+            (:func:`flashnav.maps.bundled.resolve_maps`).
+        map_weights: with ``maps``, the relative probability of each map (default: uniform).
         device: where every tensor lives ("cpu", "cuda", ...).
-        seed: seeds start/goal sampling (and sensor noise when enabled).
+        seed: seeds start/goal sampling and map draws (and sensor noise when enabled).
         raycaster: "exact" (default), "exact-torch" or "march" (the paper's fixed-step algorithm).
     """
     preset = load_robot(robot)
-    return NavVecEnv(preset, num_envs, grid=resolve_map(map, preset.map), device=device, seed=seed,
-                     raycaster=raycaster)
+    if maps is not None:
+        if map is not None:
+            raise ValueError("give either map or maps, not both")
+        grids = resolve_maps(maps, preset.map)
+    else:
+        if map_weights is not None:
+            raise ValueError("map_weights needs maps=[...]")
+        grids = [resolve_map(map, preset.map)]
+    return NavVecEnv(preset, num_envs, grid=grids[0] if len(grids) == 1 else grids, device=device, seed=seed,
+                     raycaster=raycaster, map_weights=map_weights)

@@ -7,11 +7,13 @@ both import it, and neither imports the other or the factory in :mod:`flashnav.s
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 
 from flashnav.maps.fields import PAD
 from flashnav.maps.grid import OccupancyMap
+from flashnav.sim.mapset import as_grids, check_map_index
 
 __all__ = ["AXIS_SNAP", "DELTA", "EPS", "JUMP_MIN_CELLS", "PAD", "Raycaster"]
 
@@ -26,27 +28,39 @@ JUMP_MIN_CELLS = 3.0
 
 
 class Raycaster:
-    """Callable ``pose [N, 3] float32 (x m, y m, yaw rad) -> ranges [N, K] float32 metres``.
+    """Callable ``(pose [N, 3] float32 (x m, y m, yaw rad), map_index [N] long or None) -> ranges
+    [N, K] float32 metres``. Built on one map or on a sequence of M maps (:mod:`flashnav.sim.mapset`);
+    with several, ``map_index`` names each pose's map (poses in that map's coordinates).
 
-    Attributes: name, grid, beam_angles ([K] float32 rad, relative to the heading, on ``device``),
-    max_range (metres), device.
+    Attributes: name, grids (the M maps), grid (the first), beam_angles ([K] float32 rad, relative to
+    the heading, on ``device``), max_range (metres), device.
     """
 
     name = "base"
 
-    def __init__(self, grid: OccupancyMap, beam_angles: torch.Tensor, max_range: float, device) -> None:
+    def __init__(self, grid: OccupancyMap | Sequence[OccupancyMap], beam_angles: torch.Tensor, max_range: float,
+                 device) -> None:
         if not (max_range > 0 and math.isfinite(max_range)):
             raise ValueError(f"max_range must be a positive number of metres, got {max_range}")
-        self.grid = grid
+        self.grids = as_grids(grid)
+        self.grid = self.grids[0]
         self.device = torch.device(device)
         self.beam_angles = torch.as_tensor(beam_angles, dtype=torch.float32).reshape(-1).to(self.device)
         self.max_range = float(max_range)
 
-    def _check(self, pose: torch.Tensor) -> None:
+    def _check(self, pose: torch.Tensor, map_index=None) -> torch.Tensor | None:
+        """Check ``pose``; return ``map_index`` as [N] long on the pose's device, or None for a single
+        map (any map_index there must be all 0)."""
         if pose.ndim != 2 or pose.shape[1] != 3:
             raise ValueError(f"pose must be [N, 3] (x, y, yaw), got shape {tuple(pose.shape)}")
+        if map_index is None:
+            if len(self.grids) > 1:
+                raise ValueError(f"this raycaster holds {len(self.grids)} maps: give map_index [N]")
+            return None
+        mi = check_map_index(map_index, pose.shape[0], len(self.grids), pose.device)
+        return None if len(self.grids) == 1 else mi
 
-    def __call__(self, pose: torch.Tensor) -> torch.Tensor:
+    def __call__(self, pose: torch.Tensor, map_index=None) -> torch.Tensor:
         raise NotImplementedError
 
     def __repr__(self) -> str:

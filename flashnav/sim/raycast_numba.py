@@ -139,35 +139,46 @@ JUMP_PASSES = 2
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def cast_exact(pose, cos_a, sin_a, angles, field, pad, h, w, ox, oy, res, max_range, jump_min, out):
-    """Exact ranges for every (pose, beam) pair.
+def cast_exact(pose, map_index, order, cos_a, sin_a, angles, flat, base0, sectors_of, hs, ws, hps, wps, ox_of, oy_of,
+               res_of, pad, max_range, jump_min, out):
+    """Exact ranges for every (pose, beam) pair, each pose on its own map of a set of M maps.
 
     Args:
-        pose: [N, 3] float32 (x m, y m, yaw rad).
+        pose: [N, 3] float32 (x m, y m, yaw rad), each in its map's coordinates.
+        map_index: [N] int64, the map of each pose (all 0 for one map).
+        order: [N] int64, the order in which the poses are cast (a permutation of 0..N-1): poses of
+            one map together, so that the threads read one map's field at a time from the cache.
         cos_a, sin_a: [K] float64 cos/sin of the beam angles (rad, relative to the heading).
         angles: [K] float64 the beam angles (rad; only pick each beam's sector).
-        field: [S, h + 2 pad, w + 2 pad] uint8 from :func:`cone_field`.
-        pad, h, w: padding and unpadded map shape (cells).
-        ox, oy, res: map origin (m) and resolution (m / cell).
+        flat: every map's :func:`cone_field` ([S_m, hps_m, wps_m] uint8, the map inside at least
+            ``pad`` occupied cells) flattened and concatenated; map m's starts at ``base0[m]``.
+        base0, sectors_of, hs, ws, hps, wps: [M] int64 per map: field offset in ``flat``, sectors,
+            unpadded shape and the field's plane shape (cells).
+        ox_of, oy_of, res_of: [M] float64 per map: origin (m) and resolution (m / cell).
+        pad: padding of every field (cells).
         max_range: metres.
         jump_min: cells; jump through free space where the field allows at least this.
         out: [N, K] float32, written with ranges in metres.
     """
     n_env = pose.shape[0]
     k_beam = cos_a.shape[0]
-    sectors = field.shape[0]
-    wp = w + 2 * pad
-    flat = field.reshape(-1)
-    plane = field.shape[1] * field.shape[2]
-    cell0 = pad * wp + pad  # flat index of cell (0, 0) within a plane
-    inv = 1.0 / res
-    maxc = max_range * inv
-    jump_byte = 1 + int(math.ceil(2.0 * jump_min))
-    per_rad = sectors / (2.0 * math.pi)
     two_pi = 2.0 * math.pi
-    for n in prange(n_env):
-        u = (np.float64(pose[n, 0]) - ox) * inv
-        v = (np.float64(pose[n, 1]) - oy) * inv
+    for q in prange(n_env):
+        n = order[q]
+        m = map_index[n]
+        h = hs[m]
+        w = ws[m]
+        sectors = sectors_of[m]
+        res = res_of[m]
+        wp = wps[m]
+        plane = hps[m] * wp
+        cell0 = base0[m] + pad * wp + pad  # flat index of cell (0, 0) within the map's first plane
+        inv = 1.0 / res
+        maxc = max_range * inv
+        jump_byte = 1 + int(math.ceil(2.0 * jump_min))
+        per_rad = sectors / (2.0 * math.pi)
+        u = (np.float64(pose[n, 0]) - ox_of[m]) * inv
+        v = (np.float64(pose[n, 1]) - oy_of[m]) * inv
         yaw = np.float64(pose[n, 2])
         # the origin is shared by all beams: off the map, on its boundary or touching an obstacle
         # gives 0 for every beam

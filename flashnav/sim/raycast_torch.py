@@ -23,6 +23,7 @@ import math
 import torch
 
 from flashnav.maps.fields import cone_field
+from flashnav.sim.mapset import pack
 from flashnav.sim.raycast_base import AXIS_SNAP, DELTA, EPS, PAD, Raycaster
 
 #: A round costs a few dozen tensor ops whatever it does, so jump wherever the field allows a cell
@@ -49,43 +50,68 @@ class TorchExactRaycaster(Raycaster):
         self.chunk_lines = int(chunk_lines)
         self.jumps_per_round = int(jumps_per_round)
         self.max_batch_rays = int(max_batch_rays)
-        cone = cone_field(grid, PAD)
-        self._sectors, self._hp, self._wp = cone.shape
-        self._cone = torch.from_numpy(cone.copy()).to(self.device).reshape(-1)
-        self._flat = torch.from_numpy(grid.padded(PAD).copy()).to(self.device).reshape(-1)  # occupied
+        cones = [cone_field(g, PAD) for g in self.grids]
+        cone, cone_base = pack(cones)
+        occ, occ_base = pack([g.padded(PAD) for g in self.grids])
+        self._cone = torch.from_numpy(cone.copy()).to(self.device)
+        self._flat = torch.from_numpy(occ.copy()).to(self.device)  # occupied
+        # one map: Python numbers (the single-map ops, unchanged); several: [M] tensors gathered per ray
+        self._sectors, self._hp, self._wp = cones[0].shape
+        self._maps = None if len(self.grids) == 1 else _per_map(self.grids, self.device, sectors=[c.shape[0] for c in cones],
+                                                                cone_base=cone_base, occ_base=occ_base)
         self._jump_byte = 1 + math.ceil(2 * JUMP_MIN_CELLS)
         a = self.beam_angles.double()
         self._cos_a, self._sin_a = torch.cos(a), torch.sin(a)
         self._steps = torch.arange(self.chunk_lines, device=self.device, dtype=torch.float64)
 
-    def __call__(self, pose: torch.Tensor) -> torch.Tensor:
-        self._check(pose)
+    def __call__(self, pose: torch.Tensor, map_index=None) -> torch.Tensor:
+        mi = self._check(pose, map_index)
         g = self.grid
         p = pose.to(self.device, torch.float64)
-        inv = 1.0 / g.resolution
         n, k = p.shape[0], self._cos_a.shape[0]
+        if mi is None:
+            inv = 1.0 / g.resolution
+            ox, oy, res, per_rad = g.origin[0], g.origin[1], g.resolution, self._sectors / (2 * math.pi)
+            sectors, plane_cells, geo = self._sectors, self._hp * self._wp, self._geo
+        else:  # per-env [n, 1] values of each env's map; the ray geometry [n * k] per ray
+            m = {key: value[mi.to(self.device)][:, None] for key, value in self._maps.items()}
+            inv, ox, oy, res = 1.0 / m["res"], m["ox"], m["oy"], m["res"]
+            sectors, per_rad = m["sectors"], m["sectors"].double() / (2 * math.pi)
+            plane_cells = m["hp"] * m["wp"]
+            geo = _Geo(**{key: m[key].expand(n, k).reshape(-1) for key in _Geo.KEYS}, maxc=(self.max_range * inv).expand(n, k).reshape(-1))
         cy, sy = torch.cos(p[:, 2:3]), torch.sin(p[:, 2:3])
         dx = (cy * self._cos_a - sy * self._sin_a).reshape(-1)
         dy = (sy * self._cos_a + cy * self._sin_a).reshape(-1)
         dx = torch.where(dx.abs() < AXIS_SNAP, torch.zeros_like(dx), dx)
         dy = torch.where(dy.abs() < AXIS_SNAP, torch.zeros_like(dy), dy)
-        u = ((p[:, 0:1] - g.origin[0]) * inv).expand(n, k).reshape(-1)
-        v = ((p[:, 1:2] - g.origin[1]) * inv).expand(n, k).reshape(-1)
+        u = ((p[:, 0:1] - ox) * inv).expand(n, k).reshape(-1)
+        v = ((p[:, 1:2] - oy) * inv).expand(n, k).reshape(-1)
         # the sector plane of each ray's direction, as a flat offset into the field
-        sector = torch.floor((p[:, 2:3] + self.beam_angles.double()) * (self._sectors / (2 * math.pi)))
-        plane = (sector.long().remainder(self._sectors) * (self._hp * self._wp)).reshape(-1)
+        sector = torch.floor((p[:, 2:3] + self.beam_angles.double()) * per_rad)
+        plane = (sector.long().remainder(sectors) * plane_cells)
+        if mi is not None:
+            plane = plane + m["cone_base"]
+        plane = plane.reshape(-1)
         out = torch.empty(n * k, dtype=torch.float64, device=self.device)
         for s in range(0, n * k, self.max_batch_rays):
             e = min(s + self.max_batch_rays, n * k)
-            out[s:e] = self._cast(u[s:e], v[s:e], dx[s:e], dy[s:e], plane[s:e], self.max_range * inv)
-        return (out * g.resolution).clamp_(max=self.max_range).to(torch.float32).reshape(n, k)
+            out[s:e] = self._cast(u[s:e], v[s:e], dx[s:e], dy[s:e], plane[s:e], geo.take(slice(s, e)))
+        scale = res if mi is None else res.expand(n, k).reshape(-1)
+        return (out * scale).clamp_(max=self.max_range).to(torch.float32).reshape(n, k)
+
+    @property
+    def _geo(self) -> "_Geo":
+        """The single map's ray geometry (Python numbers)."""
+        h, w = self.grid.shape
+        return _Geo(h=h, w=w, hp=self._hp, wp=self._wp, occ_base=0, maxc=self.max_range * (1.0 / self.grid.resolution))
 
     # ---- helpers on flat ray batches ---------------------------------------------------------------
-    def _occupied(self, rows: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
-        """Occupancy of unpadded cell indices (any shape), clamped onto the occupied pad border."""
-        r = (rows + PAD).clamp_(0, self._hp - 1)
-        c = (cols + PAD).clamp_(0, self._wp - 1)
-        return self._flat[r * self._wp + c]
+    def _occupied(self, rows: torch.Tensor, cols: torch.Tensor, geo: "_Geo") -> torch.Tensor:
+        """Occupancy of unpadded cell indices ([R] or [R, M]), clamped onto the occupied pad border
+        of each ray's map."""
+        hp, wp = geo.bcast("hp", rows), geo.bcast("wp", rows)
+        index = _clamp(rows + PAD, hp - 1) * wp + _clamp(cols + PAD, wp - 1)
+        return self._flat[index if geo.single else index + geo.bcast("occ_base", rows)]
 
     @staticmethod
     def _span(c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -97,12 +123,13 @@ class TorchExactRaycaster(Raycaster):
         hi += (f + 1.0 - c < EPS).long()
         return lo, hi
 
-    def _touches(self, pu: torch.Tensor, pv: torch.Tensor) -> torch.Tensor:
+    def _touches(self, pu: torch.Tensor, pv: torch.Tensor, geo: "_Geo") -> torch.Tensor:
         j0, j1 = self._span(pu)
         i0, i1 = self._span(pv)
-        return self._occupied(i0, j0) | self._occupied(i0, j1) | self._occupied(i1, j0) | self._occupied(i1, j1)
+        return (self._occupied(i0, j0, geo) | self._occupied(i0, j1, geo) | self._occupied(i1, j0, geo)
+                | self._occupied(i1, j1, geo))
 
-    def _crossings(self, t, d_along, d_other, p_along, p_other, along_is_x):
+    def _crossings(self, t, d_along, d_other, p_along, p_other, along_is_x, geo):
         """Crossings of the next M lines across one axis from p(t) (``along`` = that axis):
         (crossing times [R, M], entered cell occupied [R, M])."""
         inf = torch.full_like(t, math.inf)
@@ -118,49 +145,104 @@ class TorchExactRaycaster(Raycaster):
         into = (lines - (~pos).double()[:, None]).long()  # the column/row entered
         lo, hi = self._span(other)
         if along_is_x:
-            hit = self._occupied(lo, into) | self._occupied(hi, into)
+            hit = self._occupied(lo, into, geo) | self._occupied(hi, into, geo)
         else:
-            hit = self._occupied(into, lo) | self._occupied(into, hi)
+            hit = self._occupied(into, lo, geo) | self._occupied(into, hi, geo)
         return tc, hit
 
-    def _jump(self, u, v, dx, dy, plane, t):
+    def _jump(self, u, v, dx, dy, plane, t, geo):
         """t advanced by the directional safe distance of the cell containing p(t) (any closed cell
         containing the point bounds it), where that is at least JUMP_MIN_CELLS."""
         pu, pv = u + t * dx, v + t * dy
-        b = self._cone[plane + ((torch.floor(pv).long() + PAD).clamp_(0, self._hp - 1)) * self._wp
-                       + (torch.floor(pu).long() + PAD).clamp_(0, self._wp - 1)].long()
+        b = self._cone[plane + _clamp(torch.floor(pv).long() + PAD, geo.hp - 1) * geo.wp
+                       + _clamp(torch.floor(pu).long() + PAD, geo.wp - 1)].long()
         return torch.where(b >= self._jump_byte, t + (b - 1) * 0.5 - DELTA, t)
 
-    def _cast(self, u, v, dx, dy, plane, maxc) -> torch.Tensor:
+    def _cast(self, u, v, dx, dy, plane, geo: "_Geo") -> torch.Tensor:
         """Ranges in cells for flat [R] rays (grid-unit origins, unit directions)."""
-        res = torch.full_like(u, maxc)
-        inside = (u > 0) & (u < self.grid.shape[1]) & (v > 0) & (v < self.grid.shape[0])
+        maxc = geo.maxc
+        res = torch.full_like(u, maxc) if geo.single else maxc.clone()
+        inside = (u > 0) & (u < geo.w) & (v > 0) & (v < geo.h)
         res[~inside] = 0.0
         ids = torch.nonzero(inside).squeeze(1)
-        u, v, dx, dy, plane = u[ids], v[ids], dx[ids], dy[ids], plane[ids]
+        u, v, dx, dy, plane, geo = u[ids], v[ids], dx[ids], dy[ids], plane[ids], geo.take(ids)
         t = torch.zeros_like(u)
         # an origin touching an occupied cell ends the ray before any jump could skip past it
-        start = self._touches(u, v)
+        start = self._touches(u, v, geo)
         res[ids[start]] = 0.0
         ids, u, v, dx, dy, plane, t = (a[~start] for a in (ids, u, v, dx, dy, plane, t))
+        geo = geo.take(~start)
         while ids.numel() > 0:
             for _ in range(self.jumps_per_round):  # cheap [R] ops: skip free space first
-                t = self._jump(u, v, dx, dy, plane, t)
+                t = self._jump(u, v, dx, dy, plane, t, geo)
             pu, pv = u + t * dx, v + t * dy
-            hit_t = torch.where(self._touches(pu, pv), t, math.inf)
-            tx, hx = self._crossings(t, dx, dy, pu, pv, True)
-            ty, hy = self._crossings(t, dy, dx, pv, pu, False)
+            hit_t = torch.where(self._touches(pu, pv, geo), t, math.inf)
+            tx, hx = self._crossings(t, dx, dy, pu, pv, True, geo)
+            ty, hy = self._crossings(t, dy, dx, pv, pu, False, geo)
             end = torch.minimum(tx[:, -1], ty[:, -1])
             cand = torch.minimum(torch.where(hx & (tx <= end[:, None]), tx, math.inf).amin(1),
                                  torch.where(hy & (ty <= end[:, None]), ty, math.inf).amin(1))
             hit_t = torch.minimum(hit_t, cand)
             t = end
             hit = torch.isfinite(hit_t)
+            maxc = geo.maxc
             done = hit | (t >= maxc)
-            res[ids[done]] = torch.where(hit[done], hit_t[done].clamp(max=maxc), maxc)
+            if geo.single:
+                res[ids[done]] = torch.where(hit[done], hit_t[done].clamp(max=maxc), maxc)
+            else:
+                res[ids[done]] = torch.minimum(hit_t[done], maxc[done])  # = maxc where nothing was hit
             keep = ~done
             ids, u, v, dx, dy, plane, t = (a[keep] for a in (ids, u, v, dx, dy, plane, t))
+            geo = geo.take(keep)
         return res
+
+
+class _Geo:
+    """Each ray's map geometry: unpadded shape ``h``, ``w``, padded ``hp``, ``wp`` (cells),
+    ``occ_base`` (flat offset of the map's padded occupancy) and ``maxc`` (max range in the map's
+    cells). Python numbers for a single map (shared by all rays: the single-map ops, unchanged), else
+    [R] tensors that follow the active rays."""
+
+    KEYS = ("h", "w", "hp", "wp", "occ_base")
+
+    def __init__(self, h, w, hp, wp, occ_base, maxc) -> None:
+        self.h, self.w, self.hp, self.wp, self.occ_base, self.maxc = h, w, hp, wp, occ_base, maxc
+        self.single = not isinstance(maxc, torch.Tensor)
+
+    def take(self, sel) -> "_Geo":
+        if self.single:
+            return self
+        return _Geo(*(getattr(self, key)[sel] for key in (*self.KEYS, "maxc")))
+
+    def bcast(self, key: str, like: torch.Tensor):
+        """The value ``key`` shaped to broadcast against ``like`` ([R] or [R, M])."""
+        value = getattr(self, key)
+        return value if self.single or like.ndim == 1 else value[:, None]
+
+
+def _clamp(index: torch.Tensor, high):
+    """``index`` clamped in place to [0, high] (``high`` a number, or a tensor of ``index``'s shape)."""
+    if isinstance(high, torch.Tensor):
+        return torch.minimum(index.clamp_(min=0), high)
+    return index.clamp_(0, high)
+
+
+def _per_map(grids, device, *, sectors, cone_base, occ_base) -> dict[str, torch.Tensor]:
+    """[M] tensors of each map's values, gathered per env by the multi-map raycasters."""
+    long = dict(device=device, dtype=torch.long)
+    f64 = dict(device=device, dtype=torch.float64)
+    return {
+        "h": torch.tensor([g.shape[0] for g in grids], **long),
+        "w": torch.tensor([g.shape[1] for g in grids], **long),
+        "hp": torch.tensor([g.shape[0] + 2 * PAD for g in grids], **long),
+        "wp": torch.tensor([g.shape[1] + 2 * PAD for g in grids], **long),
+        "sectors": torch.tensor(sectors, **long),
+        "cone_base": torch.as_tensor(cone_base, **long),
+        "occ_base": torch.as_tensor(occ_base, **long),
+        "ox": torch.tensor([g.origin[0] for g in grids], **f64),
+        "oy": torch.tensor([g.origin[1] for g in grids], **f64),
+        "res": torch.tensor([g.resolution for g in grids], **f64),
+    }
 
 
 class MarchRaycaster(Raycaster):
@@ -180,27 +262,43 @@ class MarchRaycaster(Raycaster):
         self.chunk_steps = int(chunk_steps)
         self.max_batch_rays = int(max_batch_rays)
         self._n_steps = math.ceil(self.max_range / self.step - 1e-9)
-        occ = torch.from_numpy(grid.padded(1).copy()).to(self.device)
-        self._hp, self._wp = occ.shape
-        self._flat = occ.reshape(-1)
+        occ, occ_base = pack([g.padded(1) for g in self.grids])
+        self._flat = torch.from_numpy(occ.copy()).to(self.device)
+        self._hp, self._wp = self.grid.shape[0] + 2, self.grid.shape[1] + 2
+        # [M] per map, gathered per ray; float32 as the single-map ops' Python numbers act on float32
+        f32 = dict(device=self.device, dtype=torch.float32)
+        self._maps = None if len(self.grids) == 1 else {
+            "ox": torch.tensor([g.origin[0] for g in self.grids], **f32),
+            "oy": torch.tensor([g.origin[1] for g in self.grids], **f32),
+            "inv": torch.tensor([1.0 / g.resolution for g in self.grids], **f32),
+            "hp": torch.tensor([g.shape[0] + 2 for g in self.grids], **f32),
+            "wp": torch.tensor([g.shape[1] + 2 for g in self.grids], **f32),
+            "base": torch.as_tensor(occ_base, device=self.device, dtype=torch.long)}
 
-    def __call__(self, pose: torch.Tensor) -> torch.Tensor:
-        self._check(pose)
+    def __call__(self, pose: torch.Tensor, map_index=None) -> torch.Tensor:
+        mi = self._check(pose, map_index)
         p = pose.to(self.device, torch.float32)
         n, k = p.shape[0], self.beam_angles.numel()
         ang = p[:, 2:3] + self.beam_angles
         c, s = torch.cos(ang).reshape(-1), torch.sin(ang).reshape(-1)
         x = p[:, 0:1].expand(n, k).reshape(-1)
         y = p[:, 1:2].expand(n, k).reshape(-1)
+        g = self.grid
+        if mi is None:  # Python numbers: the single-map ops, unchanged
+            geo = {"ox": g.origin[0], "oy": g.origin[1], "inv": 1.0 / g.resolution, "hp": self._hp, "wp": self._wp}
+        else:  # [R, 1] per ray, from each env's map
+            geo = {key: value[mi.to(self.device)][:, None].expand(n, k).reshape(-1, 1) for key, value in self._maps.items()}
         out = torch.empty(n * k, dtype=torch.float32, device=self.device)
         for b in range(0, n * k, self.max_batch_rays):
             e = min(b + self.max_batch_rays, n * k)
-            out[b:e] = self._march(x[b:e], y[b:e], c[b:e], s[b:e])
+            part = geo if mi is None else {key: value[b:e] for key, value in geo.items()}
+            out[b:e] = self._march(x[b:e], y[b:e], c[b:e], s[b:e], part)
         return out.reshape(n, k)
 
-    def _march(self, x, y, c, s) -> torch.Tensor:
-        g = self.grid
-        inv = 1.0 / g.resolution
+    def _march(self, x, y, c, s, geo: dict) -> torch.Tensor:
+        """Ranges of flat [R] rays from (x, y) along (c, s); ``geo``: each ray's map (origin, 1 /
+        resolution, padded shape, flat offset), Python numbers for one map or [R, 1] tensors."""
+        single = not isinstance(geo["inv"], torch.Tensor)
         out = torch.full_like(x, self.max_range)
         ids = torch.arange(x.numel(), device=self.device)
         ar = torch.arange(1, self.chunk_steps + 1, device=self.device)
@@ -209,15 +307,20 @@ class MarchRaycaster(Raycaster):
                 break
             kk = (k0 + ar[: min(self.chunk_steps, self._n_steps - k0)]).float()
             t = kk * self.step  # [C] metres
-            col = torch.floor((x[:, None] + t * c[:, None] - g.origin[0]) * inv)
-            row = torch.floor((y[:, None] + t * s[:, None] - g.origin[1]) * inv)
+            col = torch.floor((x[:, None] + t * c[:, None] - geo["ox"]) * geo["inv"])
+            row = torch.floor((y[:, None] + t * s[:, None] - geo["oy"]) * geo["inv"])
             # indices off the map clamp onto the occupied border of the 1-cell padding
-            col = (col + 1).clamp_(0, self._wp - 1).long()
-            row = (row + 1).clamp_(0, self._hp - 1).long()
-            hit = self._flat[row * self._wp + col]  # [R, C] bool
+            col = _clamp(col + 1, geo["wp"] - 1).long()
+            row = _clamp(row + 1, geo["hp"] - 1).long()
+            if single:
+                hit = self._flat[row * geo["wp"] + col]  # [R, C] bool
+            else:
+                hit = self._flat[row * geo["wp"].long() + col + geo["base"]]
             any_hit = hit.any(1)
             first = hit.to(torch.uint8).argmax(1)
             out[ids[any_hit]] = torch.clamp(t[first[any_hit]], max=self.max_range)
             keep = ~any_hit
             ids, x, y, c, s = ids[keep], x[keep], y[keep], c[keep], s[keep]
+            if not single:
+                geo = {key: value[keep] for key, value in geo.items()}
         return out

@@ -1,0 +1,92 @@
+"""The maps of one batched environment: one map, or M maps of any sizes and resolutions.
+
+Every environment slot holds a map index (``NavVecEnv.map_index`` [N] long); a slot draws its map
+when it resets, uniformly or by the set's weights, with the environment's torch generator (same seed,
+same maps). The raycasters and the collision checker read all M maps from *one flat buffer with
+per-map offsets* (:func:`pack`): each map keeps its own shape, resolution and padding, so memory is
+the sum of the maps' fields, not M times the largest. A stack padded to a common shape ran at the
+same speed within noise and took 2.2x the memory for 64 maps of 6-20 m (docs/benchmarks.md, "Many
+maps in one env"). Per-map values that the kernels need (offsets, shapes, origins, resolutions) are
+small [M] arrays, gathered per slot.
+
+Each map is simulated in its own frame (:func:`flashnav.sim.env.sim_frame`: world coordinates, or the
+map's origin for far maps); a slot's pose and goal are in its map's frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from flashnav.maps.grid import OccupancyMap
+
+
+def as_grids(grid: OccupancyMap | Sequence[OccupancyMap]) -> tuple[OccupancyMap, ...]:
+    """One map or a non-empty sequence of maps -> a tuple of maps (TypeError / ValueError otherwise)."""
+    grids = (grid,) if isinstance(grid, OccupancyMap) else tuple(grid)
+    if not grids:
+        raise ValueError("a map set needs at least one map, got none")
+    for i, g in enumerate(grids):
+        if not isinstance(g, OccupancyMap):
+            raise TypeError(f"maps[{i}] must be an OccupancyMap, got {type(g).__name__}")
+    return grids
+
+
+def pack(arrays: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Flatten and concatenate per-map arrays: (flat [sum of sizes], offsets [M] int64 where each
+    map's array starts). One array is returned as a view, without a copy."""
+    sizes = np.array([a.size for a in arrays], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    flat = arrays[0].reshape(-1) if len(arrays) == 1 else np.concatenate([a.reshape(-1) for a in arrays])
+    return flat, offsets
+
+
+def check_map_index(map_index, n: int, num_maps: int, device: torch.device) -> torch.Tensor:
+    """``map_index`` as a [n] long tensor on ``device``; a ValueError for another shape or dtype, and
+    (on the CPU, where it costs no device sync) for an index outside [0, num_maps)."""
+    mi = torch.as_tensor(map_index, device=device)
+    if mi.shape != (n,) or mi.dtype.is_floating_point or mi.dtype == torch.bool or mi.is_complex():
+        raise ValueError(f"map_index must be a 1-D integer tensor of shape [N] = [{n}], got {mi.dtype} {list(mi.shape)}")
+    mi = mi.long()
+    if device.type == "cpu" and n and (int(mi.min()) < 0 or int(mi.max()) >= num_maps):
+        bad = mi[(mi < 0) | (mi >= num_maps)]
+        raise ValueError(f"map_index holds {int(bad[0])}, outside [0, {num_maps}) ({num_maps} maps)")
+    return mi
+
+
+def goals_outside(grids: Sequence[OccupancyMap], goal: torch.Tensor, map_index: torch.Tensor) -> torch.Tensor:
+    """[N] bool: ``goal`` [N, 2] (m, world, float64) lies outside the extent of its map
+    ``grids[map_index]``, by more than one cell (float32 goals on a map's edge may round a hair
+    outside it). Indices out of range count as inside (checked elsewhere)."""
+    dev = goal.device
+    bounds = torch.tensor([g.bounds for g in grids], dtype=torch.float64, device=dev)
+    tol = torch.tensor([g.resolution for g in grids], dtype=torch.float64, device=dev)
+    mi = map_index.clamp(0, len(grids) - 1)
+    b, t = bounds[mi], tol[mi]
+    gx, gy = goal[:, 0], goal[:, 1]
+    return (gx < b[:, 0] - t) | (gx > b[:, 2] + t) | (gy < b[:, 1] - t) | (gy > b[:, 3] + t)
+
+
+class MapDraw:
+    """Draws map indices for resetting slots: uniform over M maps, or proportional to ``weights``."""
+
+    def __init__(self, num_maps: int, weights: Sequence[float] | None, device: torch.device):
+        self.num_maps = num_maps
+        self.weights = None
+        if weights is not None:
+            w = [float(x) for x in weights]
+            if len(w) != num_maps:
+                raise ValueError(f"map_weights has {len(w)} entries for {num_maps} maps")
+            if any(not (math.isfinite(x) and x >= 0) for x in w) or sum(w) <= 0:
+                raise ValueError(f"map_weights must be finite, >= 0 and not all 0, got {w}")
+            self.weights = torch.tensor(w, dtype=torch.float64, device=device)
+
+    def __call__(self, n: int, gen: torch.Generator) -> torch.Tensor:
+        """[n] long map indices."""
+        device = gen.device
+        if self.weights is None:
+            return torch.randint(self.num_maps, (n,), generator=gen, device=device)
+        return torch.multinomial(self.weights, n, replacement=True, generator=gen)
