@@ -38,12 +38,7 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
@@ -75,12 +70,7 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
     axes[0][0].set_ylabel("evaluation success (%)")
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out, dpi=120)
 
 
 def draw_map_sheet(rows: dict[str, list[OccupancyMap]], out: str | Path, title: str = "") -> Path:
@@ -106,9 +96,14 @@ def draw_map_sheet(rows: dict[str, list[OccupancyMap]], out: str | Path, title: 
                 ax.set_ylabel(label, fontsize=11)
     if title:
         fig.suptitle(title, fontsize=11)
+    return _save(fig, out)
+
+
+def _save(fig, out: str | Path, dpi: float | None = None) -> Path:
+    """Lay out ``fig``, write it to ``out`` (parent folders created), close it; returns the path."""
     fig.tight_layout()
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
+    fig.savefig(out, **({} if dpi is None else {"dpi": dpi}))
     plt.close(fig)
     return out
