@@ -179,12 +179,15 @@ def print_report(report: dict) -> None:
     pct = lambda x: f"{100 * x:.1f} %"  # noqa: E731
     scale = report["goal_distance_scale"]
     console = Console()
+    if not console.is_terminal:  # a log or a pipe: wide enough that no map name is cut
+        console = Console(width=max(console.width, 120))
     console.print(f"{report['policy']} ({report['robot']}) on {len(report['maps'])} maps of "
                   f"{report['maps_arg']}: {report['episodes_per_map']} episodes per map, seed {report['seed']}, "
                   f"goal sampling {report['goal_sampling']} ({report['goal_band_m'][0]:g}-"
                   f"{report['goal_band_m'][1]:g} m)")
     table = Table(title="flashnav eval --maps")
-    for col, justify in (("map", "left"), ("size m", "right"), ("cell m", "right"), ("success", "right"),
+    table.add_column("map", no_wrap=True)
+    for col, justify in ( ("size m", "right"), ("cell m", "right"), ("success", "right"),
                          ("collision", "right"), ("timeout", "right"), ("episodes", "right"),
                          ("beyond scale", "right")):
         table.add_column(col, justify=justify)
