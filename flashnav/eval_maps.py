@@ -131,19 +131,13 @@ def suite_label(maps: str) -> str:
     return p.name if p.is_dir() else str(maps)
 
 
-def run_eval_maps(args) -> int:
-    """``flashnav eval POLICY --maps ...`` (arguments from :mod:`flashnav.policy_cli`)."""
+def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
+    """``flashnav eval POLICY --maps ...``: parsed arguments and the loaded policy, its metadata, robot and
+    device from :mod:`flashnav.policy_cli` (which checks the arguments and the output file first)."""
     from flashnav.machine import machine_name
     from flashnav.maps.bundled import resolve_maps
-    from flashnav.outputs import check_output_file
-    from flashnav.policy_cli import load_policy_for
     from flashnav.presets import load_robot
 
-    if args.json:
-        check_output_file(args.json, "--json")
-    if args.map is not None:
-        raise ValueError("give either --map or --maps, not both")
-    policy, meta, robot, device = load_policy_for(args, args.device)
     sampling = args.goal_sampling or "geodesic"
     preset = load_robot(robot, **{"episode.goal_sampling": sampling})
     scale = float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))

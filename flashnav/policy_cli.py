@@ -97,12 +97,14 @@ def run_eval(args) -> int:
     from flashnav.evaluate import evaluate
     from flashnav.outputs import check_output_file
 
+    if args.map is not None and args.maps is not None:
+        raise ValueError("give either --map or --maps, not both")
+    if args.json:  # before the evaluation, which may take minutes
+        check_output_file(args.json, "--json")
     if args.maps is not None:
         from flashnav.eval_maps import run_eval_maps
 
-        return run_eval_maps(args)
-    if args.json:  # before the evaluation, which may take minutes
-        check_output_file(args.json, "--json")
+        return run_eval_maps(args, *load_policy_for(args, args.device))
     if args.goal_sampling is not None:
         raise ValueError("--goal-sampling goes with --maps (for one map: --maps FILE.yaml)")
     policy, meta, env = load_policy_and_env(args, args.device)
