@@ -36,18 +36,30 @@ def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, see
 def evaluate_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv,
                       seed: int) -> dict[str, torch.Tensor]:
     """:func:`evaluate`'s episodes one by one: ``success`` / ``collision`` [N] bool, ``episode_return``
-    and ``episode_steps`` [N] float, and each episode's ``start_pose`` [N, 3] / ``goal`` [N, 2] in the
-    map's own (world) frame. Slot k holds the k-th episode of the set that ``seed`` draws."""
+    and ``episode_steps`` [N] float, each episode's ``start_pose`` [N, 3] / ``goal`` [N, 2] in the
+    map's own (world) frame, and ``max_goal_distance`` [N] float (metres: the largest goal distance the
+    policy was given, start included). Slot k holds the k-th episode of the set that ``seed`` draws."""
     obs, _ = env.reset(seed=seed)
+    return play_episodes(policy, env, obs)
+
+
+@torch.no_grad()
+def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv,
+                  obs: torch.Tensor) -> dict[str, torch.Tensor]:
+    """:func:`evaluate_episodes` from the episodes already placed in ``env`` (by ``reset`` or
+    ``set_state``; ``obs`` [N, D] their observations): one episode per slot, same returns."""
     start_pose, goal = env.world_pose(), env.world_goal()
     n, dev = env.num_envs, env.device
+    col = env.preset.lidar.sectors  # the goal-distance column
     success = torch.zeros(n, dtype=torch.bool, device=dev)
     collision = torch.zeros(n, dtype=torch.bool, device=dev)
     returns = torch.zeros(n, device=dev)
     steps = torch.zeros(n, device=dev)
+    max_goal = obs[:, col].clone()
     active = torch.arange(n, device=dev)
     for _ in range(env.preset.episode.horizon):
         t = env.step_slots(active, policy(obs))
+        max_goal[active] = torch.maximum(max_goal[active], t["obs"][:, col])
         done = t["terminated"] | t["truncated"]
         ended = active[done]
         success[ended] = t["success"][done]
@@ -59,7 +71,7 @@ def evaluate_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVe
         if active.numel() == 0:  # a host sync per step: evaluation is outside the training clock
             break
     return {"success": success, "collision": collision, "episode_return": returns, "episode_steps": steps,
-            "start_pose": start_pose, "goal": goal}
+            "start_pose": start_pose, "goal": goal, "max_goal_distance": max_goal}
 
 
 def _evaluate_dense(policy, env: NavVecEnv, seed: int) -> dict[str, float]:

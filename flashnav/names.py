@@ -27,6 +27,14 @@ DEFAULT_RAYCASTER = RAYCASTERS[0]
 GOAL_SAMPLINGS = ("euclidean", "geodesic")
 #: Families of generated maps (:mod:`flashnav.maps.families`).
 MAP_FAMILIES = ("rooms", "offices", "halls", "warehouses", "mazes", "clutter")
+#: Map suites of the generalisation benchmark, committed in ``flashnav/maps/data/benchmark/<name>/``
+#: (``flashnav eval POLICY --maps heldout``): generated maps no training may use, and real ROS maps
+#: of buildings from public packages (their README lists sources and licences).
+BENCHMARK_SUITES = ("heldout", "real")
+#: Generator seeds reserved for the held-out suite (this and above) and for a validation suite (tuning);
+#: training maps take seeds below ``VALIDATION_SEEDS[0]``.
+HELDOUT_SEEDS_FROM = 900_000
+VALIDATION_SEEDS = (800_000, 899_999)
 #: ``TrainConfig.cuda_graph``: a cycle's updates on static buffers captured as a CUDA graph (``on``;
 #: eager with capture skipped on a CPU), the plain eager loop (``off``), or ``auto`` (on for cuda only).
 CUDA_GRAPH_MODES = ("auto", "on", "off")

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from flashnav.names import GOAL_SAMPLINGS
+
 #: frames in the GIF at most (one every few control steps): keeps the file small
 GIF_MAX_FRAMES = 40
 #: longest side of the GIF, pixels
@@ -27,6 +29,12 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     _common_args(p, episodes=1024)
     p.add_argument("--device", default="cpu", help="simulator device (cpu, cuda, cuda:N, auto); ONNX always runs on CPU")
     p.add_argument("--json", default=None, metavar="FILE", help="write the rates to this JSON file")
+    p.add_argument("--maps", default=None, metavar="DIR_OR_GLOB",
+                   help="evaluate on every map of a folder / glob of ROS map YAML files, or of a committed "
+                        "benchmark suite (heldout, real): a table per map, --episodes each")
+    p.add_argument("--goal-sampling", default=None, choices=GOAL_SAMPLINGS,
+                   help="goal band measured as path length (geodesic; the default with --maps) or straight line")
+    p.add_argument("--label", default=None, help="with --maps: the policy's name in the JSON and the report")
     p.set_defaults(func=run_eval)
 
     p = sub.add_parser("render", help="draw an exported policy's trajectories (PNG, optionally an animated GIF)")
@@ -48,10 +56,19 @@ def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
 def load_policy_and_env(args, device: str = "cpu"):
     """(policy, metadata, env) for parsed `eval`-style arguments (policy, robot, map, episodes, seed):
     the policy checked against the robot, one env per episode. Shared with `flashnav bench eval`."""
+    from flashnav.sim.env import make_env
+
+    policy, meta, robot, device = load_policy_for(args, device)
+    env = make_env(robot, args.episodes, map=args.map, device=device, seed=args.seed)
+    return policy, meta, env
+
+
+def load_policy_for(args, device: str = "cpu"):
+    """(policy, metadata, robot, device): the policy of parsed `eval`-style arguments checked against
+    ``--robot``, else the robot preset recorded in the policy (a RobotPreset or a name); the device resolved."""
     from flashnav.config import RobotPreset
     from flashnav.export import load_policy
     from flashnav.spec import resolve_device
-    from flashnav.sim.env import make_env
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
@@ -66,8 +83,7 @@ def load_policy_and_env(args, device: str = "cpu"):
         robot = RobotPreset.model_validate(meta["preset"])
     else:
         robot = meta["robot"]
-    env = make_env(robot, args.episodes, map=args.map, device=device, seed=args.seed)
-    return policy, meta, env
+    return policy, meta, robot, device
 
 
 def _map_label(args, env) -> str:
@@ -81,8 +97,16 @@ def run_eval(args) -> int:
     from flashnav.evaluate import evaluate
     from flashnav.outputs import check_output_file
 
+    if args.map is not None and args.maps is not None:
+        raise ValueError("give either --map or --maps, not both")
     if args.json:  # before the evaluation, which may take minutes
         check_output_file(args.json, "--json")
+    if args.maps is not None:
+        from flashnav.eval_maps import run_eval_maps
+
+        return run_eval_maps(args, *load_policy_for(args, args.device))
+    if args.goal_sampling is not None:
+        raise ValueError("--goal-sampling goes with --maps (for one map: --maps FILE.yaml)")
     policy, meta, env = load_policy_and_env(args, args.device)
     start = time.perf_counter()
     result = evaluate(policy, env, seed=args.seed)

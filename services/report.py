@@ -349,7 +349,14 @@ def _cli(args) -> int:
         os.environ.setdefault(key, value)
     try:
         check_output_dir(args.out, "--out")
-        written = write_report(uri, args.out, experiment=args.experiment, sweeps=args.sweeps, formats=formats)
+        written = {}
+        if args.generalisation:
+            from services.report_generalisation import write_generalisation
+
+            written.update(write_generalisation(args.generalisation, args.out, formats))
+        if not args.generalisation or args.experiment or args.sweeps:  # MLflow runs asked for, or nothing else
+            written.update(write_report(uri, args.out, experiment=args.experiment, sweeps=args.sweeps,
+                                        formats=formats))
     except (NoRunsError, ValueError, MlflowException) as err:
         if getattr(args, "debug", False):
             raise
@@ -375,6 +382,9 @@ def register_cli(subparsers):
     p.add_argument("--tracking-uri", default=None, metavar="URI",
                    help="MLflow store (default: $MLFLOW_TRACKING_URI, else sqlite:///<cwd>/runs/mlflow.db)")
     p.add_argument("--out", default="runs/report", metavar="DIR", help="output folder (default: runs/report)")
+    p.add_argument("--generalisation", metavar="EVAL_JSON", nargs="+", default=None,
+                   help="also (alone: only) the generalisation tables from `flashnav eval POLICY --maps SUITE "
+                        "--json FILE` results, one file per policy and suite (generalisation.md/.csv/.html)")
     p.add_argument("--format", default="md,tex,csv,html",
                    help=f"comma-separated, from {','.join(FORMATS)} (default: md,tex,csv,html)")
     p.set_defaults(func=_cli)

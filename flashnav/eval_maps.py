@@ -1,0 +1,207 @@
+"""``flashnav eval POLICY --maps DIR_OR_GLOB``: one policy on many maps, a table per map (the generalisation
+benchmark).
+
+Every map gets the same ``episodes`` fixed episodes: those that a one-map environment on that map draws
+with ``reset(seed=seed)`` (:func:`fixed_episodes`), so a map's row does not depend on which other maps
+are evaluated beside it, and equals evaluating that map alone. All maps' episodes run together in one
+many-map environment (``M x episodes`` slots, slot k on map ``k // episodes``), with the deterministic
+policy (:func:`flashnav.evaluate.play_episodes`).
+
+The policy runs on its own robot preset (from its metadata), with the goal band measured by
+``goal_sampling`` (``geodesic`` by default here: on maps unlike the training map, the straight-line band
+can put goals behind walls farther than the horizon allows; see ``episode.goal_sampling``). The
+observation's goal distance is passed to the policy as the environment computes it, as a robot would:
+nothing clips it. The policy's input transform was scaled by its training map's diagonal
+(``goal_distance_scale``); a map with a larger diagonal is marked, and each row counts the episodes whose
+goal-distance input went beyond the scale (inputs the policy never saw in training).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import time
+from importlib import resources
+from pathlib import Path
+
+import torch
+
+from flashnav.evaluate import play_episodes
+from flashnav.maps.grid import OccupancyMap
+from flashnav.names import BENCHMARK_SUITES
+from flashnav.sim.env import NavVecEnv, sim_frame
+
+#: Version of the ``--json`` layout written by :func:`evaluate_maps` (read by ``flashnav report
+#: --generalisation``).
+EVAL_MAPS_FORMAT = 1
+EVAL_MAPS_KIND = "flashnav.eval_maps"
+RATES = ("success_rate", "collision_rate", "timeout_rate")
+
+
+def suite_path(maps: str) -> str:
+    """``maps`` as given, or the folder of the committed benchmark suite it names (``heldout``, ``real``)
+    when no file or folder of that name exists here."""
+    if maps in BENCHMARK_SUITES and not Path(maps).exists():
+        return str(resources.files("flashnav") / "maps" / "data" / "benchmark" / maps)
+    return maps
+
+
+def fixed_episodes(env, m: int, count: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``count`` episodes of map ``m`` of ``env``: exactly those that a one-map env on that map (same
+    preset and device) draws with ``reset(seed=seed)``. Returns world ``pose`` [count, 3] and ``goal``
+    [count, 2], float64 (x, y m; yaw rad)."""
+    gen = torch.Generator(device=env.device)
+    gen.manual_seed(int(seed))
+    pose, goal = env.samplers[m].sample(count, gen)  # the map's simulator frame, as a one-map reset draws
+    ox, oy = sim_frame(env.maps[m])
+    pose, goal = pose.double(), goal.double()
+    pose[:, 0] += ox
+    pose[:, 1] += oy
+    return pose, goal + torch.tensor([ox, oy], dtype=torch.float64, device=env.device)
+
+
+def map_labels(grids: list[OccupancyMap]) -> list[str]:
+    """One label per map: its name, or its file path where two maps share a name."""
+    names = [g.name for g in grids]
+    return [str(g.source) if names.count(g.name) > 1 and g.source else g.name for g in grids]
+
+
+@torch.no_grad()
+def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed: int, *,
+                  goal_distance_scale: float, device: str = "cpu") -> dict:
+    """Evaluate the deterministic ``policy`` (obs [k, D] -> action [k, 2]) on ``episodes`` fixed episodes
+    per map of ``grids`` (see the module docstring).
+
+    Returns a dict: ``maps`` (one entry per map, in order: label, source, size, resolution, diagonal,
+    ``beyond_scale`` = diagonal > ``goal_distance_scale``, ``episodes_beyond_scale`` = episodes whose goal
+    distance input exceeded the scale, the three rates as fractions, mean steps and return) and
+    ``aggregate`` (``mean`` over maps, ``pooled`` over all episodes, the ``worst`` map by success).
+    """
+    if episodes < 1:
+        raise ValueError(f"--episodes must be >= 1 per map, got {episodes}")
+    m = len(grids)
+    env = NavVecEnv(preset, m * episodes, grid=grids[0] if m == 1 else grids, device=device, seed=seed)
+    poses, goals = zip(*(fixed_episodes(env, k, episodes, seed) for k in range(m)))
+    map_index = torch.arange(m, device=env.device).repeat_interleave(episodes)
+    obs = env.set_state(torch.cat(poses), torch.cat(goals), map_index=map_index if m > 1 else None)
+    e = play_episodes(policy, env, obs)
+    rows = []
+    for k, (g, label) in enumerate(zip(grids, map_labels(grids))):
+        sl = slice(k * episodes, (k + 1) * episodes)
+        success, collision = e["success"][sl], e["collision"][sl]
+        rows.append({
+            "map": label, "source": str(g.source) if g.source else None,
+            "width_m": g.width_m, "height_m": g.height_m, "resolution": g.resolution, "diagonal_m": g.diagonal_m,
+            "beyond_scale": bool(g.diagonal_m > goal_distance_scale),
+            "episodes_beyond_scale": int((e["max_goal_distance"][sl] > goal_distance_scale).sum()),
+            "episodes": episodes,
+            "success_rate": success.float().mean().item(),
+            "collision_rate": collision.float().mean().item(),
+            "timeout_rate": (~success & ~collision).float().mean().item(),
+            "mean_steps": e["episode_steps"][sl].mean().item(),
+            "mean_return": e["episode_return"][sl].mean().item(),
+        })
+    return {"maps": rows, "aggregate": aggregate(rows)}
+
+
+def aggregate(rows: list[dict]) -> dict:
+    """``mean``: each rate averaged over maps; ``pooled``: over all episodes (the two agree when every map
+    has as many episodes); ``worst``: the map with the lowest success rate (the first of equals)."""
+    total = sum(r["episodes"] for r in rows)
+    mean = {k: sum(r[k] for r in rows) / len(rows) for k in RATES}
+    pooled = {k: sum(r[k] * r["episodes"] for r in rows) / total for k in RATES}
+    worst = min(rows, key=lambda r: r["success_rate"])
+    return {"maps": len(rows), "episodes": total, "mean": mean, "pooled": pooled,
+            "worst": {"map": worst["map"], "success_rate": worst["success_rate"]},
+            "maps_beyond_scale": sum(r["beyond_scale"] for r in rows),
+            "episodes_beyond_scale": sum(r["episodes_beyond_scale"] for r in rows)}
+
+
+def default_label(policy: str | Path) -> str:
+    """``<folder>/<file>`` of a policy path (``runs/main/policy.onnx`` -> ``main/policy.onnx``)."""
+    p = Path(policy)
+    return f"{p.parent.name}/{p.name}" if p.parent.name else p.name
+
+
+def suite_label(maps: str) -> str:
+    """A short name for the ``--maps`` argument: a suite name, a folder's name, or the pattern as given."""
+    if maps in BENCHMARK_SUITES:
+        return maps
+    p = Path(maps)
+    return p.name if p.is_dir() else str(maps)
+
+
+def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
+    """``flashnav eval POLICY --maps ...``: parsed arguments and the loaded policy, its metadata, robot and
+    device from :mod:`flashnav.policy_cli` (which checks the arguments and the output file first)."""
+    from flashnav.machine import machine_name
+    from flashnav.maps.bundled import resolve_maps
+    from flashnav.presets import load_robot
+
+    sampling = args.goal_sampling or "geodesic"
+    preset = load_robot(robot, **{"episode.goal_sampling": sampling})
+    scale = float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))
+    grids = resolve_maps(suite_path(args.maps), preset.map)
+    start = time.perf_counter()
+    result = evaluate_maps(policy, preset, grids, args.episodes, args.seed, goal_distance_scale=scale, device=device)
+    seconds = time.perf_counter() - start
+    report = {
+        "kind": EVAL_MAPS_KIND, "format_version": EVAL_MAPS_FORMAT,
+        "label": args.label or default_label(args.policy), "policy": str(args.policy),
+        "suite": suite_label(args.maps), "maps_arg": str(args.maps), "robot": preset.name,
+        "goal_sampling": sampling, "goal_band_m": [preset.episode.min_goal_distance, preset.episode.max_goal_distance],
+        "episodes_per_map": args.episodes, "seed": args.seed, "goal_distance_scale": scale,
+        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": machine_name(str(device)), "seconds": seconds, **result,
+    }
+    print_report(report)
+    if args.json:
+        import json
+
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        print(f"results: {out}")
+    return 0
+
+
+def print_report(report: dict) -> None:
+    """The per-map table and the aggregate rows, with the goal-distance scale's caveat."""
+    from rich.console import Console
+    from rich.table import Table
+
+    pct = lambda x: f"{100 * x:.1f} %"  # noqa: E731
+    scale = report["goal_distance_scale"]
+    console = Console()
+    if not console.is_terminal:  # a log or a pipe: wide enough that no map name is cut
+        console = Console(width=max(console.width, 120))
+    console.print(f"{report['policy']} ({report['robot']}) on {len(report['maps'])} maps of "
+                  f"{report['maps_arg']}: {report['episodes_per_map']} episodes per map, seed {report['seed']}, "
+                  f"goal sampling {report['goal_sampling']} ({report['goal_band_m'][0]:g}-"
+                  f"{report['goal_band_m'][1]:g} m)")
+    table = Table(title="flashnav eval --maps")
+    table.add_column("map", no_wrap=True)
+    for col, justify in ( ("size m", "right"), ("cell m", "right"), ("success", "right"),
+                         ("collision", "right"), ("timeout", "right"), ("episodes", "right"),
+                         ("beyond scale", "right")):
+        table.add_column(col, justify=justify)
+    for r in report["maps"]:
+        beyond = (f"{r['episodes_beyond_scale']} ep" if r["beyond_scale"] else "-")
+        table.add_row(r["map"], f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution']:g}",
+                      pct(r["success_rate"]), pct(r["collision_rate"]), pct(r["timeout_rate"]), str(r["episodes"]),
+                      beyond)
+    agg = report["aggregate"]
+    table.add_section()
+    for name in ("mean", "pooled"):
+        a = agg[name]
+        table.add_row(f"{name} over maps" if name == "mean" else "pooled", "", "",
+                      pct(a["success_rate"]), pct(a["collision_rate"]), pct(a["timeout_rate"]),
+                      str(agg["episodes"]), "")
+    table.add_row(f"worst map: {agg['worst']['map']}", "", "", pct(agg["worst"]["success_rate"]), "", "", "", "")
+    console.print(table)
+    if agg["maps_beyond_scale"]:
+        console.print(f"{agg['maps_beyond_scale']} of {agg['maps']} maps have a diagonal beyond the policy's "
+                      f"goal-distance scale ({scale:.2f} m, its training map's diagonal): 'beyond scale' counts the "
+                      f"episodes whose goal-distance input exceeded it ({agg['episodes_beyond_scale']} in all); "
+                      f"the input is passed unclipped, as on a robot.")
+    console.print(f"wall time {report['seconds']:.1f} s on {report['machine']}")

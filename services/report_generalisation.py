@@ -1,0 +1,169 @@
+"""The generalisation tables of `flashnav report --generalisation EVAL_JSON...`: policies on map suites.
+
+Input: the JSON files written by ``flashnav eval POLICY --maps SUITE --json FILE`` (``flashnav/eval_maps.py``,
+kind ``flashnav.eval_maps``), one per policy and suite. Two tables, pure pandas:
+
+- :func:`summary_table`: one row per file (policy x suite): mean / pooled / worst-map success, mean
+  collision and timeout, maps and episodes, goal sampling, how many maps exceed the policy's goal-distance
+  scale and how many episodes went beyond it, where and when it was measured.
+- :func:`per_map_table`: one row per (suite, map), one success column per policy, and a mean row per suite;
+  a policy not evaluated on a map leaves its cell empty.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+
+# flashnav/eval_maps.py's EVAL_MAPS_KIND / EVAL_MAPS_FORMAT, spelt here so that the report does not import
+# torch and the simulator; tests/test_report_generalisation.py checks that they agree
+KIND = "flashnav.eval_maps"
+FORMAT = 1
+SUMMARY_COLUMNS = ["policy", "suite", "robot", "goal_sampling", "maps", "episodes_per_map", "success_mean",
+                   "success_pooled", "success_worst", "worst_map", "collision_mean", "timeout_mean",
+                   "maps_beyond_scale", "episodes_beyond_scale", "goal_distance_scale", "machine", "date"]
+
+
+def load_evals(paths) -> list[dict]:
+    """The eval JSON documents, in order. ValueError naming the file for a missing file, invalid JSON, another
+    kind of document or a newer format."""
+    docs = []
+    for path in map(Path, paths):
+        if not path.is_file():
+            raise ValueError(f"--generalisation {path}: no such file (write one with flashnav eval POLICY --maps "
+                             f"SUITE --json FILE)")
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except ValueError as exc:
+            raise ValueError(f"--generalisation {path}: not valid JSON: {exc}") from None
+        if not isinstance(doc, dict) or doc.get("kind") != KIND:
+            raise ValueError(f"--generalisation {path}: not a `flashnav eval --maps --json` result (kind "
+                             f"{doc.get('kind') if isinstance(doc, dict) else None!r}, expected {KIND!r})")
+        if not isinstance(doc.get("format_version"), int) or doc["format_version"] > FORMAT:
+            raise ValueError(f"--generalisation {path}: format version {doc.get('format_version')!r} is newer "
+                             f"than this report reads ({FORMAT})")
+        docs.append(doc)
+    if not docs:
+        raise ValueError("--generalisation needs at least one JSON file")
+    return docs
+
+
+def summary_table(docs: list[dict]) -> pd.DataFrame:
+    """One row per eval document (columns :data:`SUMMARY_COLUMNS`; rates as fractions)."""
+    rows = []
+    for d in docs:
+        a = d["aggregate"]
+        rows.append({
+            "policy": d["label"], "suite": d["suite"], "robot": d["robot"], "goal_sampling": d["goal_sampling"],
+            "maps": a["maps"], "episodes_per_map": d["episodes_per_map"],
+            "success_mean": a["mean"]["success_rate"], "success_pooled": a["pooled"]["success_rate"],
+            "success_worst": a["worst"]["success_rate"], "worst_map": a["worst"]["map"],
+            "collision_mean": a["mean"]["collision_rate"], "timeout_mean": a["mean"]["timeout_rate"],
+            "maps_beyond_scale": a["maps_beyond_scale"], "episodes_beyond_scale": a["episodes_beyond_scale"],
+            "goal_distance_scale": d["goal_distance_scale"], "machine": d["machine"], "date": d["date"]})
+    return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+
+
+def per_map_table(docs: list[dict]) -> pd.DataFrame:
+    """Columns ``suite``, ``map`` and one per policy label (success fraction, NaN where not evaluated); a
+    ``mean over maps`` row closes each suite (the mean over the maps that policy was evaluated on)."""
+    policies = list(dict.fromkeys(d["label"] for d in docs))
+    cells: dict[tuple[str, str], dict[str, float]] = {}
+    for d in docs:
+        for r in d["maps"]:
+            cells.setdefault((d["suite"], r["map"]), {})[d["label"]] = r["success_rate"]
+    rows = []
+    for suite in dict.fromkeys(s for s, _ in cells):
+        maps = [(s, m) for s, m in cells if s == suite]
+        rows += [{"suite": s, "map": m, **cells[(s, m)]} for s, m in maps]
+        mean = {}
+        for p in policies:
+            values = [cells[k][p] for k in maps if p in cells[k]]
+            if values:
+                mean[p] = sum(values) / len(values)
+        rows.append({"suite": suite, "map": "mean over maps", **mean})
+    return pd.DataFrame(rows, columns=["suite", "map", *policies])
+
+
+def _pct(x) -> str:
+    return "" if pd.isna(x) else f"{100 * x:.1f}"
+
+
+def summary_markdown(table: pd.DataFrame) -> str:
+    head = ["Policy", "Suite", "Robot", "Goals", "Maps x episodes", "Success mean %", "Pooled %", "Worst map %",
+            "Collision %", "Timeout %", "Beyond goal scale", "Machine", "Date"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 5 + "--:|" * 6 + "---|" * 2]
+    for r in table.to_dict("records"):
+        beyond = (f"{r['maps_beyond_scale']}/{r['maps']} maps, {r['episodes_beyond_scale']} ep"
+                  if r["maps_beyond_scale"] else "-")
+        lines.append("| " + " | ".join([
+            r["policy"], r["suite"], r["robot"], r["goal_sampling"], f"{r['maps']} x {r['episodes_per_map']}",
+            _pct(r["success_mean"]), _pct(r["success_pooled"]), f"{_pct(r['success_worst'])} ({r['worst_map']})",
+            _pct(r["collision_mean"]), _pct(r["timeout_mean"]), beyond, r["machine"], r["date"]]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def per_map_markdown(table: pd.DataFrame) -> str:
+    policies = list(table.columns[2:])
+    lines = ["| Suite | Map | " + " | ".join(f"{p} success %" for p in policies) + " |",
+             "|---|---|" + "--:|" * len(policies)]
+    for r in table.to_dict("records"):
+        bold = r["map"] == "mean over maps"
+        cells = [_pct(r[p]) for p in policies]
+        if bold:
+            cells = [f"**{c}**" if c else c for c in cells]
+        lines.append("| " + " | ".join([r["suite"], f"**{r['map']}**" if bold else r["map"], *cells]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def markdown(docs: list[dict]) -> str:
+    return "\n".join([
+        "# Generalisation", "",
+        "Success of each policy on map suites it was not trained on (`flashnav eval POLICY --maps SUITE`): the "
+        "same fixed episodes per map for every policy, deterministic policy. Mean: over maps; pooled: over all "
+        "episodes; worst: the map with the lowest success. 'Beyond goal scale': maps whose diagonal exceeds the "
+        "policy's goal-distance scale (its training map's diagonal), and the episodes whose goal-distance input "
+        "went beyond it (passed unclipped).", "",
+        summary_markdown(summary_table(docs)), "## Success per map", "", per_map_markdown(per_map_table(docs))])
+
+
+def html(docs: list[dict]) -> str:
+    """A self-contained page with both tables (escaped cells)."""
+    summary = summary_table(docs)
+    for c in ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean"):
+        summary[c] = summary[c].map(_pct)
+    maps = per_map_table(docs)
+    for c in maps.columns[2:]:
+        maps[c] = maps[c].map(_pct)
+    style = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin-bottom:2em}"
+             "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:nth-child(-n+2){text-align:left}")
+    return ("<!doctype html><html><head><meta charset='utf-8'><title>FlashNav generalisation</title>"
+            f"<style>{style}</style></head><body><h1>Generalisation</h1>"
+            "<p>Success rates in per cent; see report.md for the columns.</p><h2>Policies x suites</h2>"
+            + summary.to_html(index=False, escape=True) + "<h2>Success per map (%)</h2>"
+            + maps.to_html(index=False, escape=True, na_rep="") + "</body></html>\n")
+
+
+def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[str, Path]:
+    """Write generalisation.md / generalisation.csv + generalisation_maps.csv / generalisation.html (the
+    formats among ``formats``) into ``out_dir``; returns {name: Path}."""
+    docs = load_evals(paths)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = {}
+
+    def put(name, filename, text):
+        (out / filename).write_text(text, encoding="utf-8")
+        written[name] = out / filename
+
+    if "md" in formats:
+        put("generalisation_md", "generalisation.md", markdown(docs))
+    if "csv" in formats:
+        put("generalisation_csv", "generalisation.csv",
+            summary_table(docs).to_csv(index=False, float_format="%.4f", lineterminator="\n"))
+        put("generalisation_maps_csv", "generalisation_maps.csv",
+            per_map_table(docs).to_csv(index=False, float_format="%.4f", lineterminator="\n"))
+    if "html" in formats:
+        put("generalisation_html", "generalisation.html", html(docs))
+    return written

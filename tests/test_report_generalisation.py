@@ -1,0 +1,88 @@
+"""`flashnav report --generalisation`: the tables from small eval JSON documents, in every format, and the
+command line without MLflow."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, aggregate
+from services.report_generalisation import (FORMAT, KIND, load_evals, per_map_markdown, per_map_table,
+                                            summary_markdown, summary_table, write_generalisation)
+
+
+def _doc(label, suite, rates):
+    rows = [{"map": m, "source": None, "width_m": 10.0, "height_m": 10.0, "resolution": 0.05,
+             "diagonal_m": 14.1, "beyond_scale": m == "big", "episodes_beyond_scale": 3 if m == "big" else 0,
+             "episodes": 8, "success_rate": s, "collision_rate": c, "timeout_rate": 1 - s - c,
+             "mean_steps": 50.0, "mean_return": 10.0} for m, s, c in rates]
+    return {"kind": KIND, "format_version": FORMAT, "label": label, "policy": f"{label}.onnx", "suite": suite,
+            "maps_arg": suite, "robot": "turtlebot2", "goal_sampling": "geodesic", "goal_band_m": [1.0, 5.0],
+            "episodes_per_map": 8, "seed": 1, "goal_distance_scale": 14.1, "date": "2026-11-24 04:00 UTC",
+            "machine": "CPU (2 cores)", "seconds": 1.0, "maps": rows, "aggregate": aggregate(rows)}
+
+
+DOCS = [_doc("single", "heldout", [("a", 1.0, 0.0), ("big", 0.5, 0.25)]),
+        _doc("general", "heldout", [("a", 0.875, 0.125)]),
+        _doc("single", "real", [("house", 0.75, 0.0)])]
+
+
+def test_kind_and_format_agree_with_the_writer():
+    assert (KIND, FORMAT) == (EVAL_MAPS_KIND, EVAL_MAPS_FORMAT)
+
+
+def test_summary_rows_per_policy_and_suite():
+    t = summary_table(DOCS)
+    assert list(zip(t["policy"], t["suite"])) == [("single", "heldout"), ("general", "heldout"), ("single", "real")]
+    first = t.iloc[0]
+    assert first["success_mean"] == pytest.approx(0.75) and first["success_worst"] == 0.5
+    assert first["worst_map"] == "big" and first["maps_beyond_scale"] == 1 and first["episodes_beyond_scale"] == 3
+    assert first["collision_mean"] == pytest.approx(0.125) and first["timeout_mean"] == pytest.approx(0.125)
+    md = summary_markdown(t)
+    assert "| single | heldout | turtlebot2 | geodesic | 2 x 8 | 75.0 | 75.0 | 50.0 (big) | 12.5 | 12.5 | " \
+           "1/2 maps, 3 ep |" in md
+
+
+def test_per_map_cells_and_suite_means():
+    t = per_map_table(DOCS)
+    assert list(t.columns) == ["suite", "map", "single", "general"]
+    rows = {(r["suite"], r["map"]): r for r in t.to_dict("records")}
+    assert rows[("heldout", "big")]["single"] == 0.5
+    assert rows[("heldout", "big")]["general"] != rows[("heldout", "big")]["general"]  # NaN: not evaluated there
+    assert rows[("heldout", "mean over maps")]["single"] == pytest.approx(0.75)
+    assert rows[("heldout", "mean over maps")]["general"] == pytest.approx(0.875)
+    assert rows[("real", "mean over maps")]["single"] == pytest.approx(0.75)
+    md = per_map_markdown(t)
+    assert "| heldout | big | 50.0 |  |" in md and "| heldout | **mean over maps** | **75.0** | **87.5** |" in md
+
+
+def test_files_in_every_format_and_bad_input_named(tmp_path):
+    paths = []
+    for i, d in enumerate(DOCS):
+        paths.append(tmp_path / f"e{i}.json")
+        paths[-1].write_text(json.dumps(d))
+    written = write_generalisation(paths, tmp_path / "out")
+    assert sorted(written) == ["generalisation_csv", "generalisation_html", "generalisation_maps_csv",
+                               "generalisation_md"]
+    csv = written["generalisation_maps_csv"].read_text().splitlines()
+    assert csv[0] == "suite,map,single,general" and "heldout,a,1.0000,0.8750" in csv
+    html = written["generalisation_html"].read_text()
+    assert "<table" in html and "87.5" in html
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"kind": "other"}))
+    with pytest.raises(ValueError, match="bad.json.*not a `flashnav eval --maps --json` result"):
+        load_evals([bad])
+    with pytest.raises(ValueError, match="missing.json: no such file"):
+        load_evals([tmp_path / "missing.json"])
+
+
+def test_report_command_with_only_generalisation_needs_no_mlflow(tmp_path, capsys):
+    from flashnav.cli import main
+
+    path = tmp_path / "e.json"
+    path.write_text(json.dumps(DOCS[0]))
+    out = tmp_path / "report"
+    assert main(["report", "--generalisation", str(path), "--out", str(out), "--format", "md,csv"]) == 0
+    assert (out / "generalisation.md").is_file() and not (out / "report.md").exists()
+    assert "generalisation_md" in capsys.readouterr().out
