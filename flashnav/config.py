@@ -15,7 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
-from flashnav.names import GOAL_SAMPLINGS
+from flashnav.names import AGENT_BEHAVIOURS, GOAL_SAMPLINGS
 
 
 class KnownKeys(BaseModel):
@@ -145,6 +145,40 @@ class Reward(Strict):
     progress: float = Field(description="coefficient c1 of the shaping term c1 * (d_old - d_new)")
 
 
+class Agents(Strict):
+    """Moving disc obstacles (pedestrians) in every environment slot; ``count`` 0 is the static
+    simulator, unchanged. See :mod:`flashnav.sim.agents` for the behaviours."""
+
+    count: int = Field(0, ge=0, le=64, description="agents per environment slot (K); 0 = none")
+    radius: tuple[float, float] = Field((0.2, 0.3), description="disc radius range (min, max), metres; "
+                                        "each agent draws its own uniformly")
+    speed: tuple[float, float] = Field((0.2, 0.5), description="walking speed range (min, max), m/s")
+    mix: dict[str, float] = Field(default_factory=lambda: {"waypoints": 0.5, "bounce": 0.5},
+                                  description="relative weight of each behaviour (waypoints, bounce, crossing)")
+    reactive: float = Field(0.0, ge=0, le=1, description="probability that an agent is reactive: it slows "
+                            "down and stops for a robot ahead of it")
+    reactive_distance: float = Field(1.0, gt=0, description="metres of gap at which a reactive agent starts to slow")
+    spawn_clearance: float = Field(0.5, ge=0, description="metres of free gap between a new agent and the robot's "
+                                   "footprint at its start and at its goal")
+    crossing_offset: tuple[float, float] = Field((1.5, 3.0), description="metres from the route at which a "
+                                                 "crossing agent appears (min, max)")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "Agents":
+        for name, low in (("radius", 0.0), ("speed", 0.0), ("crossing_offset", 0.0)):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and low < lo <= hi):
+                raise ValueError(f"agents.{name} must be (min, max) with 0 < min <= max, got ({lo}, {hi})")
+        for key, weight in self.mix.items():
+            if key not in AGENT_BEHAVIOURS:
+                raise ValueError(f"agents.mix: unknown behaviour {key!r}; allowed: {', '.join(AGENT_BEHAVIOURS)}")
+            if not (math.isfinite(weight) and weight >= 0):
+                raise ValueError(f"agents.mix.{key} must be a finite weight >= 0, got {weight}")
+        if self.count and sum(self.mix.values()) <= 0:
+            raise ValueError(f"agents.mix needs a positive weight for some behaviour, got {self.mix}")
+        return self
+
+
 class RobotPreset(Strict):
     """One embodiment: everything the simulator needs (paper appendix B)."""
 
@@ -156,6 +190,7 @@ class RobotPreset(Strict):
     reward: Reward
     map: str = Field(description="bundled map name (flashnav/maps/data/NAME.yaml) or a ROS map YAML path")
     map_size: tuple[float, float] = Field(description="the paper's map extent (x, y), metres, for reference")
+    agents: Agents = Field(default_factory=Agents, description="moving obstacles (none by default)")
 
     @property
     def obs_dim(self) -> int:

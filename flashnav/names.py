@@ -38,6 +38,10 @@ VALIDATION_SEEDS = (800_000, 899_999)
 #: ``TrainConfig.cuda_graph``: a cycle's updates on static buffers captured as a CUDA graph (``on``;
 #: eager with capture skipped on a CPU), the plain eager loop (``off``), or ``auto`` (on for cuda only).
 CUDA_GRAPH_MODES = ("auto", "on", "off")
+#: Behaviours of the moving agents (:mod:`flashnav.sim.agents`): ``waypoints`` walks between random
+#: free points, ``bounce`` keeps a constant velocity and turns away from walls, ``crossing`` appears
+#: at a chosen moment and walks across the robot's route (evaluation scenarios).
+AGENT_BEHAVIOURS = ("waypoints", "bounce", "crossing")
 #: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
 #: metric names (``time_to_90``).
 THRESHOLDS = (0.9, 0.95, 1.0)

@@ -1,0 +1,95 @@
+"""The CPU kernel of LiDAR beams against moving disc agents (numba, parallel over environments).
+Semantics: :mod:`flashnav.sim.agent_geometry` (this kernel and its torch path compute the same ranges).
+
+Culling: a disc at distance D from the sensor can only be hit by beams within ``asin((r + eps) / D)``
+of the direction to its centre, and the beams are evenly spaced, so each disc tests only the beams of
+that window (widened by CULL_MARGIN beams against rounding) instead of all of them: with 1,080 beams
+over 270 deg a disc of 0.25 m at 3 m covers about 40 beams, so 8 agents cost ~300 ray-disc tests per
+environment instead of 8,640. Each tested beam gets the exact test of the torch path. The window is
+tried at the centre direction and at +-2 pi from it, so wrapping needs no special case (a beam seen
+twice takes the same minimum).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from flashnav.sim.agent_geometry import TANGENT_EPS
+
+#: beams added on each side of a disc's angular window: the window is computed in float64 from
+#: float32 beam angles whose spacing is uniform only to rounding, and a beam outside it never hits
+CULL_MARGIN = 2
+
+
+@njit(cache=True)
+def _disc_window(out, n, ox, oy, cy, sy, yaw, cos_a, sin_a, a0, step, cx, cy_c, r, max_range):
+    """Lower ``out[n, k]`` to the hit distance of the disc (cx, cy_c, r) for the beams of its window."""
+    k_beam = cos_a.shape[0]
+    fx = ox - cx
+    fy = oy - cy_c
+    dist = math.sqrt(fx * fx + fy * fy)
+    reach = r + TANGENT_EPS
+    half = math.pi / 2 if reach >= dist else math.asin(reach / dist)
+    phi = math.atan2(-fy, -fx) - yaw  # direction to the centre, relative to the heading
+    phi = phi - 2.0 * math.pi * math.floor((phi + math.pi) / (2.0 * math.pi))
+    for shift in (-2.0 * math.pi, 0.0, 2.0 * math.pi):
+        if step > 0.0:
+            lo = int(math.floor((phi + shift - half - a0) / step)) - CULL_MARGIN
+            hi = int(math.ceil((phi + shift + half - a0) / step)) + CULL_MARGIN
+        else:  # a single beam
+            lo, hi = 0, 0
+        lo = max(lo, 0)
+        hi = min(hi, k_beam - 1)
+        for k in range(lo, hi + 1):
+            dx = cy * cos_a[k] - sy * sin_a[k]
+            dy = sy * cos_a[k] + cy * sin_a[k]
+            b = fx * dx + fy * dy
+            if b > 0.0:
+                continue
+            px = fx - b * dx
+            py = fy - b * dy
+            h2 = px * px + py * py
+            if h2 > reach * reach:
+                continue
+            t = -b - math.sqrt(max(r * r - h2, 0.0))
+            if t < out[n, k] and t <= max_range:
+                out[n, k] = t
+
+
+@njit(parallel=True, cache=True)
+def lower_by_discs(pose, cos_a, sin_a, a0, step, centres, radii, active, max_range, out):
+    """``out[n, k] = min(out[n, k], nearest disc hit of beam k of pose n)`` in place.
+
+    Args:
+        pose: [N, 3] float32 (x m, y m, yaw rad).
+        cos_a, sin_a: [B] float64 cos / sin of the beam angles (rad, relative to the heading).
+        a0, step: the first beam angle and the (uniform) spacing, radians; step 0 for a single beam.
+        centres: [N, K, 2] float32 metres; radii: [N, K] float32 metres; active: [N, K] bool.
+        max_range: metres (hits beyond it are not recorded).
+        out: [N, B] float32 metres, the static ranges, lowered in place.
+    """
+    n_env = pose.shape[0]
+    k_agents = centres.shape[1]
+    k_beam = cos_a.shape[0]
+    for n in prange(n_env):
+        ox = np.float64(pose[n, 0])
+        oy = np.float64(pose[n, 1])
+        yaw = np.float64(pose[n, 2])
+        cy = math.cos(yaw)
+        sy = math.sin(yaw)
+        for j in range(k_agents):
+            if not active[n, j]:
+                continue
+            cx = np.float64(centres[n, j, 0])
+            cyc = np.float64(centres[n, j, 1])
+            r = np.float64(radii[n, j])
+            fx = ox - cx
+            fy = oy - cyc
+            if fx * fx + fy * fy <= r * r:  # the sensor inside the disc: every beam reads 0
+                for k in range(k_beam):
+                    out[n, k] = 0.0
+                break
+            _disc_window(out, n, ox, oy, cy, sy, yaw, cos_a, sin_a, a0, step, cx, cyc, r, max_range)
