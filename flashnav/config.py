@@ -160,7 +160,7 @@ class Agents(Strict):
     reactive_distance: float = Field(1.0, gt=0, description="metres of gap at which a reactive agent starts to slow")
     spawn_clearance: float = Field(0.5, ge=0, description="metres of free gap between a new agent and the robot's "
                                    "footprint at its start and at its goal")
-    crossing_offset: tuple[float, float] = Field((1.5, 3.0), description="metres from the route at which a "
+    crossing_offset: tuple[float, float] = Field((1.0, 2.0), description="metres from the route at which a "
                                                  "crossing agent appears (min, max)")
 
     @model_validator(mode="after")

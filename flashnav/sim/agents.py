@@ -44,8 +44,9 @@ from flashnav.sim.agent_geometry import footprint_hits_discs, ray_disc_ranges
 
 WAYPOINTS, BOUNCE, CROSSING = (AGENT_BEHAVIOURS.index(b) for b in ("waypoints", "bounce", "crossing"))
 SPAWN_CANDIDATES = 16  # random places tried per new agent
+CROSSING_CANDIDATES = 64  # random crossings tried per crossing agent (a clear straight leg is rarer)
 LEG_CANDIDATES = 8  # random legs tried per agent that needs one
-LEG_LENGTH = (1.0, 4.0)  # metres, a waypoint leg's length range
+LEG_LENGTH = (0.5, 3.0)  # metres, a waypoint leg's length range
 CROSSING_POINT = (0.3, 0.7)  # where a crossing agent crosses the route, as a fraction of its length
 SEGMENT_SPACING = 0.1  # metres at most between the clearance samples of a leg
 ARRIVED = 1e-4  # metres: a leg's end is reached (float32 positions of a 10 m map are ~1e-6 apart)
@@ -76,6 +77,7 @@ class AgentWorld:
         self.pos = torch.zeros(n, k, 2, device=dev)  # centres, m
         self.vel = torch.zeros(n, k, 2, device=dev)  # bounce: velocity, m/s
         self.target = torch.zeros(n, k, 2, device=dev)  # waypoints / crossing: the end of the leg, m
+        self.final = torch.zeros(n, k, 2, device=dev)  # crossing: the far point, after the crossing point
         self.radius = torch.zeros(n, k, device=dev)  # m
         self.speed = torch.zeros(n, k, device=dev)  # m/s
         self.kind = torch.zeros(n, k, dtype=torch.long, device=dev)  # index into AGENT_BEHAVIOURS
@@ -116,11 +118,19 @@ class AgentWorld:
         self._cells = torch.from_numpy(np.concatenate(cells)).to(dev)  # [C, 2] lower-left corners, m
         self._cell_first = torch.tensor(first, dtype=torch.long, device=dev)
         self._cell_count = torch.tensor(count, dtype=torch.long, device=dev)
+        g = grids[0]
+        self._single = None if len(grids) > 1 else (g.origin[0], g.origin[1], g.resolution, g.shape[1] + 2 * PAD,
+                                                    g.shape[0] + 2 * PAD)
 
     def clearance(self, points: torch.Tensor, maps: torch.Tensor) -> torch.Tensor:
         """A lower bound on the distance (m, float64) from ``points`` [..., 2] to any wall or the map
         boundary, negative on occupied cells and off the map; ``maps`` [...] long, each point's map."""
         p = points.double()
+        if self._single is not None:  # one map: scalars instead of per-point gathers
+            ox, oy, res, wp, hp = self._single
+            j = (torch.floor((p[..., 0] - ox) / res).long() + PAD).clamp(0, wp - 1)
+            i = (torch.floor((p[..., 1] - oy) / res).long() + PAD).clamp(0, hp - 1)
+            return self._clear[i * wp + j]
         res, org = self._res[maps], self._origin[maps]
         j = (torch.floor((p[..., 0] - org[..., 0]) / res).long() + PAD).clamp(min=0)
         i = (torch.floor((p[..., 1] - org[..., 1]) / res).long() + PAD).clamp(min=0)
@@ -173,14 +183,16 @@ class AgentWorld:
         target = pos.clone()  # a waypoints agent chooses its first leg on its first step
         appear = torch.zeros(k, K, dtype=torch.int32, device=dev)
         cross = kind == CROSSING
-        if bool(cross.any()):
-            c_pos, c_target, c_ok, c_appear = self._crossing(pose, goal, radius, speed, maps, gen)
+        final = pos.clone()
+        if bool(cross.any()):  # a host sync, at resets only
+            c_pos, c_target, c_final, c_ok, c_appear = self._crossing(pose, goal, radius, speed, maps, gen)
             pos = torch.where(cross[..., None], c_pos, pos)
             target = torch.where(cross[..., None], c_target, target)
+            final = torch.where(cross[..., None], c_final, final)
             placed = torch.where(cross, c_ok, placed)
             appear = torch.where(cross, c_appear, appear)
         vel = speed[..., None] * torch.stack([torch.cos(heading), torch.sin(heading)], dim=-1)
-        self.pos[idx], self.vel[idx], self.target[idx] = pos, vel, target
+        self.pos[idx], self.vel[idx], self.target[idx], self.final[idx] = pos, vel, target, final
         self.radius[idx], self.speed[idx], self.kind[idx], self.reactive[idx] = radius, speed, kind, reactive
         self.placed[idx], self.appear[idx] = placed, appear
         self.active[idx] = placed & ~cross
@@ -192,33 +204,38 @@ class AgentWorld:
                 & (torch.linalg.vector_norm(p - goal, dim=-1) >= reach))
 
     def _crossing(self, pose, goal, radius, speed, maps, gen):
-        """Waiting place, far point, found?, appearance step of a crossing agent for every [k, K]."""
-        k, K, C, dev = pose.shape[0], self.count, SPAWN_CANDIDATES, self.device
-        u = torch.rand(k, K, C, 3, generator=gen, device=dev)
+        """Waiting place, crossing point, far point, found?, appearance step of a crossing agent, for
+        every [k, K]: the point q where it crosses the start-goal line, a waiting place ``a`` on one
+        side and a far point ``b`` on the other (each within 45 deg of the line's normal), legs a -> q
+        and q -> b clear; the first of CROSSING_CANDIDATES draws that fits."""
+        k, K, C, dev = pose.shape[0], self.count, CROSSING_CANDIDATES, self.device
+        u = torch.rand(k, K, C, 6, generator=gen, device=dev)
         start = pose[:, None, None, :2]
         route = (goal - pose[:, :2])[:, None, None, :]
         length = torch.linalg.vector_norm(route, dim=-1).clamp(min=1e-6)  # [k, 1, 1]
         normal = torch.stack([-route[..., 1], route[..., 0]], dim=-1) / length[..., None]
         frac = CROSSING_POINT[0] + u[..., 0] * (CROSSING_POINT[1] - CROSSING_POINT[0])
+        side = torch.where(u[..., 1] < 0.5, -1.0, 1.0)
         lo, hi = self.cfg.crossing_offset
-        side = torch.where(u[..., 1] < 0.5, -1.0, 1.0) * (lo + u[..., 2] * (hi - lo))  # [k, K, C]
-        cross_at = start + frac[..., None] * route
-        a = cross_at + side[..., None] * normal
-        b = cross_at - side[..., None] * normal
+        q = start + frac[..., None] * route
+        ends = []
+        for d_u, tilt_u, sign in ((u[..., 2], u[..., 3], 1.0), (u[..., 4], u[..., 5], -1.0)):
+            tilt = (tilt_u * 2.0 - 1.0) * (math.pi / 4)
+            c, s_ = torch.cos(tilt)[..., None], torch.sin(tilt)[..., None]
+            direction = torch.cat([c * normal[..., :1] - s_ * normal[..., 1:], s_ * normal[..., :1] + c * normal[..., 1:]], -1)
+            ends.append(q + (sign * side * (lo + d_u * (hi - lo)))[..., None] * direction)
+        a, b = ends
         r = radius[..., None].expand(k, K, C)
         mk = maps[:, None, None].expand(k, K, C)
-        ok = (self.clearance(a, mk) >= r) & (self.clearance(b, mk) >= r) & self.segment_clear(a, b, r, mk)
+        ok = ((self.clearance(a, mk) >= r) & (self.clearance(q, mk) >= r) & (self.clearance(b, mk) >= r)
+              & self.segment_clear(a, q, r, mk) & self.segment_clear(q, b, r, mk))
         ok &= self._clear_of_robot(a, r, start, goal[:, None, None])
-        pick = ok.float().argmax(dim=-1, keepdim=True)
-        found = ok.any(dim=-1)
-        a_pick = torch.gather(a, 2, pick[..., None].expand(k, K, 1, 2)).squeeze(2)
-        b_pick = torch.gather(b, 2, pick[..., None].expand(k, K, 1, 2)).squeeze(2)
-        f_pick = torch.gather(frac, 2, pick).squeeze(2)
-        d_pick = torch.gather(side, 2, pick).squeeze(2).abs()
-        robot_t = f_pick * length[..., 0] / self.robot_speed
-        walk_t = d_pick / speed
+        (a, q, b), found = _first([a, q, b], ok)
+        frac = torch.gather(frac, 2, ok.float().argmax(dim=-1, keepdim=True)).squeeze(2)
+        robot_t = frac * length[..., 0] / self.robot_speed
+        walk_t = torch.linalg.vector_norm(q - a, dim=-1) / speed
         appear = torch.round((robot_t - walk_t).clamp(min=0.0) / self.dt).to(torch.int32)
-        return a_pick, b_pick, found, appear
+        return a, q, b, found, appear
 
     # ---- one step --------------------------------------------------------------------------------
     def step(self, sel, robot_pose: torch.Tensor, steps: torch.Tensor, gen: torch.Generator,
@@ -253,8 +270,10 @@ class AgentWorld:
             new_pos = torch.where(fits[..., None], alt, new_pos)
             vel = torch.where(fits[..., None], vel * f, vel)
             blocked = blocked & ~fits
-        # waypoints agents at the end of their leg (or blocked) choose the next leg
+        # crossing agents at the crossing point head for the far point; waypoints agents at the end
+        # of their leg (or blocked) choose the next leg
         arrived = torch.linalg.vector_norm(target - new_pos, dim=-1) <= ARRIVED
+        target = torch.where((arrived & (kind == CROSSING))[..., None], self.final[sel], target)
         need = active & (kind == WAYPOINTS) & (arrived | ~ok)
         target = self._new_legs(new_pos, target, radius, mk, need, gen)
         self.pos[sel], self.vel[sel], self.target[sel], self.active[sel] = new_pos, vel, target, active
@@ -316,9 +335,9 @@ class AgentWorld:
         return footprint_hits_discs(pose, self.preset.footprint, self.pos[sel], self.radius[sel], self.active[sel])
 
 
-def _first(cand: torch.Tensor, ok: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The first candidate ``cand`` [..., C, 2] whose ``ok`` [..., C] holds, and whether any does
-    (the first candidate where none does)."""
-    pick = ok.float().argmax(dim=-1)
-    chosen = torch.gather(cand, -2, pick[..., None, None].expand(*pick.shape, 1, 2)).squeeze(-2)
-    return chosen, ok.any(dim=-1)
+def _first(cand, ok: torch.Tensor):
+    """The first candidate of ``cand`` [..., C, 2] (or of each of a list of them) whose ``ok`` [..., C]
+    holds, and whether any does (the first candidate where none does)."""
+    pick = ok.float().argmax(dim=-1)[..., None, None]
+    take = lambda c: torch.gather(c, -2, pick.expand(*pick.shape[:-2], 1, 2)).squeeze(-2)  # noqa: E731
+    return ([take(c) for c in cand] if isinstance(cand, list) else take(cand)), ok.any(dim=-1)

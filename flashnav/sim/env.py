@@ -52,6 +52,7 @@ from flashnav.maps.bundled import resolve_map, resolve_maps
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
+from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
 from flashnav.sim.mapset import MapDraw, as_grids, check_map_index, goals_outside
 from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
@@ -118,6 +119,10 @@ class NavVecEnv(VectorEnv):
         self.sampler = self.samplers[0]
         self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
         self.goal_distance_max = max(g.diagonal_m for g in self.maps)
+        # moving agents (issue 13): None with agents.count 0, and then every step is exactly the static one;
+        # they move on each slot's own map
+        self.agents = (AgentWorld(preset, self.frame_maps, num_envs, self.beam_angles, self.device)
+                       if preset.agents.count else None)
         self.obs_dim = preset.obs_dim
 
         low, high = self._obs_bounds()
@@ -152,8 +157,15 @@ class NavVecEnv(VectorEnv):
 
     # ---- observation ------------------------------------------------------------------------------
     def scan(self) -> torch.Tensor:
-        """Noise-free ranges [N, beams] float32 metres at the current poses (before pooling)."""
-        return self._cast(self.pose, self._maps_of(slice(None)))
+        """Noise-free ranges [N, beams] float32 metres at the current poses (before pooling), moving
+        agents included."""
+        return self._scan(self.pose, slice(None))
+
+    def _scan(self, pose: torch.Tensor, sel) -> torch.Tensor:
+        """Ranges [k, beams] of slots ``sel`` at ``pose`` [k, 3], each on its map: min(static range,
+        agent hit)."""
+        ranges = self._cast(pose, self._maps_of(sel))
+        return ranges if self.agents is None else self.agents.sense(ranges, pose, sel)
 
     @property
     def num_maps(self) -> int:
@@ -215,7 +227,9 @@ class NavVecEnv(VectorEnv):
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
         self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
-        self.obs[idx] = self._observe(self._cast(pose, self._maps_of(idx)), pose, goal, zeros)
+        if self.agents is not None:  # the slots' agents start with their episodes, on the slots' maps
+            self.agents.reset(idx, pose, goal, self._gen, self._maps_of(idx))
+        self.obs[idx] = self._observe(self._scan(pose, idx), pose, goal, zeros)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Reset all slots, or only ``options["reset_mask"]`` ([N] bool). ``seed`` reseeds the
@@ -295,6 +309,8 @@ class NavVecEnv(VectorEnv):
             "_final_obs": done,
             "success": t["success"],
             "collision": t["collision"],
+            "collision_static": t["collision_static"],  # with a wall or the map's edge
+            "collision_agent": t["collision_agent"],  # with a moving agent (both can hold)
             # length and return of the episode that ended in this step (meaningful where done)
             "episode_steps": t["episode_steps"],
             "episode_return": t["episode_return"],
@@ -308,7 +324,7 @@ class NavVecEnv(VectorEnv):
         slot's first episode counts and finished slots need not be simulated any further.
 
         Returns [k] tensors for those slots: obs [k, obs_dim], reward, terminated, truncated, success,
-        collision, episode_steps, episode_return (the same semantics as :meth:`step`). ``idx`` outside
+        collision, collision_static, collision_agent, episode_steps, episode_return (the same semantics as :meth:`step`). ``idx`` outside
         [0, N), not 1-D integer, or ``actions`` of another shape or not finite: a ValueError."""
         idx = torch.as_tensor(idx, device=self.device)
         if idx.ndim != 1 or idx.dtype.is_floating_point or idx.dtype == torch.bool or idx.is_complex():
@@ -341,10 +357,14 @@ class NavVecEnv(VectorEnv):
         goal = self.goal[sel]
 
         maps = self._maps_of(sel)
-        ranges = self._cast(pose, maps)
+        if self.agents is not None:
+            self.agents.step(sel, pose, steps, self._gen, maps)
+        ranges = self._scan(pose, sel)
         dist = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
         success = dist < p.episode.goal_threshold
-        collision = self._collides(pose, maps) & ~success  # the goal is checked first
+        static = self._collides(pose, maps) & ~success  # the goal is checked first
+        agent = torch.zeros_like(static) if self.agents is None else self.agents.collides(pose, sel) & ~success
+        collision = static | agent
         terminated = success | collision
         truncated = (steps >= p.episode.horizon) & ~terminated
         progress = p.reward.progress * (self.goal_distance[sel] - dist)
@@ -355,7 +375,8 @@ class NavVecEnv(VectorEnv):
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs
         return {"obs": obs, "reward": reward, "terminated": terminated, "truncated": truncated,
-                "success": success, "collision": collision, "episode_steps": steps,
+                "success": success, "collision": collision, "collision_static": static,
+                "collision_agent": agent, "episode_steps": steps,
                 "episode_return": episode_return}
 
     def close_extras(self, **kwargs) -> None:  # nothing to release: no processes, no files
