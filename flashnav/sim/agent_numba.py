@@ -93,3 +93,39 @@ def lower_by_discs(pose, cos_a, sin_a, a0, step, centres, radii, active, max_ran
                     out[n, k] = 0.0
                 break
             _disc_window(out, n, ox, oy, cy, sy, yaw, cos_a, sin_a, a0, step, cx, cyc, r, max_range)
+
+
+@njit(parallel=True, cache=True)
+def segments_clear(a, b, radius, maps, samples, clear, offset, origin, res, wp, hp, pad, out):
+    """``out[i] = every sample of segment a[i] -> b[i] has clearance >= radius[i] + spacing / 2``
+    (:meth:`flashnav.sim.agents.AgentWorld.segment_clear`, the same float64 lookups), stopping at the
+    first sample that fails.
+
+    Args:
+        a, b: [P, 2] float32 / float64 metres; radius: [P]; maps: [P] int64 map indices.
+        samples: [S] float64 fractions along the segment (0 ... 1).
+        clear: flat float64 clearance (metres) of every map; offset, wp, hp: [M] int64 per map;
+        origin: [M, 2] float64 metres; res: [M] float64; pad: cells around each map.
+        out: [P] bool, written.
+    """
+    n_seg = a.shape[0]
+    n_s = samples.shape[0]
+    for i in prange(n_seg):
+        m = maps[i]
+        ax = np.float64(a[i, 0])
+        ay = np.float64(a[i, 1])
+        dx = np.float64(b[i, 0]) - ax
+        dy = np.float64(b[i, 1]) - ay
+        need = np.float64(radius[i]) + 0.5 * math.sqrt(dx * dx + dy * dy) / (n_s - 1)
+        ok = True
+        for s in range(n_s):
+            px = ax + dx * samples[s]
+            py = ay + dy * samples[s]
+            j = int(math.floor((px - origin[m, 0]) / res[m])) + pad
+            k = int(math.floor((py - origin[m, 1]) / res[m])) + pad
+            j = min(max(j, 0), wp[m] - 1)
+            k = min(max(k, 0), hp[m] - 1)
+            if clear[offset[m] + k * wp[m] + j] < need:
+                ok = False
+                break
+        out[i] = ok

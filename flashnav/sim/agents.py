@@ -71,8 +71,7 @@ class AgentWorld:
         self.mix = torch.tensor([cfg.mix.get(b, 0.0) for b in AGENT_BEHAVIOURS], dtype=torch.float64, device=self.device)
         self._build_fields(grids, cfg.radius[1])
         max_leg = max(LEG_LENGTH[1], 2.0 * cfg.crossing_offset[1])
-        self._samples = torch.linspace(0.0, 1.0, math.ceil(max_leg / SEGMENT_SPACING) + 1, dtype=torch.float64,
-                                       device=self.device)
+        self._samples = _coarse_first(math.ceil(max_leg / SEGMENT_SPACING) + 1).to(self.device)
         n, k, dev = num_envs, cfg.count, self.device
         self.pos = torch.zeros(n, k, 2, device=dev)  # centres, m
         self.vel = torch.zeros(n, k, 2, device=dev)  # bounce: velocity, m/s
@@ -92,6 +91,7 @@ class AgentWorld:
         self._a0 = float(a[0])
         self._a_step = float(a[-1] - a[0]) / (a.numel() - 1) if a.numel() > 1 else 0.0
         self._numba = None
+        self._crossings = cfg.mix.get("crossing", 0.0) > 0
 
     # ---- the map: clearance lookups and free cells -----------------------------------------------
     def _build_fields(self, grids: tuple[OccupancyMap, ...], r_max: float) -> None:
@@ -148,9 +148,22 @@ class AgentWorld:
         inner = 1e-3 + u[..., 1:] * (1.0 - 2e-3)
         return (self._cells[cell] + inner * self._res[maps][..., None]).float()
 
-    def segment_clear(self, a: torch.Tensor, b: torch.Tensor, radius: torch.Tensor, maps: torch.Tensor) -> torch.Tensor:
+    def segment_clear(self, a: torch.Tensor, b: torch.Tensor, radius: torch.Tensor, maps: torch.Tensor,
+                      kernel: str | None = None) -> torch.Tensor:
         """[...] bool: a disc of ``radius`` swept from ``a`` to ``b`` ([..., 2] m) stays clear of walls
-        (clearance >= radius + half the sample spacing at every sample of the segment)."""
+        (clearance >= radius + half the sample spacing at every sample of the segment). ``kernel``:
+        "numba" (the CPU default: stops at a segment's first failing sample) or "torch"."""
+        kernel = kernel or ("numba" if self.device.type == "cpu" else "torch")
+        if kernel == "numba":
+            from flashnav.sim.agent_numba import segments_clear
+
+            shape = radius.shape
+            out = np.empty(shape.numel(), dtype=np.bool_)
+            flat = lambda t, *tail: t.reshape(-1, *tail).contiguous().numpy()  # noqa: E731
+            segments_clear(flat(a, 2), flat(b, 2), flat(radius), flat(maps.expand(shape)), self._samples.numpy(),
+                           self._clear.numpy(), self._offset.numpy(), self._origin.numpy(), self._res.numpy(),
+                           self._wp.numpy(), self._hp.numpy(), PAD, out)
+            return torch.from_numpy(out).view(shape)
         a, b = a.double(), b.double()
         s = self._samples
         pts = a[..., None, :] + (b - a)[..., None, :] * s[:, None]  # [..., S, 2]
@@ -248,9 +261,9 @@ class AgentWorld:
         maps = torch.zeros(k, dtype=torch.long, device=self.device) if maps is None else maps
         mk = maps[:, None].expand(k, K)
         robot = robot_pose[:, None, :2]
-        # crossing agents appear at their step, where they leave the robot room
-        waiting = self.placed[sel] & ~active & (steps[:, None] >= self.appear[sel])
-        active = active | (waiting & self._clear_of_robot(pos, radius, robot, robot))
+        if self._crossings:  # crossing agents appear at their step, where they leave the robot room
+            waiting = self.placed[sel] & ~active & (steps[:, None] >= self.appear[sel])
+            active = active | (waiting & self._clear_of_robot(pos, radius, robot, robot))
         walker = kind != BOUNCE
         to_target = target - pos
         remaining = torch.linalg.vector_norm(to_target, dim=-1)
@@ -261,22 +274,33 @@ class AgentWorld:
         proposed = pos + direction * length[..., None]
         ok = self.clearance(proposed, mk) >= radius
         new_pos = torch.where((ok & active)[..., None], proposed, pos)
-        # bounce agents blocked by a wall: reflect in x, in y, or reverse, the first that is clear
-        blocked = active & ~ok & (kind == BOUNCE)
-        for flip in ((-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)):
-            f = torch.tensor(flip, device=self.device)
-            alt = pos + direction * f * length[..., None]
-            fits = blocked & (self.clearance(alt, mk) >= radius)
-            new_pos = torch.where(fits[..., None], alt, new_pos)
-            vel = torch.where(fits[..., None], vel * f, vel)
-            blocked = blocked & ~fits
+        vel = self._bounce(active & ~ok & (kind == BOUNCE), pos, new_pos, vel, direction * length[..., None], radius, mk)
         # crossing agents at the crossing point head for the far point; waypoints agents at the end
         # of their leg (or blocked) choose the next leg
         arrived = torch.linalg.vector_norm(target - new_pos, dim=-1) <= ARRIVED
-        target = torch.where((arrived & (kind == CROSSING))[..., None], self.final[sel], target)
+        if self._crossings:
+            target = torch.where((arrived & (kind == CROSSING))[..., None], self.final[sel], target)
         need = active & (kind == WAYPOINTS) & (arrived | ~ok)
         target = self._new_legs(new_pos, target, radius, mk, need, gen)
         self.pos[sel], self.vel[sel], self.target[sel], self.active[sel] = new_pos, vel, target, active
+
+    def _bounce(self, blocked, pos, new_pos, vel, move, radius, mk) -> torch.Tensor:
+        """Bounce agents ``blocked`` [k, K] by a wall: the move reflected in x, in y, or reversed, the
+        first that is clear, written into ``new_pos``; returns the velocities, reflected the same way."""
+        rows = blocked.nonzero()  # few agents; a host sync
+        if rows.numel() == 0:
+            return vel
+        n_, j_ = rows[:, 0], rows[:, 1]
+        p, r, m = pos[n_, j_], radius[n_, j_], mk[n_, j_]
+        flips = torch.tensor([[-1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]], device=self.device)
+        alt = p[:, None] + move[n_, j_][:, None] * flips  # [b, 3, 2]
+        fits = self.clearance(alt, m[:, None].expand(-1, 3)) >= r[:, None]
+        pick = fits.float().argmax(dim=1)
+        found = fits.any(dim=1)[:, None]
+        new_pos[n_, j_] = torch.where(found, alt[torch.arange(len(pick), device=self.device), pick], p)
+        vel = vel.clone()
+        vel[n_, j_] = torch.where(found, vel[n_, j_] * flips[pick], vel[n_, j_])
+        return vel
 
     def _reaction(self, pos, direction, radius, robot, reactive) -> torch.Tensor:
         """[k, K] speed factor in [0, 1]: reactive agents slow down for a robot ahead of them."""
@@ -341,3 +365,16 @@ def _first(cand, ok: torch.Tensor):
     pick = ok.float().argmax(dim=-1)[..., None, None]
     take = lambda c: torch.gather(c, -2, pick.expand(*pick.shape[:-2], 1, 2)).squeeze(-2)  # noqa: E731
     return ([take(c) for c in cand] if isinstance(cand, list) else take(cand)), ok.any(dim=-1)
+
+
+def _coarse_first(count: int) -> torch.Tensor:
+    """[count] float64: the fractions 0, 1/(count-1), ..., 1, ordered end points first and then by
+    halving (1, 0, 1/2, 1/4, 3/4, ...): a blocked segment is usually found blocked after a few samples."""
+    order, seen, step = [count - 1, 0], {0, count - 1}, count - 1
+    while len(order) < count:
+        step = max(step // 2, 1)
+        for i in range(0, count, step):
+            if i not in seen:
+                seen.add(i)
+                order.append(i)
+    return torch.tensor(order, dtype=torch.float64) / (count - 1)
