@@ -176,3 +176,24 @@ def side_of_route(env, pos):
     route = env.goal - env.pose[:, :2]
     rel = pos - env.pose[:, None, :2]
     return torch.sign(route[:, None, 0] * rel[..., 1] - route[:, None, 1] * rel[..., 0])
+
+
+def test_leg_check_kernels_agree_and_clear_legs_are_clear():
+    env = agent_env(n=4, seed=7)
+    a = env.agents
+    g = torch.Generator().manual_seed(7)
+    p = 3000
+    start = a._free_points(torch.zeros(p, dtype=torch.long), g)
+    angle = torch.rand(p, generator=g) * 2 * math.pi
+    end = start + (0.5 + 2.5 * torch.rand(p, 1, generator=g)) * torch.stack([torch.cos(angle), torch.sin(angle)], -1)
+    radius = 0.2 + 0.1 * torch.rand(p, generator=g)
+    maps = torch.zeros(p, dtype=torch.long)
+    numba_ok = a.segment_clear(start, end, radius, maps, kernel="numba")
+    torch_ok = a.segment_clear(start, end, radius, maps, kernel="torch")
+    assert torch.equal(numba_ok, torch_ok) and 50 < int(numba_ok.sum()) < p - 50
+    # brute force: every centimetre of a clear leg keeps the whole disc off the walls
+    rows = numba_ok.nonzero()[:, 0][:40]
+    s = torch.linspace(0, 1, 121, dtype=torch.float64)
+    pts = start[rows, None].double() + (end - start)[rows, None].double() * s[:, None]
+    gap = wall_gap(env.frame_map, pts.reshape(-1, 2).numpy()).reshape(len(rows), -1)
+    assert (gap >= radius[rows].double().numpy()[:, None] - 1e-6).all()
