@@ -4,13 +4,13 @@ numba kernel :mod:`flashnav.sim.agent_numba`, which computes the same thing. Bot
 
 Beams (semantics shared with the numba kernel)
 ----------------------------------------------
-A beam from pose (x, y, yaw) at beam angle a is the ray ``o + t d``, ``d = (cos(yaw) cos a - sin(yaw)
-sin a, sin(yaw) cos a + cos(yaw) sin a)`` (the static raycasters' directions). Against a disc of
-centre c and radius r, with ``f = o - c``, ``b = f . d`` and ``h`` the distance from c to the ray's
-line (computed as ``|f - b d|``, which keeps its precision at tangency):
+A beam from pose (x, y, yaw) at beam angle a is the ray ``o + t d``, d the unit vector at yaw + a.
+Against a disc of centre c and radius r, with ``g = R(-yaw) (o - c)`` (the offset in the robot's
+frame, where d is (cos a, sin a)), ``b = g . (cos a, sin a)`` and ``h = g x (cos a, sin a)`` the
+signed distance from c to the ray's line (a cross product: no cancellation at tangency):
 
 - ``|f| <= r`` (the sensor inside or on the disc): range 0 for every beam;
-- else the beam hits when ``b <= 0`` (the disc lies ahead) and ``h <= r + TANGENT_EPS``, at
+- else the beam hits when ``b <= 0`` (the disc lies ahead) and ``|h| <= r + TANGENT_EPS``, at
   ``t = -b - sqrt(max(r^2 - h^2, 0))``: touching counts, as it does for walls, and the tolerance makes
   a beam meant to be tangent hit in any rounding;
 - ranges are ``min(static range, nearest disc hit)``, so a disc behind a wall changes nothing and
@@ -33,32 +33,24 @@ from flashnav.config import Footprint
 TANGENT_EPS = 1e-9
 
 
-def beam_directions(pose: torch.Tensor, cos_a: torch.Tensor, sin_a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Unit beam directions (dx, dy), each [n, B] float64, for ``pose`` [n, 3] and the beam angles'
-    cos / sin [B] float64 (the same products as the static raycasters)."""
-    yaw = pose[:, 2:3].double()
-    cy, sy = torch.cos(yaw), torch.sin(yaw)
-    return cy * cos_a - sy * sin_a, sy * cos_a + cy * sin_a
-
-
 def ray_disc_ranges(pose: torch.Tensor, cos_a: torch.Tensor, sin_a: torch.Tensor, centres: torch.Tensor,
                     radii: torch.Tensor, active: torch.Tensor, max_range: float) -> torch.Tensor:
     """[n, B] float64 metres: the nearest disc hit per beam, ``max_range`` where none (see the module
     docstring). ``pose`` [n, 3] (x m, y m, yaw rad), ``cos_a`` / ``sin_a`` [B] float64, ``centres``
     [n, K, 2] metres, ``radii`` [n, K] metres, ``active`` [n, K] bool (inactive discs are absent).
     One [n, B] pass per agent: memory stays n x B whatever K is."""
-    dx, dy = beam_directions(pose, cos_a, sin_a)
-    ox, oy = pose[:, 0:1].double(), pose[:, 1:2].double()
-    best = torch.full_like(dx, float(max_range))
+    p = pose.double()
+    cy, sy = torch.cos(p[:, 2:3]), torch.sin(p[:, 2:3])
+    best = torch.full((p.shape[0], cos_a.numel()), float(max_range), dtype=torch.float64, device=p.device)
     for j in range(centres.shape[1]):
-        fx = ox - centres[:, j, 0:1].double()  # [n, 1]
-        fy = oy - centres[:, j, 1:2].double()
+        fx = p[:, 0:1] - centres[:, j, 0:1].double()  # [n, 1], world frame
+        fy = p[:, 1:2] - centres[:, j, 1:2].double()
+        gx, gy = cy * fx + sy * fy, cy * fy - sy * fx  # the robot's frame
         r = radii[:, j:j + 1].double()
-        b = fx * dx + fy * dy  # [n, B]
-        px, py = fx - b * dx, fy - b * dy
-        h2 = px * px + py * py
-        t = -b - torch.sqrt((r * r - h2).clamp(min=0.0))
-        hit = (b <= 0) & (h2 <= (r + TANGENT_EPS) ** 2)
+        b = gx * cos_a + gy * sin_a  # [n, B]
+        h = gx * sin_a - gy * cos_a
+        t = -b - torch.sqrt((r * r - h * h).clamp(min=0.0))
+        hit = (b <= 0) & (h * h <= (r + TANGENT_EPS) ** 2)
         inside = fx * fx + fy * fy <= r * r  # [n, 1]
         t = torch.where(inside, torch.zeros_like(t), t)
         use = active[:, j:j + 1] & (hit | inside)
