@@ -42,6 +42,9 @@ CUDA_GRAPH_MODES = ("auto", "on", "off")
 #: free points, ``bounce`` keeps a constant velocity and turns away from walls, ``crossing`` appears
 #: at a chosen moment and walks across the robot's route (evaluation scenarios).
 AGENT_BEHAVIOURS = ("waypoints", "bounce", "crossing")
+#: Evaluation scenarios (:mod:`flashnav.scenarios`, ``flashnav eval --scenario NAME``): no agents, 4
+#: or 8 wandering agents, one agent crossing the robot's route.
+SCENARIOS = ("static", "wander-4", "wander-8", "crossing")
 #: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
 #: metric names (``time_to_90``).
 THRESHOLDS = (0.9, 0.95, 1.0)

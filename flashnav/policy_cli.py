@@ -22,6 +22,7 @@ GIF_MAX_FRAMES = 40
 #: longest side of the GIF, pixels
 GIF_SIZE = 320
 GIF_FRAME_MS = 100
+AGENT_RGB = (148, 103, 189)  # moving agents in the GIF (matplotlib's tab:purple, as in the PNG)
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -35,12 +36,17 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--goal-sampling", default=None, choices=GOAL_SAMPLINGS,
                    help="goal band measured as path length (geodesic; the default with --maps) or straight line")
     p.add_argument("--label", default=None, help="with --maps: the policy's name in the JSON and the report")
+    p.add_argument("--scenario", default=None, metavar="NAME[,NAME]",
+                   help="evaluation scenarios with moving agents: static, wander-4, wander-8, crossing, or all "
+                        "(success / collision with an agent / with a wall / timeout per scenario)")
     p.set_defaults(func=run_eval)
 
     p = sub.add_parser("render", help="draw an exported policy's trajectories (PNG, optionally an animated GIF)")
     _common_args(p, episodes=16)
     p.add_argument("--out", required=True, help="PNG with the trajectories, coloured by outcome")
     p.add_argument("--gif", action="store_true", help="also write an animated GIF next to --out")
+    p.add_argument("--scenario", default=None, metavar="NAME",
+                   help="draw the episodes of this scenario (static, wander-4, wander-8, crossing) with its agents")
     p.set_defaults(func=run_render)
 
 
@@ -101,12 +107,16 @@ def run_eval(args) -> int:
         raise ValueError("give either --map or --maps, not both")
     if args.json:  # before the evaluation, which may take minutes
         check_output_file(args.json, "--json")
+    if args.maps is not None and args.scenario is not None:
+        raise ValueError("give either --maps or --scenario, not both")
     if args.maps is not None:
         from flashnav.eval_maps import run_eval_maps
 
         return run_eval_maps(args, *load_policy_for(args, args.device))
     if args.goal_sampling is not None:
         raise ValueError("--goal-sampling goes with --maps (for one map: --maps FILE.yaml)")
+    if args.scenario is not None:
+        return run_scenarios(args)
     policy, meta, env = load_policy_and_env(args, args.device)
     start = time.perf_counter()
     result = evaluate(policy, env, seed=args.seed)
@@ -144,13 +154,46 @@ def run_eval(args) -> int:
     return 0
 
 
+def run_scenarios(args) -> int:
+    """``flashnav eval --scenario``: one table row per scenario (see :mod:`flashnav.scenarios`)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
+    from flashnav.sim.env import make_env
+
+    names = scenario_names(args.scenario)
+    policy, meta, env = load_policy_and_env(args, args.device)
+    table = Table(title=f"flashnav eval --scenario: {args.policy} on {env.preset.name} / {_map_label(args, env)}, "
+                        f"seed {args.seed}")
+    for col in ("scenario", "scored / drawn", "success", "agent collision", "wall collision", "timeout"):
+        table.add_column(col, justify="right")
+    report = {"robot": env.preset.name, "map": _map_label(args, env), "policy": str(args.policy), "seed": args.seed,
+              "scenarios": {}}
+    for name in names:
+        scenario_env = make_env(scenario_preset(env.preset, name), args.episodes, map=args.map, device=env.device,
+                                seed=args.seed)
+        r = run_scenario(policy, scenario_env, args.seed)
+        report["scenarios"][name] = r
+        table.add_row(name, f"{r['scored']} / {r['episodes']}", *(f"{100 * r[k]:.1f} %" for k in (
+            "success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate")))
+    Console().print(table)
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        print(f"results: {out}")
+    return 0
+
+
 @torch.no_grad()
 def rollout(policy, env, seed: int) -> dict:
     """One episode per env slot with the deterministic ``policy``.
 
     Returns ``poses [T+1, N, 3]`` (x, y m, yaw rad; rows past an episode's end repeat its last pose),
     ``length [N]`` (valid rows per slot), ``goals [N, 2]`` m and ``outcomes`` (success / collision /
-    timeout). The terminal pose is recomputed with the env's own motion model: the env has already
+    timeout); with moving agents also ``agents`` [T+1, N, K, 2] (their centres, m), ``agent_active``
+    [T+1, N, K] and ``agent_radius`` [N, K] (rows past an episode's end repeat its last row). The terminal pose is recomputed with the env's own motion model: the env has already
     reset a finished slot when ``step`` returns, but the picture should end where the robot did.
     """
     from flashnav.sim.motion import action_to_velocity, integrate
@@ -163,12 +206,19 @@ def rollout(policy, env, seed: int) -> dict:
     length = np.ones(n, dtype=np.int64)
     running = np.ones(n, dtype=bool)
     outcomes = ["timeout"] * n
+    track = env.agents is not None
+    if track:
+        agents, agent_active = [env.agents.pos.cpu().numpy().copy()], [env.agents.active.cpu().numpy().copy()]
+        agent_radius = env.agents.radius.cpu().numpy().copy()
     for _ in range(preset.episode.horizon):
         action = policy(obs)
         pose = integrate(env.pose, *action_to_velocity(action.to(env.device), preset.motion), preset.episode.dt)
         obs, _, terminated, truncated, info = env.step(action)
         pose = np.where(running[:, None], pose.cpu().numpy(), poses[-1])
         poses.append(pose)
+        if track:  # a finished slot's agents were re-sampled by the reset: keep its last row
+            agents.append(np.where(running[:, None, None], env.agents.pos.cpu().numpy(), agents[-1]))
+            agent_active.append(np.where(running[:, None], env.agents.active.cpu().numpy(), agent_active[-1]))
         length += running
         done = (terminated | truncated).cpu().numpy()
         success, collision = info["success"].cpu().numpy(), info["collision"].cpu().numpy()
@@ -177,7 +227,10 @@ def rollout(policy, env, seed: int) -> dict:
         running &= ~done
         if not running.any():
             break
-    return {"poses": np.stack(poses), "length": length, "goals": goals, "outcomes": outcomes}
+    out = {"poses": np.stack(poses), "length": length, "goals": goals, "outcomes": outcomes}
+    if track:
+        out.update(agents=np.stack(agents), agent_active=np.stack(agent_active), agent_radius=agent_radius)
+    return out
 
 
 def run_render(args) -> int:
@@ -188,18 +241,39 @@ def run_render(args) -> int:
     if args.gif:
         check_output_file(Path(args.out).with_suffix(".gif"), "--gif")
     policy, meta, env = load_policy_and_env(args)
+    if args.scenario is not None:
+        from flashnav.scenarios import scenario_preset
+        from flashnav.sim.env import make_env
+
+        env = make_env(scenario_preset(env.preset, args.scenario), args.episodes, map=args.map, seed=args.seed)
     result = rollout(policy, env, args.seed)
     poses, length, outcomes = result["poses"], result["length"], result["outcomes"]
     paths = [poses[: length[i], i, :2] for i in range(env.num_envs)]
+    tracks = agent_tracks(result)
     counts = {k: outcomes.count(k) for k in ("success", "collision", "timeout")}
     title = (f"{env.preset.name} / {_map_label(args, env)}: {Path(args.policy).name}, "
              f"{counts['success']}/{env.num_envs} reached, {counts['collision']} collided")
-    out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title)
+    out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title, agents=tracks)
     print(f"{counts} over {env.num_envs} episodes; trajectories: {out}")
     if args.gif:
         gif = write_gif(env.frame_map, result, env.preset.footprint.circumscribed_radius, Path(args.out).with_suffix(".gif"))
         print(f"animation: {gif}")
     return 0
+
+
+def agent_tracks(result: dict) -> list[tuple[np.ndarray, float]]:
+    """Each agent's track while its episode ran and it was present: ([T', 2] m, radius m); empty
+    without agents."""
+    if "agents" not in result:
+        return []
+    tracks = []
+    pos, on, radius = result["agents"], result["agent_active"], result["agent_radius"]
+    for i, steps in enumerate(result["length"]):
+        for j in range(pos.shape[2]):
+            rows = on[:steps, i, j]
+            if rows.any():
+                tracks.append((pos[:steps, i, j][rows], float(radius[i, j])))
+    return tracks
 
 
 def write_gif(grid, result: dict, radius: float, out: Path) -> Path:
@@ -245,6 +319,17 @@ def write_gif(grid, result: dict, radius: float, out: Path) -> Path:
             cx, cy = px(x, y)
             draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=colour, width=2)
             draw.line([(cx, cy), (cx + r * math.cos(yaw), cy - r * math.sin(yaw))], fill=colour, width=2)
+            if "agents" in result:  # the slot's agents: their tracks so far, their discs now
+                for j in range(result["agents"].shape[2]):
+                    on = result["agent_active"][: end + 1, i, j]
+                    if not on[-1]:
+                        continue
+                    track = [px(*p) for p in result["agents"][: end + 1, i, j][on]]
+                    if len(track) > 1:
+                        draw.line(track, fill=AGENT_RGB, width=1)
+                    ax, ay = track[-1]
+                    ar = max(2.0, float(result["agent_radius"][i, j]) * sx)
+                    draw.ellipse([ax - ar, ay - ar, ax + ar, ay + ar], fill=AGENT_RGB)
         frames.append(frame.convert("P", palette=Image.ADAPTIVE, colors=32))
     out.parent.mkdir(parents=True, exist_ok=True)
     frames[0].save(out, save_all=True, append_images=frames[1:], duration=GIF_FRAME_MS, loop=0, optimize=True)

@@ -13,12 +13,14 @@ import numpy as np  # noqa: E402
 from flashnav.maps.grid import OccupancyMap  # noqa: E402
 from flashnav.metrics import THRESHOLDS  # noqa: E402
 
+AGENT_COLOUR = "tab:purple"
 OUTCOME_COLOURS = {"success": "tab:green", "collision": "tab:red", "timeout": "tab:orange", "running": "tab:blue"}
 
 
 def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.ndarray, outcomes: list[str],
-                      out: str | Path, title: str = "") -> Path:
-    """Save a PNG of the map with each path ([T, 2] metres), its start, goal and outcome colour.
+                      out: str | Path, title: str = "", agents: list[tuple[np.ndarray, float]] = ()) -> Path:
+    """Save a PNG of the map with each path ([T, 2] metres), its start, goal and outcome colour, and
+    each moving agent's track ([T', 2] metres, its radius) with its disc where the track ends.
 
     Paths and goals are in ``grid``'s coordinates: for an environment's state (``env.pose``,
     ``env.goal``, in its simulator frame) pass ``env.frame_map``, which is ``env.map`` itself unless
@@ -27,12 +29,17 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
     fig, ax = plt.subplots(figsize=(7, 7 * (ymax - ymin) / (xmax - xmin) + 0.4), dpi=110)
     ax.imshow(grid.occupied, origin="lower", extent=(xmin, xmax, ymin, ymax), cmap="Greys", vmin=0, vmax=1.4,
               interpolation="nearest")
+    for track, radius in agents:
+        ax.plot(track[:, 0], track[:, 1], color=AGENT_COLOUR, lw=0.7, alpha=0.6, ls=":")
+        ax.add_patch(plt.Circle(tuple(track[-1]), radius, color=AGENT_COLOUR, alpha=0.5))
     for path, goal, outcome in zip(paths, goals, outcomes):
         colour = OUTCOME_COLOURS.get(outcome, "tab:blue")
         ax.plot(path[:, 0], path[:, 1], color=colour, lw=1.2, alpha=0.85)
         ax.plot(path[0, 0], path[0, 1], "o", color=colour, ms=3)
         ax.plot(goal[0], goal[1], "*", color=colour, ms=8, mec="black", mew=0.4)
     handles = [plt.Line2D([], [], color=c, label=k) for k, c in OUTCOME_COLOURS.items() if k in outcomes]
+    if agents:
+        handles.append(plt.Line2D([], [], color=AGENT_COLOUR, ls=":", label="agent"))
     if handles:
         ax.legend(handles=handles, loc="upper right", fontsize=8)
     ax.set_xlabel("x [m]")
