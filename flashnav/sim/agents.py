@@ -84,6 +84,7 @@ class AgentWorld:
         self.placed = torch.zeros(n, k, dtype=torch.bool, device=dev)  # exists in this episode
         self.active = torch.zeros(n, k, dtype=torch.bool, device=dev)  # placed and visible now
         self.appear = torch.zeros(n, k, dtype=torch.int32, device=dev)  # step at which a crossing agent appears
+        self.key = torch.zeros(n, dtype=torch.int64, device=dev)  # the slot's episode key for leg draws
         # the beams, as the static raycasters form their directions (float64 cos / sin of the angles)
         a = torch.as_tensor(beam_angles, dtype=torch.float32).reshape(-1).double()
         self.max_range = preset.lidar.max_range
@@ -208,6 +209,7 @@ class AgentWorld:
         self.pos[idx], self.vel[idx], self.target[idx], self.final[idx] = pos, vel, target, final
         self.radius[idx], self.speed[idx], self.kind[idx], self.reactive[idx] = radius, speed, kind, reactive
         self.placed[idx], self.appear[idx] = placed, appear
+        self.key[idx] = torch.randint(0, 2**62, (k,), generator=gen, device=dev)
         self.active[idx] = placed & ~cross
 
     def _clear_of_robot(self, p: torch.Tensor, r: torch.Tensor, start: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
@@ -281,7 +283,7 @@ class AgentWorld:
         if self._crossings:
             target = torch.where((arrived & (kind == CROSSING))[..., None], self.final[sel], target)
         need = active & (kind == WAYPOINTS) & (arrived | ~ok)
-        target = self._new_legs(new_pos, target, radius, mk, need, gen)
+        target = self._new_legs(new_pos, target, radius, mk, need, self.key[sel], steps)
         self.pos[sel], self.vel[sel], self.target[sel], self.active[sel] = new_pos, vel, target, active
 
     def _bounce(self, blocked, pos, new_pos, vel, move, radius, mk) -> torch.Tensor:
@@ -313,13 +315,17 @@ class AgentWorld:
         factor = (gap / self.cfg.reactive_distance).clamp(0.0, 1.0)
         return torch.where(reactive & ahead, factor, torch.ones_like(factor))
 
-    def _new_legs(self, pos, target, radius, mk, need, gen) -> torch.Tensor:
-        """``target`` with a new clear leg end for the agents ``need`` (their position if none is found)."""
+    def _new_legs(self, pos, target, radius, mk, need, keys, steps) -> torch.Tensor:
+        """``target`` with a new clear leg end for the agents ``need`` (their position if none is found).
+        The draws are a hash of (slot key, step, agent, candidate): a slot's agents move the same
+        whichever other slots are stepped (``step_slots``) or reset, so an evaluation episode's agents
+        do not depend on how long the other episodes last."""
         rows = need.nonzero()  # a host sync; only agents at the end of a leg do any work
         if rows.numel() == 0:
             return target
         n_, j_ = rows[:, 0], rows[:, 1]
-        u = torch.rand(rows.shape[0], LEG_CANDIDATES, 2, generator=gen, device=self.device)
+        lanes = torch.arange(LEG_CANDIDATES * 2, device=self.device).view(1, LEG_CANDIDATES, 2)
+        u = _hash_uniform(keys[n_][:, None, None], steps[n_].long()[:, None, None], j_[:, None, None], lanes)
         angle = (u[..., 0] * 2.0 - 1.0) * math.pi
         reach = LEG_LENGTH[0] + u[..., 1] * (LEG_LENGTH[1] - LEG_LENGTH[0])
         start = pos[n_, j_][:, None, :]
@@ -365,6 +371,21 @@ def _first(cand, ok: torch.Tensor):
     pick = ok.float().argmax(dim=-1)[..., None, None]
     take = lambda c: torch.gather(c, -2, pick.expand(*pick.shape[:-2], 1, 2)).squeeze(-2)  # noqa: E731
     return ([take(c) for c in cand] if isinstance(cand, list) else take(cand)), ok.any(dim=-1)
+
+
+def _lsr(x: torch.Tensor, s: int) -> torch.Tensor:
+    """Logical right shift of int64 ``x`` by ``s`` bits (torch's >> is arithmetic)."""
+    return (x >> s) & ((1 << (64 - s)) - 1)
+
+
+def _hash_uniform(key, step, agent, lane) -> torch.Tensor:
+    """float32 uniforms in [0, 1) (24 bits), a splitmix64 hash of the broadcast int64 tensors
+    (wrapping int64 arithmetic): counter-based draws, independent of any generator's position."""
+    x = key * -7046029254386353131 + step * 1442695040888963407 + agent * 6364136223846793005 + lane
+    x = (x ^ _lsr(x, 30)) * -4658895280553007687
+    x = (x ^ _lsr(x, 27)) * -7723592293110705685
+    x = x ^ _lsr(x, 31)
+    return _lsr(x, 40).float() * (1.0 / (1 << 24))
 
 
 def _coarse_first(count: int) -> torch.Tensor:

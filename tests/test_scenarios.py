@@ -1,0 +1,69 @@
+"""Evaluation scenarios with moving agents: presets, the name checks, scoring, and the rollout the
+render draws."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from flashnav.policy_cli import agent_tracks, rollout
+from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
+from flashnav.sim.env import make_env
+from flashnav.viz import draw_trajectories
+
+
+def stand_still(obs: torch.Tensor) -> torch.Tensor:
+    """v = 0, w = 0: a robot that never moves can only be hit by agents, never reach a wall."""
+    action = torch.zeros(obs.shape[0], 2)
+    action[:, 0] = -1.0
+    return action
+
+
+def test_scenario_presets_and_names():
+    assert scenario_preset("turtlebot2", "static").agents.count == 0
+    assert scenario_preset("turtlebot2", "wander-8").agents.count == 8
+    crossing = scenario_preset("go2", "crossing").agents
+    assert crossing.count == 1 and crossing.mix == {"crossing": 1.0}
+    assert scenario_names("all") == ["static", "wander-4", "wander-8", "crossing"]
+    with pytest.raises(ValueError, match="wander-8"):
+        scenario_names("wander8")
+
+
+def test_a_standing_robot_is_hit_by_agents_and_never_by_walls():
+    env = make_env(scenario_preset("turtlebot2", "wander-8"), 48, seed=3)
+    r = run_scenario(stand_still, env, seed=3)
+    assert r["scored"] == r["episodes"] == 48
+    assert r["success_rate"] == 0.0 and r["wall_collision_rate"] == 0.0
+    assert r["agent_collision_rate"] > 0.1
+    assert r["agent_collision_rate"] + r["timeout_rate"] == pytest.approx(1.0)
+    # the same episodes stepped densely, counting each slot's first episode
+    env.reset(seed=3)
+    first = torch.full((48,), -1)
+    for _ in range(env.preset.episode.horizon):
+        _, _, terminated, truncated, info = env.step(stand_still(env.obs))
+        new = (terminated | truncated) & (first < 0)
+        first[new] = torch.where(info["collision_agent"][new], 2, 0)
+    assert float((first == 2).float().mean()) == pytest.approx(r["agent_collision_rate"])
+
+
+def test_crossing_scores_only_episodes_with_a_crossing_agent():
+    env = make_env(scenario_preset("turtlebot2", "crossing"), 64, seed=4)
+    env.reset(seed=4)
+    placed = int(env.agents.placed.any(dim=1).sum())
+    r = run_scenario(stand_still, env, seed=4)
+    assert r["scored"] == placed and 0 < placed < 64
+
+
+def test_render_rollout_tracks_agents(tmp_path):
+    env = make_env(scenario_preset("turtlebot2", "wander-4"), 3, seed=5)
+    result = rollout(stand_still, env, seed=5)
+    steps = result["poses"].shape[0]
+    assert result["agents"].shape == (steps, 3, 4, 2) and result["agent_active"].shape == (steps, 3, 4)
+    tracks = agent_tracks(result)
+    assert len(tracks) >= 6 and all(t.shape[1] == 2 and 0.2 <= r <= 0.3 for t, r in tracks)
+    moved = max(float(np.linalg.norm(t[-1] - t[0])) for t, _ in tracks)
+    assert moved > 0.5
+    paths = [result["poses"][: result["length"][i], i, :2] for i in range(3)]
+    out = draw_trajectories(env.frame_map, paths, result["goals"], result["outcomes"], tmp_path / "a.png", agents=tracks)
+    assert out.stat().st_size > 10_000
