@@ -67,3 +67,25 @@ def test_render_rollout_tracks_agents(tmp_path):
     paths = [result["poses"][: result["length"][i], i, :2] for i in range(3)]
     out = draw_trajectories(env.frame_map, paths, result["goals"], result["outcomes"], tmp_path / "a.png", agents=tracks)
     assert out.stat().st_size > 10_000
+
+
+def test_eval_scenario_command_writes_a_row_per_scenario(tmp_path):
+    import json
+
+    from test_export import random_actor, run_cli
+
+    from flashnav.export import export_policy
+    from flashnav.presets import load_robot
+
+    paths = export_policy(random_actor(load_robot("turtlebot2")), load_robot("turtlebot2"), tmp_path / "policy")
+    out = tmp_path / "scenarios.json"
+    assert run_cli("eval", str(paths["torchscript"]), "--scenario", "static,wander-4", "--episodes", "8",
+                   "--json", str(out)) == 0
+    report = json.loads(out.read_text())
+    assert list(report["scenarios"]) == ["static", "wander-4"]
+    for r in report["scenarios"].values():
+        total = sum(r[k] for k in ("success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate"))
+        assert total == pytest.approx(1.0) and r["episodes"] == 8
+    assert report["scenarios"]["static"]["agent_collision_rate"] == 0.0
+    with pytest.raises(ValueError, match="unknown scenario"):
+        run_cli("eval", str(paths["torchscript"]), "--scenario", "rush-hour", "--episodes", "2")

@@ -158,10 +158,10 @@ class AgentWorld:
         if kernel == "numba":
             from flashnav.sim.agent_numba import segments_clear
 
-            shape = radius.shape
+            shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], radius.shape, maps.shape)
             out = np.empty(shape.numel(), dtype=np.bool_)
-            flat = lambda t, *tail: t.reshape(-1, *tail).contiguous().numpy()  # noqa: E731
-            segments_clear(flat(a, 2), flat(b, 2), flat(radius), flat(maps.expand(shape)), self._samples.numpy(),
+            flat = lambda t, *tail: t.expand(*shape, *tail).reshape(-1, *tail).contiguous().numpy()  # noqa: E731
+            segments_clear(flat(a, 2), flat(b, 2), flat(radius), flat(maps), self._samples.numpy(),
                            self._clear.numpy(), self._offset.numpy(), self._origin.numpy(), self._res.numpy(),
                            self._wp.numpy(), self._hp.numpy(), PAD, out)
             return torch.from_numpy(out).view(shape)
