@@ -137,3 +137,126 @@ def segments_clear(a, b, radius, maps, samples, clear, offset, origin, res, wp, 
                 ok = False
                 break
         out[i] = ok
+
+
+@njit(cache=True, inline="always")
+def _clearance(x, y, m, clear, offset, origin, res, wp, hp, pad):
+    """The clearance lower bound (metres) of the cell holding (x, y) on map m (AgentWorld.clearance)."""
+    j = int(math.floor((x - origin[m, 0]) / res[m])) + pad
+    k = int(math.floor((y - origin[m, 1]) / res[m])) + pad
+    j = min(max(j, 0), wp[m] - 1)
+    k = min(max(k, 0), hp[m] - 1)
+    return clear[offset[m] + k * wp[m] + j]
+
+
+@njit(cache=True, inline="always")
+def _lsr(x, s):
+    return (x >> np.int64(s)) & np.int64((1 << (64 - s)) - 1)
+
+
+@njit(cache=True)
+def hash_uniform(key, step, agent, lane):
+    """The float32 uniform of :func:`flashnav.sim.agents._hash_uniform` for one (key, step, agent, lane)."""
+    x = (np.int64(key) * np.int64(-7046029254386353131) + np.int64(step) * np.int64(1442695040888963407)
+         + np.int64(agent) * np.int64(6364136223846793005) + np.int64(lane))
+    x = (x ^ _lsr(x, 30)) * np.int64(-4658895280553007687)
+    x = (x ^ _lsr(x, 27)) * np.int64(-7723592293110705685)
+    x = x ^ _lsr(x, 31)
+    return np.float32(_lsr(x, 40)) * np.float32(1.0 / (1 << 24))
+
+
+@njit(cache=True)
+def _leg_clear(ax, ay, bx, by, r, m, samples, clear, offset, origin, res, wp, hp, pad):
+    dx = bx - ax
+    dy = by - ay
+    need = r + 0.5 * math.sqrt(dx * dx + dy * dy) / (samples.shape[0] - 1)
+    for s in range(samples.shape[0]):
+        if _clearance(ax + dx * samples[s], ay + dy * samples[s], m, clear, offset, origin, res, wp, hp, pad) < need:
+            return False
+    return True
+
+
+@njit(cache=True)
+def step_agents(slots, robot, steps, maps, pos, vel, target, final, radius, speed, kind, reactive, placed, active,
+                appear, key, clear, offset, origin, res, wp, hp, pad, samples, consts):
+    """One step of the agents of ``slots`` [k] (AgentWorld.step's semantics, in place on the [N, K]
+    state arrays), ``robot`` [k, 3] / ``steps`` [k] / ``maps`` [k] of those slots. ``consts``: dt,
+    robot radius, spawn clearance, reactive distance (0 = off), reactive cos, leg length min and max,
+    leg candidates, arrival distance, crossings on (1.0 / 0.0)."""
+    dt, r_robot, spawn, react_d, react_cos = consts[0], consts[1], consts[2], consts[3], consts[4]
+    leg_lo, leg_hi, cands, arrived_eps, crossings = consts[5], consts[6], int(consts[7]), consts[8], consts[9]
+    for i in range(slots.shape[0]):
+        n = slots[i]
+        m = maps[i]
+        rx = np.float64(robot[i, 0])
+        ry = np.float64(robot[i, 1])
+        for j in range(pos.shape[1]):
+            r = np.float64(radius[n, j])
+            px = np.float64(pos[n, j, 0])
+            py = np.float64(pos[n, j, 1])
+            if crossings > 0 and placed[n, j] and not active[n, j] and steps[i] >= appear[n, j]:
+                if math.sqrt((px - rx) ** 2 + (py - ry) ** 2) >= r + r_robot + spawn:
+                    active[n, j] = True
+            if not active[n, j]:
+                continue
+            sp = np.float64(speed[n, j])
+            walker = kind[n, j] != 1
+            if walker:
+                tx = np.float64(target[n, j, 0]) - px
+                ty = np.float64(target[n, j, 1]) - py
+                rem = math.sqrt(tx * tx + ty * ty)
+                dx = tx / max(rem, 1e-9)
+                dy = ty / max(rem, 1e-9)
+            else:
+                dx = np.float64(vel[n, j, 0]) / max(sp, 1e-9)
+                dy = np.float64(vel[n, j, 1]) / max(sp, 1e-9)
+            length = sp * dt
+            if react_d > 0 and reactive[n, j]:
+                ox = rx - px
+                oy = ry - py
+                d = math.sqrt(ox * ox + oy * oy)
+                if ox * dx + oy * dy >= react_cos * d:
+                    length *= min(max((d - r - r_robot) / react_d, 0.0), 1.0)
+            if walker:
+                length = min(length, rem)
+            nx = np.float32(px + dx * length)
+            ny = np.float32(py + dy * length)
+            ok = _clearance(np.float64(nx), np.float64(ny), m, clear, offset, origin, res, wp, hp, pad) >= r
+            if not ok:
+                nx = np.float32(px)
+                ny = np.float32(py)
+                if kind[n, j] == 1:  # bounce: reflect in x, in y, or reverse, the first that is clear
+                    for fx, fy in ((-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)):
+                        ax = np.float32(px + fx * dx * length)
+                        ay = np.float32(py + fy * dy * length)
+                        if _clearance(np.float64(ax), np.float64(ay), m, clear, offset, origin, res, wp, hp, pad) >= r:
+                            nx, ny = ax, ay
+                            vel[n, j, 0] *= fx
+                            vel[n, j, 1] *= fy
+                            break
+            pos[n, j, 0] = nx
+            pos[n, j, 1] = ny
+            px = np.float64(nx)
+            py = np.float64(ny)
+            arrived = math.sqrt((np.float64(target[n, j, 0]) - px) ** 2
+                                + (np.float64(target[n, j, 1]) - py) ** 2) <= arrived_eps
+            if crossings > 0 and arrived and kind[n, j] == 2:
+                target[n, j, 0] = final[n, j, 0]
+                target[n, j, 1] = final[n, j, 1]
+            if kind[n, j] == 0 and (arrived or not ok):  # a new leg: the first clear candidate
+                target[n, j, 0] = nx
+                target[n, j, 1] = ny
+                for c in range(cands):
+                    u0 = hash_uniform(key[n], steps[i], j, 2 * c)
+                    u1 = hash_uniform(key[n], steps[i], j, 2 * c + 1)
+                    angle = np.float32((u0 * np.float32(2.0) - np.float32(1.0)) * np.float32(math.pi))
+                    reach = np.float32(leg_lo + u1 * (leg_hi - leg_lo))
+                    ex = np.float32(nx + reach * np.float32(math.cos(angle)))
+                    ey = np.float32(ny + reach * np.float32(math.sin(angle)))
+                    if (_leg_clear(px, py, np.float64(ex), np.float64(ey), r, m, samples, clear, offset, origin,
+                                   res, wp, hp, pad)
+                            and _clearance(np.float64(ex), np.float64(ey), m, clear, offset, origin, res, wp, hp,
+                                           pad) >= r):
+                        target[n, j, 0] = ex
+                        target[n, j, 1] = ey
+                        break

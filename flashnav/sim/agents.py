@@ -93,6 +93,8 @@ class AgentWorld:
         self._a_step = float(a[-1] - a[0]) / (a.numel() - 1) if a.numel() > 1 else 0.0
         self._numba = None
         self._crossings = cfg.mix.get("crossing", 0.0) > 0
+        #: "numba" (the CPU default) or "torch": how :meth:`step` moves the agents
+        self.step_kernel = "numba" if self.device.type == "cpu" else "torch"
 
     # ---- the map: clearance lookups and free cells -----------------------------------------------
     def _build_fields(self, grids: tuple[OccupancyMap, ...], r_max: float) -> None:
@@ -256,7 +258,11 @@ class AgentWorld:
     def step(self, sel, robot_pose: torch.Tensor, steps: torch.Tensor, gen: torch.Generator,
              maps: torch.Tensor | None = None) -> None:
         """Move the agents of slots ``sel`` (``slice(None)`` or [k] long) by one step; ``robot_pose``
-        [k, 3] is where the robots are after this step's motion, ``steps`` [k] their step counters."""
+        [k, 3] is where the robots are after this step's motion, ``steps`` [k] their step counters.
+        On the CPU one numba kernel does it all (:func:`flashnav.sim.agent_numba.step_agents`: the
+        ~50 small tensor ops below cost more than the LiDAR there); elsewhere these torch ops."""
+        if self.step_kernel == "numba":
+            return self._step_numba(sel, robot_pose, steps, maps)
         pos, vel, target = self.pos[sel], self.vel[sel], self.target[sel]
         radius, speed, kind, active = self.radius[sel], self.speed[sel], self.kind[sel], self.active[sel]
         k, K = pos.shape[:2]
@@ -285,6 +291,24 @@ class AgentWorld:
         need = active & (kind == WAYPOINTS) & (arrived | ~ok)
         target = self._new_legs(new_pos, target, radius, mk, need, self.key[sel], steps)
         self.pos[sel], self.vel[sel], self.target[sel], self.active[sel] = new_pos, vel, target, active
+
+    def _step_numba(self, sel, robot_pose, steps, maps) -> None:
+        from flashnav.sim.agent_numba import step_agents
+
+        slots = torch.arange(self.num_envs) if isinstance(sel, slice) else sel
+        k = slots.numel()
+        maps = torch.zeros(k, dtype=torch.long) if maps is None else maps
+        cfg = self.cfg
+        consts = np.array([self.dt, self.robot_radius, cfg.spawn_clearance,
+                           cfg.reactive_distance if cfg.reactive > 0 else 0.0, REACT_COS, LEG_LENGTH[0],
+                           LEG_LENGTH[1], LEG_CANDIDATES, ARRIVED, 1.0 if self._crossings else 0.0])
+        v = lambda t: t.detach().contiguous().numpy()  # noqa: E731
+        step_agents(v(slots.long()), v(robot_pose.float()), v(steps.int()), v(maps.long()), self.pos.numpy(),
+                    self.vel.numpy(), self.target.numpy(), self.final.numpy(), self.radius.numpy(),
+                    self.speed.numpy(), self.kind.numpy(), self.reactive.numpy(), self.placed.numpy(),
+                    self.active.numpy(), self.appear.numpy(), self.key.numpy(), self._clear.numpy(),
+                    self._offset.numpy(), self._origin.numpy(), self._res.numpy(), self._wp.numpy(),
+                    self._hp.numpy(), PAD, self._samples.numpy(), consts)
 
     def _bounce(self, blocked, pos, new_pos, vel, move, radius, mk) -> torch.Tensor:
         """Bounce agents ``blocked`` [k, K] by a wall: the move reflected in x, in y, or reversed, the
