@@ -27,6 +27,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--maps", metavar="K|DIR|GLOB",
                    help="also time every row on many maps, right after the bundled map: K generated maps like "
                         "the robot's own (seeds 1000...), or a directory / glob of ROS map YAML files")
+    p.add_argument("--agents", type=int, default=0, metavar="K",
+                   help="also time every row with K moving agents per environment (e.g. 8), interleaved with "
+                        "the static rows; the table gives the ratio to the static step ('x static')")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -68,9 +71,10 @@ def run_sim(args) -> int:
             for rc in raycasters:
                 # march is orders of magnitude slower: a couple of steps give its rate
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
-                for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many):
+                for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many,
+                                          agents=args.agents):
                     rows.append(row.to_dict(1080))
-                    console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d}: "
+                    console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d}: "
                                   f"{row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
@@ -103,25 +107,33 @@ def _many_maps(robot: str, spec: str | None):
 
 
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
-    base = {(r["robot"], r["num_envs"], r["maps"]): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
-    one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows if r["maps"] == 1}
+    key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"])  # noqa: E731
+    base = {key(r): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
+    # the static single-map row of the same robot, size and raycaster: the reference of both ratios
+    one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows
+           if r["maps"] == 1 and r["agents"] == 0}
     many = any(r["maps"] > 1 for r in rows)
+    moving = any(r["agents"] > 0 for r in rows)
     t = Table(title="whole env step, random actions (full 1,080-beam scans)")
-    for col in ("robot", "raycaster", "envs", *(("maps",) if many else ()), "env-steps/s", "rays/s", "x march",
-                *(("x 1 map",) if many else ())):
+    for col in ("robot", "raycaster", "envs", *(("maps",) if many else ()), *(("agents",) if moving else ()),
+                "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if moving else ())):
         t.add_column(col, justify="right")
     for r in rows:
-        ref = base.get((r["robot"], r["num_envs"], r["maps"]))
+        ref = base.get(key(r))
         ratio = f"{r['env_steps_per_s'] / ref:,.0f}x" if ref else "-"
         cells = [r["robot"], r["raycaster"], str(r["num_envs"])] + ([str(r["maps"])] if many else [])
+        cells += [str(r["agents"])] if moving else []
         cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
+        single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:
-            single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
             cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and r["maps"] > 1 else "-")
+        if moving:
+            cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and r["agents"] > 0 else "-")
         t.add_row(*cells)
     for p in peer:
-        t.add_row(p["robot"], "ir-sim (peer)", "1", *(("1",) if many else ()), f"{p['env_steps_per_s']:,.1f}",
-                  f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-", *(("-",) if many else ()))
+        t.add_row(p["robot"], "ir-sim (peer)", "1", *(("1",) if many else ()), *(("0",) if moving else ()),
+                  f"{p['env_steps_per_s']:,.1f}", f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-",
+                  *(("-",) if many else ()), *(("-",) if moving else ()))
     console.print(t)
     if accuracy:
         a = Table(title="range error vs the exact raycaster (random free poses, metres)")
