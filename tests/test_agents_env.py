@@ -224,3 +224,30 @@ def test_numba_and_torch_agent_steps_agree(mix):
     assert float(near.float().mean()) >= 0.97, float(near.float().mean())
     moved = torch.linalg.vector_norm(a.pos - start, dim=-1)
     assert float((moved[a.active] > 0.5).float().mean()) > 0.5
+
+
+def test_agents_move_on_their_slots_own_maps():
+    from flashnav.maps.generate import generate_map
+
+    maps = [generate_map(8.0, 8.0, 0.05, seed, robot_radius=0.3, name=f"m{seed}") for seed in (11, 12)]
+    preset = load_robot("turtlebot2", **{"agents.count": 6, "agents.mix": {"waypoints": 1.0, "bounce": 1.0}})
+    env = make_env(preset, 10, maps=maps, seed=9)
+    env.reset(seed=9)
+    gen = torch.Generator().manual_seed(9)
+    for _ in range(60):
+        env.step(torch.rand(10, 2, generator=gen) * 2 - 1)
+    a = env.agents
+    seen = set()
+    for slot in range(10):
+        m = int(env.map_index[slot])
+        seen.add(m)
+        on = a.active[slot].numpy()
+        gap = wall_gap(env.frame_maps[m], a.pos[slot].double().numpy()[on])
+        assert (gap >= a.radius[slot].double().numpy()[on] - 1e-6).all(), f"slot {slot} overlaps a wall of map {m}"
+        # the slot's scan includes its agents on its own map: equal to the reference on that map
+        static = env._cast(env.pose[slot:slot + 1], env.map_index[slot:slot + 1])
+        ref = reference_ranges(env.pose[slot:slot + 1], env.beam_angles, a.pos[slot:slot + 1],
+                               a.radius[slot:slot + 1], a.active[slot:slot + 1].numpy(), static,
+                               env.preset.lidar.max_range)
+        np.testing.assert_allclose(env.scan()[slot:slot + 1].double().numpy(), ref, atol=1e-5, rtol=0)
+    assert seen == {0, 1}
