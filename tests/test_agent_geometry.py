@@ -166,3 +166,18 @@ def test_footprint_disc_collision_matches_the_geometric_reference(footprint):
                                     torch.ones(1, 1, dtype=torch.bool))
     assert footprint_hits_discs(at, footprint, touch, torch.tensor([[0.2501]], dtype=torch.float64),
                                 torch.ones(1, 1, dtype=torch.bool))
+
+
+def test_counter_based_draws_are_the_same_bits_in_torch_and_numba():
+    from flashnav.sim.agent_draws import hash_uniform as torch_hash
+    from flashnav.sim.agent_numba import hash_uniform as numba_hash
+
+    g = torch.Generator().manual_seed(0)
+    keys = torch.randint(0, 2**62, (50,), generator=g)
+    got = torch_hash(keys[:, None, None, None], torch.arange(3)[:, None, None], torch.arange(4)[:, None], torch.arange(6))
+    for i in range(0, 50, 7):
+        for s in range(3):
+            for j in range(4):
+                for lane in range(6):
+                    assert float(got[i, s, j, lane]) == float(numba_hash(int(keys[i]), s, j, lane))
+    assert 0.45 < float(got.mean()) < 0.55 and float(got.min()) >= 0.0 and float(got.max()) < 1.0

@@ -156,7 +156,7 @@ def _lsr(x, s):
 
 @njit(cache=True)
 def hash_uniform(key, step, agent, lane):
-    """The float32 uniform of :func:`flashnav.sim.agents._hash_uniform` for one (key, step, agent, lane)."""
+    """The float32 uniform of :func:`flashnav.sim.agent_draws.hash_uniform` for one (key, step, agent, lane)."""
     x = (np.int64(key) * np.int64(-7046029254386353131) + np.int64(step) * np.int64(1442695040888963407)
          + np.int64(agent) * np.int64(6364136223846793005) + np.int64(lane))
     x = (x ^ _lsr(x, 30)) * np.int64(-4658895280553007687)

@@ -40,6 +40,7 @@ from flashnav.config import RobotPreset
 from flashnav.maps.fields import PAD, safe_field
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import AGENT_BEHAVIOURS
+from flashnav.sim.agent_draws import coarse_first, hash_uniform
 from flashnav.sim.agent_geometry import footprint_hits_discs, ray_disc_ranges
 
 WAYPOINTS, BOUNCE, CROSSING = (AGENT_BEHAVIOURS.index(b) for b in ("waypoints", "bounce", "crossing"))
@@ -71,7 +72,7 @@ class AgentWorld:
         self.mix = torch.tensor([cfg.mix.get(b, 0.0) for b in AGENT_BEHAVIOURS], dtype=torch.float64, device=self.device)
         self._build_fields(grids, cfg.radius[1])
         max_leg = max(LEG_LENGTH[1], 2.0 * cfg.crossing_offset[1])
-        self._samples = _coarse_first(math.ceil(max_leg / SEGMENT_SPACING) + 1).to(self.device)
+        self._samples = coarse_first(math.ceil(max_leg / SEGMENT_SPACING) + 1).to(self.device)
         n, k, dev = num_envs, cfg.count, self.device
         self.pos = torch.zeros(n, k, 2, device=dev)  # centres, m
         self.vel = torch.zeros(n, k, 2, device=dev)  # bounce: velocity, m/s
@@ -349,7 +350,7 @@ class AgentWorld:
             return target
         n_, j_ = rows[:, 0], rows[:, 1]
         lanes = torch.arange(LEG_CANDIDATES * 2, device=self.device).view(1, LEG_CANDIDATES, 2)
-        u = _hash_uniform(keys[n_][:, None, None], steps[n_].long()[:, None, None], j_[:, None, None], lanes)
+        u = hash_uniform(keys[n_][:, None, None], steps[n_].long()[:, None, None], j_[:, None, None], lanes)
         angle = (u[..., 0] * 2.0 - 1.0) * math.pi
         reach = LEG_LENGTH[0] + u[..., 1] * (LEG_LENGTH[1] - LEG_LENGTH[0])
         start = pos[n_, j_][:, None, :]
@@ -395,31 +396,3 @@ def _first(cand, ok: torch.Tensor):
     pick = ok.float().argmax(dim=-1)[..., None, None]
     take = lambda c: torch.gather(c, -2, pick.expand(*pick.shape[:-2], 1, 2)).squeeze(-2)  # noqa: E731
     return ([take(c) for c in cand] if isinstance(cand, list) else take(cand)), ok.any(dim=-1)
-
-
-def _lsr(x: torch.Tensor, s: int) -> torch.Tensor:
-    """Logical right shift of int64 ``x`` by ``s`` bits (torch's >> is arithmetic)."""
-    return (x >> s) & ((1 << (64 - s)) - 1)
-
-
-def _hash_uniform(key, step, agent, lane) -> torch.Tensor:
-    """float32 uniforms in [0, 1) (24 bits), a splitmix64 hash of the broadcast int64 tensors
-    (wrapping int64 arithmetic): counter-based draws, independent of any generator's position."""
-    x = key * -7046029254386353131 + step * 1442695040888963407 + agent * 6364136223846793005 + lane
-    x = (x ^ _lsr(x, 30)) * -4658895280553007687
-    x = (x ^ _lsr(x, 27)) * -7723592293110705685
-    x = x ^ _lsr(x, 31)
-    return _lsr(x, 40).float() * (1.0 / (1 << 24))
-
-
-def _coarse_first(count: int) -> torch.Tensor:
-    """[count] float64: the fractions 0, 1/(count-1), ..., 1, ordered end points first and then by
-    halving (1, 0, 1/2, 1/4, 3/4, ...): a blocked segment is usually found blocked after a few samples."""
-    order, seen, step = [count - 1, 0], {0, count - 1}, count - 1
-    while len(order) < count:
-        step = max(step // 2, 1)
-        for i in range(0, count, step):
-            if i not in seen:
-                seen.add(i)
-                order.append(i)
-    return torch.tensor(order, dtype=torch.float64) / (count - 1)
