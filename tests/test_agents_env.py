@@ -251,3 +251,29 @@ def test_agents_move_on_their_slots_own_maps():
                                env.preset.lidar.max_range)
         np.testing.assert_allclose(env.scan()[slot:slot + 1].double().numpy(), ref, atol=1e-5, rtol=0)
     assert seen == {0, 1}
+
+
+@pytest.mark.parametrize("kernel", ["numba", "torch"])
+def test_a_reactive_agent_stops_short_of_the_robot_and_a_plain_one_walks_into_it(kernel):
+    from test_env import open_room
+
+    preset = load_robot("turtlebot2", **{"agents.count": 1, "agents.mix": {"bounce": 1.0}, "agents.reactive": 1.0})
+    env = make_env(preset, 2, map=open_room(), seed=10)
+    env.set_state(torch.tensor([[5.0, 5.0, 0.0]] * 2), torch.tensor([[8.0, 8.0]] * 2))
+    a = env.agents
+    a.step_kernel = kernel
+    a.pos[:, 0] = torch.tensor([2.0, 5.0])  # 3 m to the robot's left (-x), walking at it
+    a.speed[:] = 0.5
+    a.vel[:, 0] = torch.tensor([0.5, 0.0])
+    a.radius[:] = 0.25
+    a.active[:] = True
+    a.reactive[:, 0] = torch.tensor([True, False])
+    hit = torch.zeros(2, dtype=torch.bool)
+    for t in range(80):
+        out = env.step_slots(torch.arange(2), torch.tensor([[-1.0, 0.0]] * 2))  # the robots stand
+        hit |= out["collision_agent"]
+        if bool(hit[1]):
+            break
+    assert hit.tolist() == [False, True]
+    gap = float(torch.linalg.vector_norm(a.pos[0, 0] - env.pose[0, :2])) - 0.25 - 0.2
+    assert 0.0 < gap < preset.agents.reactive_distance
