@@ -34,7 +34,7 @@ from __future__ import annotations
 import datetime as dt
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 #: The checkpoint file a run directory holds (``flashnav train`` writes it).
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -85,14 +85,14 @@ def checkpoint_file(source: str | Path) -> Path:
     return path.resolve()
 
 
-def load_init_source(source: str | Path):
-    """(:class:`InitSource`, the checkpoint's :class:`flashnav.spec.RunSpec`) for ``init_from``."""
+def load_init_source(source: str | Path, read_spec: Callable[..., Any]):
+    """(:class:`InitSource`, the checkpoint's run spec) for ``init_from``; ``read_spec`` is
+    :meth:`flashnav.spec.RunSpec.from_dict` (passed in: the spec module imports this one)."""
     from flashnav.checkpoint import load_checkpoint
-    from flashnav.spec import RunSpec
 
     path = checkpoint_file(source)
     payload = load_checkpoint(path)
-    spec = RunSpec.from_dict(payload["config"], source=f"{path} (its run config)")
+    spec = read_spec(payload["config"], source=f"{path} (its run config)")
     if payload["learner"].get("algorithm") != spec.algorithm:
         raise ValueError(f"{path}: the learner state is for {payload['learner'].get('algorithm')!r} but its run "
                          f"config says {spec.algorithm!r}")

@@ -339,7 +339,7 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     cuda_graph = resolve_cuda_graph(config.cuda_graph, device)
     init = checkpoint = None
     if config.init_from is not None:  # before the maps: a mismatch is refused without loading any
-        init, checkpoint = load_init_source(config.init_from)
+        init, checkpoint = load_init_source(config.init_from, RunSpec.from_dict)
         check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from)
     if config.maps is None:
         grid = resolve_map(config.map, robot.map)

@@ -132,10 +132,7 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
         # OpenMP pool, which resets the thread count torch shares with it (the first run of every
         # process used to learn on 2 threads, competing with the collector for the same cores).
         torch.set_num_threads(spec.threads)
-    layout = ObsLayout.from_robot(preset, spec.goal_distance_max)
-    learner = make_learner(config.algorithm, hp, layout, 2, hp.num_envs, dev, config.seed)
-    if spec.init is not None:  # fine-tuning: the checkpoint's learner (flashnav/finetune.py); clocks start at 0
-        load_learner(learner, spec.init)
+    learner = run_learner(spec, dev)
     maps = _map_stream(spec)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
     updates = (CycleUpdates(learner, preset.obs_dim, 2, hp.batch_size, hp.updates_per_step, capture=dev.type == "cuda")
@@ -266,6 +263,17 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
     )
 
 
+def run_learner(spec: RunSpec, device: torch.device | str) -> Learner:
+    """The run's learner: fresh from its seed, or, fine-tuning (``spec.init``), with its checkpoint's
+    learner state loaded (:func:`flashnav.finetune.load_learner`); the clocks start at 0 either way."""
+    hp = spec.hparams
+    layout = ObsLayout.from_robot(spec.robot, spec.goal_distance_max)
+    learner = make_learner(spec.algorithm, hp, layout, 2, hp.num_envs, device, spec.seed)
+    if spec.init is not None:
+        load_learner(learner, spec.init)
+    return learner
+
+
 def _map_stream(spec: RunSpec) -> MapStream | None:
     """With generated maps refreshed during training (``maps: {family, refresh_every}``): the stream of
     the next sets, each drawn on a background thread with the fields the env reads computed there."""
@@ -299,4 +307,4 @@ def _evaluate(learner: Learner, eval_env: NavVecEnv, config: TrainConfig, env_st
     return {"env_steps": env_steps, "train_seconds": train_seconds, "eval_index": index, **result}
 
 
-__all__ = ["train", "TrainResult"]
+__all__ = ["train", "TrainResult", "run_learner"]
