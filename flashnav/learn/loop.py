@@ -133,12 +133,12 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
         # process used to learn on 2 threads, competing with the collector for the same cores).
         torch.set_num_threads(spec.threads)
     learner = run_learner(spec, dev)
-    maps = _map_stream(spec)
+    cycles = math.ceil(spec.max_env_steps / hp.num_envs)
+    maps = _map_stream(spec, cycles)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
     updates = (CycleUpdates(learner, preset.obs_dim, 2, hp.batch_size, hp.updates_per_step, capture=dev.type == "cuda")
                if spec.cuda_graph else None)
 
-    cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     eval_every = spec.eval_every
     overlap = config.overlap
     collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
@@ -274,7 +274,7 @@ def run_learner(spec: RunSpec, device: torch.device | str) -> Learner:
     return learner
 
 
-def _map_stream(spec: RunSpec) -> MapStream | None:
+def _map_stream(spec: RunSpec, cycles: int) -> MapStream | None:
     """With generated maps refreshed during training (``maps: {family, refresh_every}``): the stream of
     the next sets, each drawn on a background thread with the fields the env reads computed there."""
     maps = spec.config.maps
@@ -284,7 +284,7 @@ def _map_stream(spec: RunSpec) -> MapStream | None:
     def warm(grids) -> None:  # a one-slot CPU env computes (and caches on the maps) every field
         NavVecEnv(spec.robot, 1, grid=grids, device="cpu", raycaster=spec.config.raycaster)
 
-    return MapStream(maps, generation_radius(spec.robot), warm=warm)
+    return MapStream(maps, generation_radius(spec.robot), warm=warm, sets=maps.sets_needed(cycles))
 
 
 def _single_threaded_numba() -> None:

@@ -80,10 +80,11 @@ class GeneratedMaps(KnownKeys):
 
 def parse_family_maps(value: Any) -> Any:
     """``"family:rooms,offices"`` -> the plain data of :class:`GeneratedMaps` (defaults filled, so
-    ``maps.count=...`` overrides find their keys); anything else is returned as it is."""
+    ``maps.count=...`` overrides find their keys; validated with the rest of the config); anything
+    else is returned as it is."""
     if isinstance(value, str) and value.startswith(FAMILY_PREFIX):
-        families = [f for f in value[len(FAMILY_PREFIX):].split(",") if f.strip()]
-        return GeneratedMaps(family=families).model_dump(mode="json")
+        defaults = {name: f.default for name, f in GeneratedMaps.model_fields.items() if name != "family"}
+        return {"family": [f for f in value[len(FAMILY_PREFIX):].split(",") if f.strip()], **defaults}
     return value
 
 
@@ -105,13 +106,15 @@ class MapStream:
     """Sets 1, 2, ... of ``maps`` (set 0 is the run's first set, built when the run is resolved), each
     drawn on a background thread while the previous one trains. ``warm(grids)``, optional, runs on
     that thread after drawing: e.g. build a throwaway env so the fields the training env reads are
-    computed (they are cached on each map) before the swap."""
+    computed (they are cached on each map) before the swap. ``sets``: how many sets the run uses
+    (set 0 included; :meth:`GeneratedMaps.sets_needed`), so none is drawn past the last; None = no end."""
 
     def __init__(self, maps: GeneratedMaps, robot_radius: float,
-                 warm: Callable[[tuple[OccupancyMap, ...]], Any] | None = None, background: bool = True):
+                 warm: Callable[[tuple[OccupancyMap, ...]], Any] | None = None, background: bool = True,
+                 sets: int | None = None):
         if not maps.refresh_every:
             raise ValueError("a MapStream needs maps.refresh_every (cycles between sets)")
-        self.maps, self.robot_radius, self.warm = maps, robot_radius, warm
+        self.maps, self.robot_radius, self.warm, self.sets = maps, robot_radius, warm, sets
         self.index = 0  # the set in use
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="maps") if background else None
         self._next: Future | None = None
@@ -130,7 +133,8 @@ class MapStream:
         return grids
 
     def _prefetch(self) -> None:
-        if self._pool is not None:
+        self._next = None
+        if self._pool is not None and (self.sets is None or self.index + 1 < self.sets):
             self._next = self._pool.submit(self._build, self.index + 1)
 
     def take(self) -> tuple[OccupancyMap, ...]:
