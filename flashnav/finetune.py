@@ -11,9 +11,9 @@ counter (the actor schedule continues) and the RNG streams of collection and upd
 - the replay buffer: checkpoints do not store one (it holds ``buffer_size`` transitions, 100 MB and
   more for the paper recipes), so a fine-tuning run starts with an empty replay and warms up for
   ``learning_start`` transitions, as any run;
-- the optimisers' hyperparameters (learning rates, betas, weight decay, fused/foreach): they are this
-  run's, so ``algo.actor_lr=...`` takes effect (with the same hyperparameters the loaded optimiser
-  state equals the checkpoint's bit for bit);
+- the optimisers' hyperparameters (learning rates, betas, weight decay, fused/foreach) and the
+  temperature's target entropy: they are this run's, so ``algo.actor_lr=...`` takes effect (with the
+  same hyperparameters the loaded state equals the checkpoint's bit for bit);
 - per-environment exploration scales (FastDSAC's ``dem_scale``, FastTD3's ``noise_std``, ``[N, 1]``)
   when this run has another ``num_envs``: they are drawn afresh for the new N (with the same N they
   are the checkpoint's).
@@ -171,6 +171,9 @@ def load_learner(learner, init: InitSource) -> None:
     for key in PER_ENV_STATE:
         if key in algo and key in current["algo"] and tuple(algo[key].shape) != tuple(current["algo"][key].shape):
             algo[key] = current["algo"][key]
+    if "temperature" in algo and "temperature" in current["algo"]:  # a constant of this run's hyperparameters
+        algo["temperature"] = {**algo["temperature"],
+                               "target_entropy": current["algo"]["temperature"]["target_entropy"]}
     data["algo"] = algo
     optimisers = _optimisers(learner.state)
     settings = [[{k: g[k] for k in RUN_OPTIMISER_SETTINGS if k in g} for g in opt.param_groups] for opt in optimisers]

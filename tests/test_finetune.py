@@ -88,14 +88,17 @@ def test_fine_tuning_resumes_the_exact_learner_state(tmp_path, algorithm):
 def test_this_runs_optimiser_settings_and_env_count_apply(tmp_path):
     original, _, run = trained_checkpoint(tmp_path)
     saved = load_checkpoint(run / "checkpoint.pt")["learner"]
-    spec = resolve(config(init_from=str(run), **{"algo.actor_lr": 1e-5, "algo.num_envs": 5}))
+    spec = resolve(config(init_from=str(run), **{"algo.actor_lr": 1e-5, "algo.num_envs": 5,
+                                                 "algo.target_entropy_ratio": 1.0}))
     tuned = run_learner(spec, "cpu")
     state = tuned.state_dict()
     assert [g["lr"] for g in tuned.state.actor_opt.param_groups] == [1e-5]
+    assert tuned.state.algo.temperature.target_entropy == -2.0 != saved["algo"]["temperature"]["target_entropy"]
     assert [g["lr"] for g in tuned.state.critic_opt.param_groups] == [spec.hparams.critic_lr]
     assert_same(state["actor_opt"]["state"], saved["actor_opt"]["state"], "Adam moments")
     assert state["algo"]["dem_scale"].shape == (5, 1)  # drawn for this run's 5 envs
     del state["algo"]["dem_scale"], saved["algo"]["dem_scale"]
+    del state["algo"]["temperature"]["target_entropy"], saved["algo"]["temperature"]["target_entropy"]
     for key in ("actor_opt", "critic_opt"):
         for group in (state[key]["param_groups"] + saved[key]["param_groups"]):
             group.pop("lr")
