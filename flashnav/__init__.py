@@ -1,6 +1,6 @@
 """FlashNav: train deployable 2D-LiDAR robot-navigation policies in seconds."""
 
-__version__ = "0.1.0"
+from flashnav.version import __version__  # noqa: F401 (the package's version)
 
 
 def make_env(*args, **kwargs):

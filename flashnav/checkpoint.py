@@ -13,7 +13,7 @@ from typing import Any
 
 import torch
 
-import flashnav
+from flashnav.version import __version__
 
 #: Version of the checkpoint payload; load_checkpoint accepts exactly these.
 CHECKPOINT_FORMAT_VERSION = 1
@@ -42,7 +42,7 @@ def save_checkpoint(path: str | Path, learner_state: dict, config: Any, extra: d
     """
     if hasattr(config, "model_dump"):
         config = config.model_dump(mode="json")
-    payload = {"format_version": CHECKPOINT_FORMAT_VERSION, "flashnav_version": flashnav.__version__,
+    payload = {"format_version": CHECKPOINT_FORMAT_VERSION, "flashnav_version": __version__,
                "learner": learner_state, "config": config, "extra": dict(extra or {})}
     _check_plain(payload, "checkpoint")
     path = Path(path)
@@ -92,7 +92,7 @@ def load_checkpoint(path: str | Path, map_location: torch.device | str | None = 
     if isinstance(found, bool) or not isinstance(found, int) or found not in supported:
         newer = " (written by a newer FlashNav?)" if isinstance(found, int) and found > max(supported) else ""
         raise ValueError(f"{path}: checkpoint format_version {found!r} is not supported{newer}; "
-                         f"this FlashNav {flashnav.__version__} reads format_version {', '.join(map(str, supported))}")
+                         f"this FlashNav {__version__} reads format_version {', '.join(map(str, supported))}")
     missing = [k for k in CHECKPOINT_KEYS if k not in payload]
     if missing:
         raise ValueError(f"{path}: checkpoint (format_version {found}) lacks {', '.join(missing)}")

@@ -22,8 +22,10 @@ from typing import Any, Literal
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
+from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
 from flashnav.maps.grid import OccupancyMap
+from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_name, check_robot
 from flashnav.presets import load_robot
 
@@ -58,11 +60,16 @@ class TrainConfig(KnownKeys):
     seed: int = Field(0, description="training seed")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
     map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")
-    maps: str | list[str] | None = Field(
+    maps: str | list[str] | GeneratedMaps | None = Field(
         None, description="train over many maps instead of one: a directory or glob pattern of ROS map YAML "
-                          "files, or a list of maps as `map` takes; every slot draws a map when it resets")
+                          "files, or a list of maps as `map` takes; every slot draws a map when it resets; or "
+                          "maps generated during training: {family, count, refresh_every, seed} "
+                          "(flashnav/maps/stream.py; `family:rooms,offices` on the command line)")
     map_weights: list[float] | None = Field(None, description="with `maps` (a list): each map's relative "
                                                              "probability; None = uniform")
+    init_from: str | None = Field(
+        None, description="fine-tune: start from this run folder's (or checkpoint file's) learner state "
+                          "(flashnav/finetune.py); the networks must match its shapes")
     raycaster: Literal[RAYCASTERS] | None = Field(  # type: ignore[valid-type]
         None, description="None = the simulator's default (exact)")
     overrides: dict[str, Any] = Field(
@@ -87,9 +94,14 @@ class TrainConfig(KnownKeys):
     def _one_map_source(self) -> "TrainConfig":
         if self.map is not None and self.maps is not None:
             raise ValueError("give either map or maps, not both")
-        if self.map_weights is not None and self.maps is None:
-            raise ValueError("map_weights needs maps")
+        if self.map_weights is not None and (self.maps is None or isinstance(self.maps, GeneratedMaps)):
+            raise ValueError("map_weights needs maps (files or a list; generated maps are drawn uniformly)")
         return self
+
+    @field_validator("maps", mode="before")
+    @classmethod
+    def _family_maps(cls, value: Any) -> Any:
+        return parse_family_maps(value)
 
     @field_validator("device")
     @classmethod
@@ -162,6 +174,8 @@ def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None
     for name, value in (flags or {}).items():
         if value is not None:
             data[name] = value
+    if "maps" in data:  # `family:rooms` as the whole mapping, so maps.count=... overrides find their keys
+        data["maps"] = parse_family_maps(data["maps"])
     for item in assignments:
         apply_override(data, *parse_assignment(item))
     return config_from_data(data, "training config")
@@ -224,11 +238,13 @@ class RunSpec:
     hparams: AnyHParams           # the recipe with its algo.* overrides applied
     device: str                   # cpu, cuda, cuda:N (never auto)
     recipe: str                   # paper or cpu (never auto)
-    goal_distance_max: float      # metres: the map's diagonal, the largest one over many maps
+    goal_distance_max: float      # metres: the map's diagonal, the largest one over many maps, the largest
+                                  # a generated map can have, or a fine-tuned checkpoint's run's
                                   # (observation bound, network scale; one fixed scale for all maps)
     grid: OccupancyMap | None = field(default=None, repr=False, compare=False)  # the loaded map (the first of many)
     grids: tuple[OccupancyMap, ...] | None = field(default=None, repr=False, compare=False)  # every loaded map
     cuda_graph: bool = False      # static-buffer updates, CUDA-graph captured on cuda (resolve_cuda_graph)
+    init: InitSource | None = None  # fine-tuning: the checkpoint the learner starts from (config.init_from)
 
     def env_maps(self) -> OccupancyMap | tuple[OccupancyMap, ...]:
         """What ``NavVecEnv(grid=...)`` takes for this run: the one map, or every map (loaded here
@@ -236,6 +252,8 @@ class RunSpec:
         from flashnav.maps.bundled import resolve_map, resolve_maps
 
         grids = self.grids
+        if grids is None and isinstance(self.config.maps, GeneratedMaps):
+            grids = generate_set(self.config.maps, 0, generation_radius(self.robot))
         if grids is None:
             if self.config.maps is None:
                 return self.grid if self.grid is not None else resolve_map(self.config.map, self.robot.map)
@@ -281,6 +299,8 @@ class RunSpec:
         data.update(device=self.device, recipe=self.recipe, cuda_graph="on" if self.cuda_graph else "off",
                     hparams=self.hparams.model_dump(mode="json"),
                     robot_preset=self.robot.model_dump(mode="json"), goal_distance_max=self.goal_distance_max)
+        if self.init is not None:
+            data["init_source"] = self.init.to_dict()
         return data
 
     @classmethod
@@ -299,8 +319,9 @@ class RunSpec:
             raise ValueError(f"{source}: not a valid run config:\n{exc}") from None
         goal = data.get("goal_distance_max") or math.hypot(*robot.map_size)
         device = str(data.get("device", config.device))
+        init = InitSource.from_dict(data["init_source"]) if data.get("init_source") else None
         return cls(config, robot, hparams, device, str(data.get("recipe", config.recipe)), float(goal),
-                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device))
+                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device), init=init)
 
 
 def resolve(config: TrainConfig | None = None) -> RunSpec:
@@ -316,13 +337,26 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     robot = load_robot(config.robot, **config.robot_overrides())
     hparams = load_hparams(config.algorithm, robot.name, recipe, config.algo_overrides())
     cuda_graph = resolve_cuda_graph(config.cuda_graph, device)
+    init = checkpoint = None
+    if config.init_from is not None:  # before the maps: a mismatch is refused without loading any
+        init, checkpoint = load_init_source(config.init_from, RunSpec.from_dict)
+        check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from)
     if config.maps is None:
         grid = resolve_map(config.map, robot.map)
-        return RunSpec(config, robot, hparams, device, recipe, grid.diagonal_m, grid, cuda_graph=cuda_graph)
-    grids = tuple(resolve_maps(config.maps, robot.map))
-    if config.map_weights is not None and len(config.map_weights) != len(grids):
-        raise ValueError(f"map_weights has {len(config.map_weights)} entries for the {len(grids)} maps of "
-                         f"maps = {config.maps!r}")
-    # one fixed goal-distance scale for every map: the largest diagonal
-    return RunSpec(config, robot, hparams, device, recipe, max(g.diagonal_m for g in grids), grids[0], grids,
-                   cuda_graph=cuda_graph)
+        grids, scale = None, grid.diagonal_m
+    elif isinstance(config.maps, GeneratedMaps):
+        config.maps.check_seeds(math.ceil((config.budget.max_env_steps or hparams.total_env_steps) / hparams.num_envs))
+        grids = generate_set(config.maps, 0, generation_radius(robot))
+        grid, scale = grids[0], config.maps.goal_distance_max  # the largest a generated map can be
+    else:
+        grids = tuple(resolve_maps(config.maps, robot.map))
+        if config.map_weights is not None and len(config.map_weights) != len(grids):
+            raise ValueError(f"map_weights has {len(config.map_weights)} entries for the {len(grids)} maps of "
+                             f"maps = {config.maps!r}")
+        # one fixed goal-distance scale for every map: the largest diagonal
+        grid, scale = grids[0], max(g.diagonal_m for g in grids)
+    if checkpoint is not None:
+        # the network keeps the scale it was trained with, whatever the new maps' size
+        scale = checkpoint.goal_distance_max
+        check_goal_scale(scale, robot, config.init_from)
+    return RunSpec(config, robot, hparams, device, recipe, scale, grid, grids, cuda_graph=cuda_graph, init=init)

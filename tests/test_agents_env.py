@@ -253,6 +253,24 @@ def test_agents_move_on_their_slots_own_maps():
     assert seen == {0, 1}
 
 
+def test_replacing_the_maps_puts_the_agents_on_the_new_maps():
+    from flashnav.maps.generate import generate_map
+
+    old, new = (generate_map(8.0, 8.0, 0.05, seed, robot_radius=0.3, name=f"m{seed}") for seed in (21, 22))
+    preset = load_robot("turtlebot2", **{"agents.count": 6, "agents.mix": {"waypoints": 1.0, "bounce": 1.0}})
+    env = make_env(preset, 8, map=old, seed=3)
+    env.reset(seed=3)
+    env.replace_maps(new)
+    gen = torch.Generator().manual_seed(3)
+    for _ in range(30):
+        env.step(torch.rand(8, 2, generator=gen) * 2 - 1)
+        a = env.agents
+        for slot in range(8):
+            on = a.active[slot].numpy()
+            gap = wall_gap(env.frame_maps[0], a.pos[slot].double().numpy()[on])
+            assert (gap >= a.radius[slot].double().numpy()[on] - 1e-6).all(), f"slot {slot}: an agent in a new wall"
+
+
 @pytest.mark.parametrize("kernel", ["numba", "torch"])
 def test_a_reactive_agent_stops_short_of_the_robot_and_a_plain_one_walks_into_it(kernel):
     from test_env import open_room

@@ -27,7 +27,11 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", help="ROS map YAML (default: the preset's bundled map)")
     p.add_argument("--maps", metavar="DIR_OR_GLOB",
                    help="train over many maps: a directory or glob pattern of ROS map YAML files (quote the "
-                        "pattern); each env slot draws a map when it resets")
+                        "pattern); each env slot draws a map when it resets. Or family:F1,F2 for maps generated "
+                        "during training (with maps.count=K maps.refresh_every=C maps.seed=S)")
+    p.add_argument("--init-from", dest="init_from", metavar="RUN_DIR_OR_CHECKPOINT",
+                   help="fine-tune: start from a trained run's learner (weights, optimiser state, temperature; "
+                        "not its replay); its network shapes must match this run's")
     p.add_argument("--seed", type=int, help="training seed (default 0)")
     p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
     p.add_argument("--config", help="a TrainConfig YAML; flags and overrides apply on top")
@@ -39,7 +43,8 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
 
 def config_from_args(args) -> TrainConfig:
     """The TrainConfig of ``flashnav train``'s arguments (through :func:`flashnav.spec.config_from_cli`)."""
-    flags = {name: getattr(args, name) for name in ("robot", "algorithm", "recipe", "device", "map", "maps", "seed")}
+    flags = {name: getattr(args, name) for name in ("robot", "algorithm", "recipe", "device", "map", "maps", "seed",
+                                                "init_from")}
     if args.sequential:
         flags["overlap"] = False
     return config_from_cli(args.config, flags, args.overrides)
@@ -57,6 +62,10 @@ def run_train(args) -> int:
                            "--out")
     console.print(f"[bold]flashnav train[/] {spec.robot_name} / {config.algorithm} ({spec.recipe} recipe, "
                   f"{spec.device}), seed {config.seed} -> {out}")
+    if spec.init is not None:
+        run = spec.init.run
+        console.print(f"fine-tuning from {spec.init.path} (seed {run['seed']}, {run['recipe']} recipe, saved "
+                      f"{run['saved_at']}); goal-distance scale {spec.goal_distance_max:.2f} m from its run")
     with TrainProgress(console) as progress:
         result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress)
 
@@ -75,7 +84,8 @@ def _write_artefacts(result, out: Path) -> None:
     with open(out / "metrics.json", "w", encoding="utf-8") as f:
         json.dump(result.to_dict(), f, indent=2)
     save_checkpoint(out / "checkpoint.pt", result.learner.state_dict(), config,
-                    {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"}})
+                    {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"},
+                     "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
     export_policy(result.policy, result.spec.robot, out)  # the best evaluated policy
 
 

@@ -30,11 +30,13 @@ from typing import Any, Callable
 import torch
 
 from flashnav.evaluate import ThresholdTracker, evaluate
+from flashnav.finetune import load_learner
 from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.machine import learner_threads, machine_name
+from flashnav.maps.stream import GeneratedMaps, MapStream, generation_radius
 from flashnav.metrics import reaches
 from flashnav.sim.env import NavVecEnv
 from flashnav.spec import RunSpec, TrainConfig, resolve
@@ -130,13 +132,13 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
         # OpenMP pool, which resets the thread count torch shares with it (the first run of every
         # process used to learn on 2 threads, competing with the collector for the same cores).
         torch.set_num_threads(spec.threads)
-    layout = ObsLayout.from_robot(preset, spec.goal_distance_max)
-    learner = make_learner(config.algorithm, hp, layout, 2, hp.num_envs, dev, config.seed)
+    learner = run_learner(spec, dev)
+    cycles = math.ceil(spec.max_env_steps / hp.num_envs)
+    maps = _map_stream(spec, cycles)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
     updates = (CycleUpdates(learner, preset.obs_dim, 2, hp.batch_size, hp.updates_per_step, capture=dev.type == "cuda")
                if spec.cuda_graph else None)
 
-    cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     eval_every = spec.eval_every
     overlap = config.overlap
     collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
@@ -189,6 +191,9 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
             learning = replay.size >= hp.learning_start
             t0 = time.perf_counter()
             with cycle_t:
+                if maps is not None and maps.due(cycle):  # a fresh map set; every slot starts anew
+                    obs_box[0] = env.replace_maps(maps.take())[0]
+                    learner.on_episode_end(torch.ones(hp.num_envs, dtype=torch.bool, device=dev))
                 batches = sample() if learning else None
                 if collector_stream is not None:
                     collector_stream.wait_stream(torch.cuda.current_stream(dev))
@@ -232,6 +237,8 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
     finally:
         if pool is not None:
             pool.shutdown(wait=True)
+        if maps is not None:
+            maps.close()
 
     cycle_stats = {
         "collector_ms": collect_t.mean_ms,
@@ -256,6 +263,30 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
     )
 
 
+def run_learner(spec: RunSpec, device: torch.device | str) -> Learner:
+    """The run's learner: fresh from its seed, or, fine-tuning (``spec.init``), with its checkpoint's
+    learner state loaded (:func:`flashnav.finetune.load_learner`); the clocks start at 0 either way."""
+    hp = spec.hparams
+    layout = ObsLayout.from_robot(spec.robot, spec.goal_distance_max)
+    learner = make_learner(spec.algorithm, hp, layout, 2, hp.num_envs, device, spec.seed)
+    if spec.init is not None:
+        load_learner(learner, spec.init)
+    return learner
+
+
+def _map_stream(spec: RunSpec, cycles: int) -> MapStream | None:
+    """With generated maps refreshed during training (``maps: {family, refresh_every}``): the stream of
+    the next sets, each drawn on a background thread with the fields the env reads computed there."""
+    maps = spec.config.maps
+    if not (isinstance(maps, GeneratedMaps) and maps.refresh_every):
+        return None
+
+    def warm(grids) -> None:  # a one-slot CPU env computes (and caches on the maps) every field
+        NavVecEnv(spec.robot, 1, grid=grids, device="cpu", raycaster=spec.config.raycaster)
+
+    return MapStream(maps, generation_radius(spec.robot), warm=warm, sets=maps.sets_needed(cycles))
+
+
 def _single_threaded_numba() -> None:
     """In the collector thread: numba kernels use this thread only (the learner owns the other core)."""
     try:
@@ -276,4 +307,4 @@ def _evaluate(learner: Learner, eval_env: NavVecEnv, config: TrainConfig, env_st
     return {"env_steps": env_steps, "train_seconds": train_seconds, "eval_index": index, **result}
 
 
-__all__ = ["train", "TrainResult"]
+__all__ = ["train", "TrainResult", "run_learner"]

@@ -35,10 +35,22 @@ from flashnav.maps import family_layouts
 from flashnav.maps.canvas import BORDER_M, Canvas
 from flashnav.maps.clutter import connect_free_space, generate_map
 from flashnav.maps.grid import OccupancyMap
-from flashnav.names import MAP_FAMILIES, check_name
+from flashnav.names import MAP_FAMILIES, VALIDATION_SEEDS, check_name
 
 SIZE_RANGE = (6.0, 30.0)  # metres per side, drawn uniformly (rounded to 0.1 m) unless given
 RESOLUTIONS = (0.025, 0.05, 0.075, 0.1)  # metres per cell, drawn uniformly unless given
+#: Seeds from here up are reserved for validation and held-out benchmark suites: training never
+#: draws them (:func:`check_training_seed`; ``maps: {family: ...}`` in a training config). The ranges
+#: themselves are defined once in :mod:`flashnav.names`.
+HELD_OUT_SEED_START = VALIDATION_SEEDS[0]
+
+
+def check_training_seed(seed: int) -> int:
+    """``seed`` if a training run may generate a map with it, else a ValueError naming it."""
+    if seed >= HELD_OUT_SEED_START:
+        raise ValueError(f"map seed {seed} is reserved for validation and held-out suites (seeds >= "
+                         f"{HELD_OUT_SEED_START}); training maps use lower seeds")
+    return seed
 
 
 def generate_family(family: str, seed: int, *, size: tuple[float, float] | None = None,

@@ -97,32 +97,11 @@ class NavVecEnv(VectorEnv):
     ):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.maps = as_grids(grid)
-        self.map = self.maps[0]  # the map of a single-map env (with several: the first)
         self.preset, self.num_envs = preset, num_envs
         self.device = torch.device(device)
-        for g in self.maps:
-            _check_map_scale(g, preset)
-        lidar = preset.lidar
         self.raycaster_name = raycaster or DEFAULT_RAYCASTER
-        self.beam_angles = beam_angles(lidar.fov_deg, lidar.beams).to(self.device)
-        # all geometry runs on the map in the simulator frame (the same cells and cached fields)
-        origins = [sim_frame(g) for g in self.maps]
-        self.frame_maps = tuple(g if o == (0.0, 0.0) else g.shifted(o) for g, o in zip(self.maps, origins))
-        self.frame_origin, self.frame_map = origins[0], self.frame_maps[0]
-        self._frame_origins = torch.tensor(origins, dtype=torch.float64, device=self.device)  # [M, 2]
-        geometry = self.frame_map if len(self.maps) == 1 else self.frame_maps
-        self._cast = make_raycaster(self.raycaster_name, geometry, self.beam_angles, lidar.max_range, self.device,
-                                    lidar.march_step)
-        self._collides = make_collision_checker(preset.footprint, geometry, self.device)
-        self.samplers = [EpisodeSampler(g, preset, self.device) for g in self.frame_maps]
-        self.sampler = self.samplers[0]
-        self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
-        self.goal_distance_max = max(g.diagonal_m for g in self.maps)
-        # moving agents (issue 13): None with agents.count 0, and then every step is exactly the static one;
-        # they move on each slot's own map
-        self.agents = (AgentWorld(preset, self.frame_maps, num_envs, self.beam_angles, self.device)
-                       if preset.agents.count else None)
+        self.beam_angles = beam_angles(preset.lidar.fov_deg, preset.lidar.beams).to(self.device)
+        self._use_maps(grid, map_weights)
         self.obs_dim = preset.obs_dim
 
         low, high = self._obs_bounds()
@@ -143,6 +122,46 @@ class NavVecEnv(VectorEnv):
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
+
+    def _use_maps(self, grid: OccupancyMap | Sequence[OccupancyMap], map_weights: Sequence[float] | None) -> None:
+        """Build everything that reads the maps: frames, raycaster, collision, samplers, map draws."""
+        preset, lidar = self.preset, self.preset.lidar
+        self.maps = as_grids(grid)
+        self.map = self.maps[0]  # the map of a single-map env (with several: the first)
+        for g in self.maps:
+            _check_map_scale(g, preset)
+        # all geometry runs on the map in the simulator frame (the same cells and cached fields)
+        origins = [sim_frame(g) for g in self.maps]
+        self.frame_maps = tuple(g if o == (0.0, 0.0) else g.shifted(o) for g, o in zip(self.maps, origins))
+        self.frame_origin, self.frame_map = origins[0], self.frame_maps[0]
+        self._frame_origins = torch.tensor(origins, dtype=torch.float64, device=self.device)  # [M, 2]
+        geometry = self.frame_map if len(self.maps) == 1 else self.frame_maps
+        self._cast = make_raycaster(self.raycaster_name, geometry, self.beam_angles, lidar.max_range, self.device,
+                                    lidar.march_step)
+        self._collides = make_collision_checker(preset.footprint, geometry, self.device)
+        self.samplers = [EpisodeSampler(g, preset, self.device) for g in self.frame_maps]
+        self.sampler = self.samplers[0]
+        self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
+        self.goal_distance_max = max(g.diagonal_m for g in self.maps)
+        # moving agents (issue 13): None with agents.count 0, and then every step is exactly the static one;
+        # they move on each slot's own map (rebuilt with the maps)
+        self.agents = (AgentWorld(preset, self.frame_maps, self.num_envs, self.beam_angles, self.device)
+                       if preset.agents.count else None)
+
+    def replace_maps(self, grid: OccupancyMap | Sequence[OccupancyMap], map_weights: Sequence[float] | None = None):
+        """Swap the map set between steps (fresh generated maps during training): every slot ends its
+        episode where it stands (nothing is reported for it: no step info, no final_obs) and starts a
+        new one on a map drawn from the new set, as :meth:`reset` does; the generator's stream goes on
+        (no reseed). All slots at once rather than each at its next reset: the old maps' geometry can
+        then be dropped at once, and no slot trains on a retired map for up to a horizon. Returns
+        ``(obs, info)`` as :meth:`reset`; the goal-distance bound of the observation space follows
+        the new maps."""
+        self._use_maps(grid, map_weights)
+        low, high = self._obs_bounds()
+        self.single_observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.map_index.zero_()
+        return self.reset()
 
     # ---- spaces -----------------------------------------------------------------------------------
     def _obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
