@@ -29,6 +29,7 @@ import torch
 from flashnav.evaluate import play_episodes
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import BENCHMARK_SUITES
+from flashnav.outputs import write_json_report
 from flashnav.sim.env import NavVecEnv, sim_frame
 
 #: Version of the ``--json`` layout written by :func:`evaluate_maps` (read by ``flashnav report
@@ -156,12 +157,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     }
     print_report(report)
     if args.json:
-        import json
-
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-        print(f"results: {out}")
+        write_json_report(args.json, report)
     return 0
 
 

@@ -52,3 +52,15 @@ def check_output_file(path: str | Path, flag: str) -> Path:
     else:
         _check_creatable(path, flag)
     return path
+
+
+def write_json_report(path: str | Path, report: dict) -> Path:
+    """Write a command's ``--json`` report (parent folders created, indented, newline-terminated) and
+    say where; returns the path."""
+    import json
+
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    print(f"results: {out}")
+    return out

@@ -7,7 +7,6 @@ what a robot would run. The robot defaults to the one recorded in the policy's m
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -101,7 +100,7 @@ def run_eval(args) -> int:
     from rich.table import Table
 
     from flashnav.evaluate import evaluate
-    from flashnav.outputs import check_output_file
+    from flashnav.outputs import check_output_file, write_json_report
 
     if args.map is not None and args.maps is not None:
         raise ValueError("give either --map or --maps, not both")
@@ -147,10 +146,7 @@ def run_eval(args) -> int:
     table.add_row("wall time", f"{seconds:.1f} s")
     console.print(table)
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-        print(f"results: {out}")
+        write_json_report(args.json, report)
     return 0
 
 
@@ -159,6 +155,7 @@ def run_scenarios(args) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    from flashnav.outputs import write_json_report
     from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
     from flashnav.sim.env import make_env
 
@@ -179,10 +176,7 @@ def run_scenarios(args) -> int:
             "success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate")))
     Console().print(table)
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-        print(f"results: {out}")
+        write_json_report(args.json, report)
     return 0
 
 
