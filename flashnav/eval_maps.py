@@ -30,7 +30,8 @@ from flashnav.evaluate import play_episodes
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import BENCHMARK_SUITES
 from flashnav.outputs import write_json_report
-from flashnav.sim.env import NavVecEnv, sim_frame
+from flashnav.sim.env import NavVecEnv
+from flashnav.sim.mapset import sim_frame
 
 #: Version of the ``--json`` layout written by :func:`evaluate_maps` (read by ``flashnav report
 #: --generalisation``).

@@ -9,7 +9,8 @@ import torch
 
 from flashnav.maps.bundled import bundled_map
 from flashnav.maps.grid import OccupancyMap
-from flashnav.sim.env import FRAME_LIMIT_M, make_env, sim_frame
+from flashnav.sim.env import make_env
+from flashnav.sim.mapset import FRAME_LIMIT_M, sim_frame
 from flashnav.sim.oracle import run_oracle
 
 ORIGINS = [(0.0, 0.0), (500_000.0, 4_000_000.0), (1e12, 1e12)]

@@ -13,7 +13,8 @@ from flashnav.maps.generate import generate_map
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.ros import save_ros_map
 from flashnav.sim.collision import make_collision_checker
-from flashnav.sim.env import beam_angles, make_env, sim_frame
+from flashnav.sim.env import beam_angles, make_env
+from flashnav.sim.mapset import sim_frame
 from flashnav.sim.raycast import make_raycaster, random_free_poses
 
 

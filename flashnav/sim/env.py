@@ -26,7 +26,7 @@ slots that finished, so ``info["final_obs"]`` is always the correct next observa
 
 Frames: the state tensors (``pose``, ``goal``) are float32 metres in the *simulator frame*, world
 coordinates minus ``frame_origin`` (float64). That is (0, 0) - world coordinates as they are - for
-maps within FRAME_LIMIT_M of the world origin (every bundled map), else the map's origin, so a map
+maps within ``flashnav.sim.mapset.FRAME_LIMIT_M`` of the world origin (every bundled map), else the map's origin, so a map
 at UTM coordinates (500000, 4000000) or at 1e12 m simulates exactly like the same map at (0, 0)
 instead of losing the float32 precision of its coordinates. ``set_state`` takes world coordinates
 (give float64 for far maps); ``world_pose`` / ``world_goal`` return them in float64. With several
@@ -54,23 +54,12 @@ from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
-from flashnav.sim.mapset import MapDraw, as_grids, check_map_index, goals_outside
+from flashnav.sim.inputs import as_batch, check_finite
+from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
+                                  sim_frame)
 from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.sampling import EpisodeSampler
-
-#: Maps whose coordinates all stay below this (metres, in magnitude) are simulated in world
-#: coordinates: float32 spacing there is at most 2**-13 m (0.12 mm, 1/400 of a 5 cm cell), and
-#: existing maps keep their bit-exact trajectories. Farther maps are re-centred on their origin.
-FRAME_LIMIT_M = 1024.0
-
-
-def sim_frame(grid: OccupancyMap) -> tuple[float, float]:
-    """The world (x, y) of the simulator frame's origin, metres float64 (see the module docstring)."""
-    if max(abs(b) for b in grid.bounds) <= FRAME_LIMIT_M:
-        return (0.0, 0.0)
-    return grid.origin
-
 
 def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
     """[beams] float32 radians relative to the heading: bin centres across the field of view, from
@@ -129,7 +118,7 @@ class NavVecEnv(VectorEnv):
         self.maps = as_grids(grid)
         self.map = self.maps[0]  # the map of a single-map env (with several: the first)
         for g in self.maps:
-            _check_map_scale(g, preset)
+            check_map_scale(g, preset)
         # all geometry runs on the map in the simulator frame (the same cells and cached fields)
         origins = [sim_frame(g) for g in self.maps]
         self.frame_maps = tuple(g if o == (0.0, 0.0) else g.shifted(o) for g, o in zip(self.maps, origins))
@@ -227,15 +216,7 @@ class NavVecEnv(VectorEnv):
             pose, goal = self.sampler.sample(idx.numel(), self._gen)
             self._place(idx, pose, goal)
             return
-        maps = self._draw_map(idx.numel(), self._gen)
-        self.map_index[idx] = maps
-        pose = torch.empty(idx.numel(), 3, device=self.device)
-        goal = torch.empty(idx.numel(), 2, device=self.device)
-        counts = torch.bincount(maps, minlength=len(self.maps)).tolist()  # one host sync per reset
-        for m, count in enumerate(counts):
-            if count:
-                group = (maps == m).nonzero().squeeze(1)
-                pose[group], goal[group] = self.samplers[m].sample(count, self._gen)
+        self.map_index[idx], pose, goal = sample_on_maps(self.samplers, self._draw_map, idx.numel(), self._gen)
         self._place(idx, pose, goal)
 
     def _place(self, idx: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor) -> None:
@@ -278,15 +259,15 @@ class NavVecEnv(VectorEnv):
         infinite value, a map index out of range, or a goal outside its map's extent (it could never
         be reached)."""
         n = self.num_envs
-        pose = self._batch(pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
-        goal = self._batch(goal, "goal", (n, 2), "x, y m", torch.float64)
+        pose = as_batch(self.device, pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
+        goal = as_batch(self.device, goal, "goal", (n, 2), "x, y m", torch.float64)
         mi = self.map_index if map_index is None else check_map_index(map_index, n, len(self.maps), self.device)
         outside = goals_outside(self.maps, goal, mi)  # in world coordinates, before the frame shift
         in_range = ((mi >= 0) & (mi < len(self.maps))).all()
         ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & in_range
         if not bool(ok):  # one host sync for all checks; the details only on failure
-            _check_finite(pose, "pose")
-            _check_finite(goal, "goal")
+            check_finite(pose, "pose")
+            check_finite(goal, "goal")
             check_map_index(mi.cpu(), n, len(self.maps), torch.device("cpu"))
             row = int(outside.nonzero()[0, 0])
             g = self.maps[int(mi[row])]
@@ -318,9 +299,9 @@ class NavVecEnv(VectorEnv):
     def step(self, actions):
         """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped); another shape or a
         NaN / infinite value is a ValueError naming ``actions``."""
-        actions = self._batch(actions, "actions", (self.num_envs, 2), "num_envs, 2")
+        actions = as_batch(self.device, actions, "actions", (self.num_envs, 2), "num_envs, 2")
         if not bool(torch.isfinite(actions).all()):  # the one host sync the checks cost per step
-            _check_finite(actions, "actions")
+            check_finite(actions, "actions")
         t = self._advance(slice(None), actions)
         done = t["terminated"] | t["truncated"]
         info = {
@@ -348,22 +329,13 @@ class NavVecEnv(VectorEnv):
         idx = torch.as_tensor(idx, device=self.device)
         if idx.ndim != 1 or idx.dtype.is_floating_point or idx.dtype == torch.bool or idx.is_complex():
             raise ValueError(f"idx must be a 1-D integer tensor of slot indices, got {idx.dtype} {list(idx.shape)}")
-        actions = self._batch(actions, "actions", (idx.numel(), 2), "len(idx), 2")
+        actions = as_batch(self.device, actions, "actions", (idx.numel(), 2), "len(idx), 2")
         ok = torch.isfinite(actions).all() & ((idx >= 0) & (idx < self.num_envs)).all()
         if not bool(ok):  # one host sync for both checks; the details only on failure
-            _check_finite(actions, "actions")
+            check_finite(actions, "actions")
             bad = idx[(idx < 0) | (idx >= self.num_envs)]
             raise ValueError(f"idx holds slot {int(bad[0])}, outside [0, {self.num_envs}) (num_envs = {self.num_envs})")
         return self._advance(idx, actions)
-
-    def _batch(self, value, name: str, shape: tuple[int, int], layout: str,
-               dtype: torch.dtype = torch.float32) -> torch.Tensor:
-        """``value`` as ``dtype`` on the env's device, exactly ``shape``: no reshape, so [2, N] or a flat
-        [2N] is an error rather than a silent scramble of the rows."""
-        t = torch.as_tensor(value, device=self.device, dtype=dtype)
-        if tuple(t.shape) != shape:
-            raise ValueError(f"{name} must have shape [{layout}] = {list(shape)}, got {list(t.shape)}")
-        return t
 
     def _advance(self, sel, actions: torch.Tensor) -> dict[str, torch.Tensor]:
         """One transition of the slots ``sel`` (``slice(None)`` for all, else [k] long indices):
@@ -405,28 +377,6 @@ class NavVecEnv(VectorEnv):
         where = f"map={self.map.name!r}" if len(self.maps) == 1 else f"maps={len(self.maps)}"
         return (f"NavVecEnv({self.preset.name}, num_envs={self.num_envs}, {where}, "
                 f"device={self.device}, raycaster={self.raycaster_name!r})")
-
-
-def _check_finite(value: torch.Tensor, name: str) -> None:
-    """ValueError naming ``name`` and the first row holding a NaN or an infinity (if any)."""
-    rows = (~torch.isfinite(value)).any(dim=1).nonzero()
-    if rows.numel():
-        row = int(rows[0, 0])
-        raise ValueError(f"{name}[{row}] = {value[row].tolist()} is not finite (NaN or inf)")
-
-
-def _check_map_scale(grid: OccupancyMap, preset: RobotPreset) -> None:
-    """Refuse a map so fine for the robot that the collision grid (padded by the footprint's size in
-    cells, as collision.py does) would exceed the map size limit: a clear error, not a huge allocation."""
-    from flashnav.maps import grid as grid_module
-
-    pad = math.ceil(2 * preset.footprint.circumscribed_radius / grid.resolution) + 2
-    h, w = grid.shape
-    cells = (h + 2 * pad) * (w + 2 * pad)
-    if cells > grid_module.MAX_CELLS:
-        raise ValueError(f"map {grid.name!r}: resolution {grid.resolution} m is too fine for {preset.name}'s "
-                         f"{preset.footprint.circumscribed_radius} m footprint: its collision grid would need "
-                         f"{cells:.3g} cells (limit {grid_module.MAX_CELLS})")
 
 
 def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=None, maps=None,

@@ -9,7 +9,7 @@ same speed within noise and took 2.2x the memory for 64 maps of 6-20 m (docs/ben
 maps in one env"). Per-map values that the kernels need (offsets, shapes, origins, resolutions) are
 small [M] arrays, gathered per slot.
 
-Each map is simulated in its own frame (:func:`flashnav.sim.env.sim_frame`: world coordinates, or the
+Each map is simulated in its own frame (:func:`sim_frame`: world coordinates, or the
 map's origin for far maps); a slot's pose and goal are in its map's frame.
 """
 
@@ -90,3 +90,47 @@ class MapDraw:
         if self.weights is None:
             return torch.randint(self.num_maps, (n,), generator=gen, device=device)
         return torch.multinomial(self.weights, n, replacement=True, generator=gen)
+
+
+#: Maps whose coordinates all stay below this (metres, in magnitude) are simulated in world
+#: coordinates: float32 spacing there is at most 2**-13 m (0.12 mm, 1/400 of a 5 cm cell), and
+#: existing maps keep their bit-exact trajectories. Farther maps are re-centred on their origin.
+FRAME_LIMIT_M = 1024.0
+
+
+def sim_frame(grid: OccupancyMap) -> tuple[float, float]:
+    """The world (x, y) of the simulator frame's origin, metres float64 (see :mod:`flashnav.sim.env`, "Frames")."""
+    if max(abs(b) for b in grid.bounds) <= FRAME_LIMIT_M:
+        return (0.0, 0.0)
+    return grid.origin
+
+
+def check_map_scale(grid: OccupancyMap, preset) -> None:
+    """Refuse a map so fine for the robot that the collision grid (padded by the footprint's size in
+    cells, as collision.py does) would exceed the map size limit: a clear error, not a huge allocation."""
+    from flashnav.maps import grid as grid_module
+
+    pad = math.ceil(2 * preset.footprint.circumscribed_radius / grid.resolution) + 2
+    h, w = grid.shape
+    cells = (h + 2 * pad) * (w + 2 * pad)
+    if cells > grid_module.MAX_CELLS:
+        raise ValueError(f"map {grid.name!r}: resolution {grid.resolution} m is too fine for {preset.name}'s "
+                         f"{preset.footprint.circumscribed_radius} m footprint: its collision grid would need "
+                         f"{cells:.3g} cells (limit {grid_module.MAX_CELLS})")
+
+
+def sample_on_maps(samplers: Sequence, draw: MapDraw, n: int,
+                   gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """New episodes for ``n`` resetting slots of a many-map env: each slot draws its map (``draw``),
+    then each map's sampler serves its group of slots, in map order. Returns ``map_index [n]`` (long),
+    ``pose [n, 3]`` and ``goal [n, 2]`` in each map's own frame."""
+    maps = draw(n, gen)
+    device = maps.device
+    pose = torch.empty(n, 3, device=device)
+    goal = torch.empty(n, 2, device=device)
+    counts = torch.bincount(maps, minlength=len(samplers)).tolist()  # one host sync per reset
+    for m, count in enumerate(counts):
+        if count:
+            group = (maps == m).nonzero().squeeze(1)
+            pose[group], goal[group] = samplers[m].sample(count, gen)
+    return maps, pose, goal
