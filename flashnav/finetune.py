@@ -175,17 +175,11 @@ def load_learner(learner, init: InitSource) -> None:
         algo["temperature"] = {**algo["temperature"],
                                "target_entropy": current["algo"]["temperature"]["target_entropy"]}
     data["algo"] = algo
-    optimisers = _optimisers(learner.state)
+    from flashnav.learn.common import optimizers
+
+    optimisers = optimizers(learner.state)  # every optimiser of the state, nested temperature included
     settings = [[{k: g[k] for k in RUN_OPTIMISER_SETTINGS if k in g} for g in opt.param_groups] for opt in optimisers]
     learner.load_state_dict(data)
     for opt, groups in zip(optimisers, settings):
         for group, keep in zip(opt.param_groups, groups):
             group.update(keep)
-
-
-def _optimisers(state) -> list:
-    out = [state.actor_opt, state.critic_opt]
-    temperature = getattr(state.algo, "temperature", None)
-    if temperature is not None:
-        out.append(temperature.opt)
-    return out

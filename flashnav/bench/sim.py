@@ -19,6 +19,7 @@ import torch
 
 from flashnav.maps.generate import generate_map
 from flashnav.maps.grid import OccupancyMap
+from flashnav.maps.stream import generation_radius
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.raycast import error_stats, make_raycaster, random_free_poses
@@ -59,7 +60,7 @@ def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
         raise ValueError(f"--maps must be >= 1 maps, got {count}")
     preset = load_robot(robot)
     width, height = preset.map_size
-    radius = preset.footprint.circumscribed_radius + preset.episode.start_clearance
+    radius = generation_radius(preset)
     return [generate_map(width, height, 0.05, seed + i, robot_radius=radius, name=f"{robot}-bench-{seed + i}")
             for i in range(count)]
 

@@ -90,12 +90,12 @@ def make_controller(args):
     from flashnav.deploy.controller import Controller
     from flashnav.deploy.runtime import PolicyRuntime
 
-    x, y, yaw = args.lidar_pose
-    rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)
-    if args.rate is not None and not args.rate > 0:
+    if args.rate is not None and not args.rate > 0:  # the flags first: loading the policy costs a session
         raise ValueError(f"--rate must be > 0 Hz, got {args.rate}")
     if not args.timeout > 0:
         raise ValueError(f"--timeout must be > 0 s, got {args.timeout}")
+    x, y, yaw = args.lidar_pose
+    rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)
     return Controller(rt, timeout=args.timeout, period=None if args.rate is None else 1.0 / args.rate)
 
 

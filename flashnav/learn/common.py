@@ -43,6 +43,19 @@ def frozen_copy(module: nn.Module) -> nn.Module:
     return clone
 
 
+def optimizers(state: Any) -> list[torch.optim.Optimizer]:
+    """Every optimiser of a learner state (dataclass fields, nested dataclasses such as the
+    temperature included), in field order."""
+    found: list[torch.optim.Optimizer] = []
+    for field in dataclasses.fields(state):
+        value = getattr(state, field.name)
+        if isinstance(value, torch.optim.Optimizer):
+            found.append(value)
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            found.extend(optimizers(value))
+    return found
+
+
 def optimizer_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer, params: Sequence[torch.Tensor],
                    max_grad_norm: float) -> torch.Tensor:
     """zero_grad, backward, optional global-norm clip (``max_grad_norm`` > 0), step.
@@ -137,7 +150,7 @@ class LearnerState:
     ``collect_gen`` / ``update_gen``: RNG streams of collection (exploration noise, per-env scales)
     and of updates (target and actor samples), on the learner's device.
     ``num_updates``: critic updates so far (host int: the actor schedule is decided without
-    reading the device). ``*_params``: cached parameter lists (foreach Polyak, grad clipping).
+    reading the device). ``*_params`` / ``*_buffers``: cached parameter and buffer lists (foreach Polyak, grad clipping, the averaged policy).
     ``last_actor_metrics``: the last actor step's metrics, repeated between actor steps.
     """
 
@@ -156,6 +169,9 @@ class LearnerState:
     critic_params: list = dataclasses.field(default_factory=list)
     target_params: list = dataclasses.field(default_factory=list)
     actor_params: list = dataclasses.field(default_factory=list)
+    averaged_params: list = dataclasses.field(default_factory=list)
+    averaged_buffers: list = dataclasses.field(default_factory=list)
+    actor_buffers: list = dataclasses.field(default_factory=list)
     last_actor_metrics: dict = dataclasses.field(default_factory=dict)
 
     @property
@@ -198,6 +214,7 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, **norms).to(device)
     critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen, **norms).to(device)
     critic_target = frozen_copy(critic)
+    averaged = frozen_copy(actor) if hp.policy_averaging > 0 else None
     return LearnerState(
         hp=hp, actor=actor, collector=frozen_copy(actor), critic=critic, critic_target=critic_target,
         actor_opt=adamw(actor.parameters(), hp.actor_lr, hp.betas, hp.weight_decay),
@@ -205,7 +222,10 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
         collect_gen=generator(device, collect_seed), update_gen=generator(device, update_seed),
         critic_params=list(critic.parameters()), target_params=list(critic_target.parameters()),
         actor_params=list(actor.parameters()),
-        averaged_actor=frozen_copy(actor) if hp.policy_averaging > 0 else None,
+        averaged_actor=averaged,
+        averaged_params=[] if averaged is None else list(averaged.parameters()),
+        averaged_buffers=[] if averaged is None else list(averaged.buffers()),
+        actor_buffers=list(actor.buffers()),
     )
 
 
@@ -242,11 +262,9 @@ def finish_update(state: LearnerState, critic_metrics: dict, actor_step) -> dict
 def average_actor_(state: LearnerState) -> None:
     """``averaged <- (1 - rate) averaged + rate actor`` for the weights (``hp.policy_averaging``);
     buffers (running feature statistics) are copied, not averaged."""
-    averaged = state.averaged_actor
-    polyak_(list(averaged.parameters()), state.actor_params, state.hp.policy_averaging)
-    buffers = list(averaged.buffers())
-    if buffers:
-        torch._foreach_copy_(buffers, list(state.actor.buffers()))
+    polyak_(state.averaged_params, state.actor_params, state.hp.policy_averaging)
+    if state.averaged_buffers:
+        torch._foreach_copy_(state.averaged_buffers, state.actor_buffers)
 
 
 def resample_where(scale: torch.Tensor, done: torch.Tensor, low: float, high: float, gen: torch.Generator) -> None:

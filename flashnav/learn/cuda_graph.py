@@ -47,20 +47,8 @@ from typing import Any, Callable, Iterator
 
 import torch
 
+from flashnav.learn.common import optimizers
 from flashnav.learn.replay import Replay, Transition
-
-
-def optimizers(state: Any) -> list[torch.optim.Optimizer]:
-    """Every optimiser of a learner state (dataclass fields, nested dataclasses such as the
-    temperature included), in field order."""
-    found: list[torch.optim.Optimizer] = []
-    for field in dataclasses.fields(state):
-        value = getattr(state, field.name)
-        if isinstance(value, torch.optim.Optimizer):
-            found.append(value)
-        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
-            found.extend(optimizers(value))
-    return found
 
 
 def check_fused(opts: list[torch.optim.Optimizer]) -> None:
