@@ -35,7 +35,8 @@ def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, see
 
 def evaluate_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv,
                       seed: int) -> dict[str, torch.Tensor]:
-    """:func:`evaluate`'s episodes one by one: ``success`` / ``collision`` [N] bool, ``episode_return``
+    """:func:`evaluate`'s episodes one by one: ``success`` / ``collision`` / ``collision_agent`` (the
+    collision was with a moving agent) [N] bool, ``episode_return``
     and ``episode_steps`` [N] float, each episode's ``start_pose`` [N, 3] / ``goal`` [N, 2] in the
     map's own (world) frame, and ``max_goal_distance`` [N] float (metres: the largest goal distance the
     policy was given, start included). Slot k holds the k-th episode of the set that ``seed`` draws."""
@@ -53,6 +54,7 @@ def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv
     col = env.preset.lidar.sectors  # the goal-distance column
     success = torch.zeros(n, dtype=torch.bool, device=dev)
     collision = torch.zeros(n, dtype=torch.bool, device=dev)
+    collision_agent = torch.zeros(n, dtype=torch.bool, device=dev)
     returns = torch.zeros(n, device=dev)
     steps = torch.zeros(n, device=dev)
     max_goal = obs[:, col].clone()
@@ -64,13 +66,15 @@ def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv
         ended = active[done]
         success[ended] = t["success"][done]
         collision[ended] = t["collision"][done]
+        collision_agent[ended] = t["collision_agent"][done]
         returns[ended] = t["episode_return"][done]
         steps[ended] = t["episode_steps"][done].float()
         running = ~done
         active, obs = active[running], t["obs"][running]
         if active.numel() == 0:  # a host sync per step: evaluation is outside the training clock
             break
-    return {"success": success, "collision": collision, "episode_return": returns, "episode_steps": steps,
+    return {"success": success, "collision": collision, "collision_agent": collision_agent,
+            "episode_return": returns, "episode_steps": steps,
             "start_pose": start_pose, "goal": goal, "max_goal_distance": max_goal}
 
 

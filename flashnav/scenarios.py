@@ -20,6 +20,7 @@ from typing import Callable
 import torch
 
 from flashnav.config import RobotPreset
+from flashnav.evaluate import play_episodes
 from flashnav.names import SCENARIOS, check_name
 from flashnav.presets import load_robot
 
@@ -50,23 +51,16 @@ def scenario_names(text: str) -> list[str]:
 @torch.no_grad()
 def run_scenario(policy: Callable[[torch.Tensor], torch.Tensor], env, seed: int) -> dict:
     """One episode per slot of ``env`` (made from a :func:`scenario_preset`) with the deterministic
-    ``policy``; only running slots are simulated. Returns the rates over the scored episodes
-    (success, agent_collision, wall_collision, timeout; a collision with both counts as an agent
-    collision), ``episodes`` drawn and ``scored``."""
+    ``policy``, played by :func:`flashnav.evaluate.play_episodes` (only running slots are simulated).
+    Returns the rates over the scored episodes (success, agent_collision, wall_collision, timeout; a
+    collision with both counts as an agent collision), ``episodes`` drawn and ``scored``."""
     obs, _ = env.reset(seed=seed)
     n, dev = env.num_envs, env.device
     crossing = env.agents is not None and env.preset.agents.mix.get("crossing", 0.0) > 0
     scored = env.agents.placed.any(dim=1) if crossing else torch.ones(n, dtype=torch.bool, device=dev)
-    outcome = torch.zeros(n, dtype=torch.long, device=dev)  # 0 timeout, 1 success, 2 agent, 3 wall
-    active = torch.arange(n, device=dev)
-    for _ in range(env.preset.episode.horizon):
-        t = env.step_slots(active, policy(obs))
-        done = t["terminated"] | t["truncated"]
-        kind = torch.where(t["success"], 1, torch.where(t["collision_agent"], 2, torch.where(t["collision_static"], 3, 0)))
-        outcome[active[done]] = kind[done]
-        active, obs = active[~done], t["obs"][~done]
-        if active.numel() == 0:  # a host sync per step: evaluation is outside any training clock
-            break
+    e = play_episodes(policy, env, obs)
+    # 0 timeout, 1 success, 2 agent, 3 wall (success and either collision exclude each other)
+    outcome = torch.where(e["success"], 1, torch.where(e["collision_agent"], 2, torch.where(e["collision"], 3, 0)))
     counted = outcome[scored]
     total = max(int(scored.sum()), 1)
     rate = lambda k: float((counted == k).sum()) / total  # noqa: E731
