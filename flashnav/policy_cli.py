@@ -91,8 +91,16 @@ def load_policy_for(args, device: str = "cpu"):
     return policy, meta, robot, device
 
 
-def _map_label(args, env) -> str:
-    return str(args.map) if args.map is not None else env.preset.map
+def _map_label(args, preset) -> str:
+    return str(args.map) if args.map is not None else preset.map
+
+
+def _scenario_env(args, preset, name: str, device):
+    """The env of scenario ``name`` (:mod:`flashnav.scenarios`) for parsed `eval`/`render` arguments."""
+    from flashnav.scenarios import scenario_preset
+    from flashnav.sim.env import make_env
+
+    return make_env(scenario_preset(preset, name), args.episodes, map=args.map, device=device, seed=args.seed)
 
 
 def run_eval(args) -> int:
@@ -128,7 +136,7 @@ def run_eval(args) -> int:
         "mean_steps": result["mean_steps"],
         "episodes": env.num_envs,
         "robot": env.preset.name,
-        "map": _map_label(args, env),
+        "map": _map_label(args, env.preset),
         "policy": str(args.policy),
         "seed": args.seed,
         "seconds": seconds,
@@ -156,21 +164,20 @@ def run_scenarios(args) -> int:
     from rich.table import Table
 
     from flashnav.outputs import write_json_report
-    from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
-    from flashnav.sim.env import make_env
+    from flashnav.presets import load_robot
+    from flashnav.scenarios import run_scenario, scenario_names
 
     names = scenario_names(args.scenario)
-    policy, meta, env = load_policy_and_env(args, args.device)
-    table = Table(title=f"flashnav eval --scenario: {args.policy} on {env.preset.name} / {_map_label(args, env)}, "
+    policy, meta, robot, device = load_policy_for(args, args.device)  # no env here: each scenario makes its own
+    preset = load_robot(robot)
+    table = Table(title=f"flashnav eval --scenario: {args.policy} on {preset.name} / {_map_label(args, preset)}, "
                         f"seed {args.seed}")
     for col in ("scenario", "scored / drawn", "success", "agent collision", "wall collision", "timeout"):
         table.add_column(col, justify="right")
-    report = {"robot": env.preset.name, "map": _map_label(args, env), "policy": str(args.policy), "seed": args.seed,
+    report = {"robot": preset.name, "map": _map_label(args, preset), "policy": str(args.policy), "seed": args.seed,
               "scenarios": {}}
     for name in names:
-        scenario_env = make_env(scenario_preset(env.preset, name), args.episodes, map=args.map, device=env.device,
-                                seed=args.seed)
-        r = run_scenario(policy, scenario_env, args.seed)
+        r = run_scenario(policy, _scenario_env(args, preset, name, device), args.seed)
         report["scenarios"][name] = r
         table.add_row(name, f"{r['scored']} / {r['episodes']}", *(f"{100 * r[k]:.1f} %" for k in (
             "success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate")))
@@ -234,18 +241,19 @@ def run_render(args) -> int:
     check_output_file(args.out, "--out")
     if args.gif:
         check_output_file(Path(args.out).with_suffix(".gif"), "--gif")
-    policy, meta, env = load_policy_and_env(args)
-    if args.scenario is not None:
-        from flashnav.scenarios import scenario_preset
-        from flashnav.sim.env import make_env
+    if args.scenario is None:
+        policy, meta, env = load_policy_and_env(args)
+    else:  # only the scenario's env is built
+        from flashnav.presets import load_robot
 
-        env = make_env(scenario_preset(env.preset, args.scenario), args.episodes, map=args.map, seed=args.seed)
+        policy, meta, robot, device = load_policy_for(args)
+        env = _scenario_env(args, load_robot(robot), args.scenario, device)
     result = rollout(policy, env, args.seed)
     poses, length, outcomes = result["poses"], result["length"], result["outcomes"]
     paths = [poses[: length[i], i, :2] for i in range(env.num_envs)]
     tracks = agent_tracks(result)
     counts = {k: outcomes.count(k) for k in ("success", "collision", "timeout")}
-    title = (f"{env.preset.name} / {_map_label(args, env)}: {Path(args.policy).name}, "
+    title = (f"{env.preset.name} / {_map_label(args, env.preset)}: {Path(args.policy).name}, "
              f"{counts['success']}/{env.num_envs} reached, {counts['collision']} collided")
     out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title, agents=tracks)
     print(f"{counts} over {env.num_envs} episodes; trajectories: {out}")
