@@ -249,15 +249,13 @@ class RunSpec:
     def env_maps(self) -> OccupancyMap | tuple[OccupancyMap, ...]:
         """What ``NavVecEnv(grid=...)`` takes for this run: the one map, or every map (loaded here
         for a spec read back from a file)."""
-        from flashnav.maps.bundled import resolve_map, resolve_maps
-
         grids = self.grids
-        if grids is None and isinstance(self.config.maps, GeneratedMaps):
-            grids = generate_set(self.config.maps, 0, generation_radius(self.robot))
         if grids is None:
-            if self.config.maps is None:
-                return self.grid if self.grid is not None else resolve_map(self.config.map, self.robot.map)
-            grids = tuple(resolve_maps(self.config.maps, self.robot.map))
+            if self.config.maps is None and self.grid is not None:
+                return self.grid
+            grid, grids = _load_maps(self.config, self.robot)
+            if grids is None:
+                return grid
         return grids[0] if len(grids) == 1 else grids
 
     @property
@@ -324,13 +322,25 @@ class RunSpec:
                    cuda_graph=resolve_cuda_graph(config.cuda_graph, device), init=init)
 
 
+def _load_maps(config: TrainConfig, robot: RobotPreset) -> tuple[OccupancyMap, tuple[OccupancyMap, ...] | None]:
+    """The maps ``config`` asks for: ``(the map, None)`` for one map (``map``, else the preset's);
+    ``(the first, all of them)`` for ``maps`` (files, a list, or generated maps' set 0)."""
+    from flashnav.maps.bundled import resolve_map, resolve_maps
+
+    if config.maps is None:
+        return resolve_map(config.map, robot.map), None
+    if isinstance(config.maps, GeneratedMaps):
+        grids = generate_set(config.maps, 0, generation_radius(robot))
+    else:
+        grids = tuple(resolve_maps(config.maps, robot.map))
+    return grids[0], grids
+
+
 def resolve(config: TrainConfig | None = None) -> RunSpec:
     """The one place a run's configuration is resolved: device, recipe, preset, hyperparameters, map.
 
     Raises ValueError naming the bad input (an unknown override key, a missing map, no CUDA, ...).
     """
-    from flashnav.maps.bundled import resolve_map, resolve_maps
-
     config = config or TrainConfig()
     device = resolve_device(config.device)
     recipe = resolve_recipe(config.recipe, device)
@@ -341,20 +351,19 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     if config.init_from is not None:  # before the maps: a mismatch is refused without loading any
         init, checkpoint = load_init_source(config.init_from, RunSpec.from_dict)
         check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from)
-    if config.maps is None:
-        grid = resolve_map(config.map, robot.map)
-        grids, scale = None, grid.diagonal_m
-    elif isinstance(config.maps, GeneratedMaps):
+    if isinstance(config.maps, GeneratedMaps):  # before drawing set 0: every set's seeds must be valid
         config.maps.check_seeds(math.ceil((config.budget.max_env_steps or hparams.total_env_steps) / hparams.num_envs))
-        grids = generate_set(config.maps, 0, generation_radius(robot))
-        grid, scale = grids[0], config.maps.goal_distance_max  # the largest a generated map can be
+    grid, grids = _load_maps(config, robot)
+    if grids is None:
+        scale = grid.diagonal_m
+    elif isinstance(config.maps, GeneratedMaps):
+        scale = config.maps.goal_distance_max  # the largest a generated map can be
     else:
-        grids = tuple(resolve_maps(config.maps, robot.map))
         if config.map_weights is not None and len(config.map_weights) != len(grids):
             raise ValueError(f"map_weights has {len(config.map_weights)} entries for the {len(grids)} maps of "
                              f"maps = {config.maps!r}")
         # one fixed goal-distance scale for every map: the largest diagonal
-        grid, scale = grids[0], max(g.diagonal_m for g in grids)
+        scale = max(g.diagonal_m for g in grids)
     if checkpoint is not None:
         # the network keeps the scale it was trained with, whatever the new maps' size
         scale = checkpoint.goal_distance_max
