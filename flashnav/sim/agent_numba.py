@@ -116,27 +116,9 @@ def segments_clear(a, b, radius, maps, samples, clear, offset, origin, res, wp, 
         origin: [M, 2] float64 metres; res: [M] float64; pad: cells around each map.
         out: [P] bool, written.
     """
-    n_seg = a.shape[0]
-    n_s = samples.shape[0]
-    for i in range(n_seg):
-        m = maps[i]
-        ax = np.float64(a[i, 0])
-        ay = np.float64(a[i, 1])
-        dx = np.float64(b[i, 0]) - ax
-        dy = np.float64(b[i, 1]) - ay
-        need = np.float64(radius[i]) + 0.5 * math.sqrt(dx * dx + dy * dy) / (n_s - 1)
-        ok = True
-        for s in range(n_s):
-            px = ax + dx * samples[s]
-            py = ay + dy * samples[s]
-            j = int(math.floor((px - origin[m, 0]) / res[m])) + pad
-            k = int(math.floor((py - origin[m, 1]) / res[m])) + pad
-            j = min(max(j, 0), wp[m] - 1)
-            k = min(max(k, 0), hp[m] - 1)
-            if clear[offset[m] + k * wp[m] + j] < need:
-                ok = False
-                break
-        out[i] = ok
+    for i in range(a.shape[0]):
+        out[i] = _leg_clear(np.float64(a[i, 0]), np.float64(a[i, 1]), np.float64(b[i, 0]), np.float64(b[i, 1]),
+                            np.float64(radius[i]), maps[i], samples, clear, offset, origin, res, wp, hp, pad)
 
 
 @njit(cache=True, inline="always")
@@ -167,6 +149,8 @@ def hash_uniform(key, step, agent, lane):
 
 @njit(cache=True)
 def _leg_clear(ax, ay, bx, by, r, m, samples, clear, offset, origin, res, wp, hp, pad):
+    """Whether every sample of the segment (ax, ay) -> (bx, by) (float64 metres, on map m) has
+    clearance >= r + half the sample spacing; stops at the first sample that fails."""
     dx = bx - ax
     dy = by - ay
     need = r + 0.5 * math.sqrt(dx * dx + dy * dy) / (samples.shape[0] - 1)
