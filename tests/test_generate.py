@@ -139,3 +139,32 @@ def test_bundled_map_comment_reproduces_it(name):
                         robot_radius=float(opt["robot_radius"]), density=float(opt["density"]),
                         margin=float(opt["margin"]))
     np.testing.assert_array_equal(grid.occupied, bundled_map(name).occupied)
+
+
+def _near_brute(occupied: np.ndarray, cells: int) -> np.ndarray:
+    """Every cell whose centre is closer than ``cells`` to an occupied cell's centre, by brute force."""
+    yy, xx = np.nonzero(occupied)
+    r, c = np.indices(occupied.shape)
+    d2 = (r[..., None] - yy) ** 2 + (c[..., None] - xx) ** 2
+    return (d2 < cells * cells).any(axis=-1)
+
+
+def test_place_keeps_blocked_equal_to_a_full_recompute():
+    """clutter.place (the generator's and the families' Canvas.scatter's obstacle step) updates
+    ``blocked`` only near the new obstacle; the result must equal recomputing it over the whole grid."""
+    from flashnav.maps.clutter import border_cells, bordered, grow, place
+
+    rng = np.random.default_rng(3)
+    spacing = 4
+    occupied = bordered(30, 40, border_cells(0.05))
+    assert occupied[:3].all() and occupied[:, -3:].all() and not occupied[3:-3, 3:-3].any()
+    blocked = grow(occupied, spacing)
+    np.testing.assert_array_equal(blocked, _near_brute(occupied, spacing))
+    for _ in range(6):
+        h, w = int(rng.integers(1, 5)), int(rng.integers(1, 5))
+        r0, c0 = int(rng.integers(0, 30 - h + 1)), int(rng.integers(0, 40 - w + 1))
+        mask = rng.random((h, w)) < 0.7
+        mask[0, 0] = True
+        place(occupied, blocked, (slice(r0, r0 + h), slice(c0, c0 + w)), mask, spacing)
+        assert occupied[r0:r0 + h, c0:c0 + w][mask].all()
+        np.testing.assert_array_equal(blocked, _near_brute(occupied, spacing))

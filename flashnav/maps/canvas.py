@@ -6,10 +6,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import ndimage
+
+from flashnav.maps.clutter import border_cells, bordered, grow, place
 
 WALL = (0.1, 0.2)  # wall thickness range, metres
-BORDER_M = 0.15  # outer walls, metres (at least 2 cells)
 
 
 class Canvas:
@@ -23,11 +23,9 @@ class Canvas:
         self.res = res
         self.rows, self.cols = round(height_m / res), round(width_m / res)
         self.width, self.height = self.cols * res, self.rows * res
-        self.occupied = np.zeros((self.rows, self.cols), dtype=bool)
         self.half_gap = robot_radius + margin  # half the narrowest passage, metres
-        self.border = max(2, round(BORDER_M / res)) * res
-        b = round(self.border / res)
-        self.occupied[:b], self.occupied[-b:], self.occupied[:, :b], self.occupied[:, -b:] = True, True, True, True
+        self.border = border_cells(res) * res  # outer walls, metres
+        self.occupied = bordered(self.rows, self.cols, border_cells(res))
 
     def gap(self, extra: float = 0.0) -> float:
         """The narrowest passage width, metres (plus ``extra``), with the rasterisation cells added."""
@@ -67,7 +65,7 @@ class Canvas:
         least a passage width from every other obstacle, so none closes a passage; inside ``region``
         (x0, y0, x1, y1) if given. Returns how many were placed."""
         spacing = math.ceil(self.gap() / self.res)
-        blocked = ndimage.distance_transform_edt(~self.occupied) < spacing
+        blocked = grow(self.occupied, spacing)
         x0, y0, x1, y1 = region or (0.0, 0.0, self.width, self.height)
         placed = 0
         for _ in range(attempts):
@@ -84,13 +82,6 @@ class Canvas:
                 mask = np.ones((rows.stop - rows.start, cols.stop - cols.start), dtype=bool)
             if not mask.any() or (blocked[rows, cols] & mask).any():
                 continue
-            self.occupied[rows, cols] |= mask
-            # farther cells are more than `spacing` away from the new obstacle: update near it only
-            big = (slice(max(rows.start - spacing - 1, 0), min(rows.stop + spacing + 1, self.rows)),
-                   slice(max(cols.start - spacing - 1, 0), min(cols.stop + spacing + 1, self.cols)))
-            local = np.zeros((big[0].stop - big[0].start, big[1].stop - big[1].start), dtype=bool)
-            local[rows.start - big[0].start: rows.stop - big[0].start,
-                  cols.start - big[1].start: cols.stop - big[1].start] = mask
-            blocked[big] |= ndimage.distance_transform_edt(~local) < spacing
+            place(self.occupied, blocked, (rows, cols), mask, spacing)
             placed += 1
         return placed

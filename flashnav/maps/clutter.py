@@ -28,7 +28,7 @@ from scipy import ndimage
 
 from flashnav.maps.grid import OccupancyMap
 
-BORDER_M = 0.15  # border wall thickness, metres (3 cells at 0.05 m)
+BORDER_M = 0.15  # border wall thickness, metres (3 cells at 0.05 m; at least 2 cells: border_cells)
 MAX_ATTEMPTS = 4000  # candidate obstacles tried before giving up on reaching ``density``
 # Shape mix and sizes, metres, for a passage half-width (robot_radius + margin) of REFERENCE_HALF_GAP;
 # sizes grow with the square root of the half-width so that wider passages still leave clutter. They
@@ -79,7 +79,7 @@ def generate_map(
     if not 0 <= density < 0.5:
         raise ValueError(f"density must be in [0, 0.5), got {density}")
     rows, cols = round(height_m / resolution), round(width_m / resolution)
-    border = max(2, round(BORDER_M / resolution))
+    border = border_cells(resolution)
     # Centre-to-centre cell distance between two obstacles: the free gap between the cell squares
     # (distance - 1 cell) must hold 2 * (radius + margin); one more cell absorbs grid rounding.
     spacing = math.ceil(2 * (robot_radius + margin) / resolution) + 2
@@ -88,9 +88,8 @@ def generate_map(
             f"a {width_m} x {height_m} m map is too small for a robot of radius {robot_radius} m "
             f"(needs at least {(2 * border + spacing + 1) * resolution:.2f} m per side)"
         )
-    occupied = np.zeros((rows, cols), dtype=bool)
-    occupied[:border], occupied[-border:], occupied[:, :border], occupied[:, -border:] = True, True, True, True
-    blocked = _grow(occupied, spacing)  # cells where no new obstacle cell may go
+    occupied = bordered(rows, cols, border)
+    blocked = grow(occupied, spacing)  # cells where no new obstacle cell may go
 
     rng = np.random.default_rng(seed)
     interior = (rows - 2 * border) * (cols - 2 * border)
@@ -110,20 +109,42 @@ def generate_map(
         window = (slice(r0, r0 + h), slice(c0, c0 + w))
         if (blocked[window] & shape).any():
             continue
-        occupied[window] |= shape
+        place(occupied, blocked, window, shape, spacing)
         filled += int(shape.sum())
-        # Update `blocked` only near the new obstacle: farther cells are >= spacing away from it.
-        pad = spacing + 1
-        big = (slice(max(r0 - pad, 0), min(r0 + h + pad, rows)), slice(max(c0 - pad, 0), min(c0 + w + pad, cols)))
-        local = np.zeros((big[0].stop - big[0].start, big[1].stop - big[1].start), dtype=bool)
-        local[r0 - big[0].start : r0 - big[0].start + h, c0 - big[1].start : c0 - big[1].start + w] = shape
-        blocked[big] |= _grow(local, spacing)
 
     occupied = connect_free_space(occupied, resolution, robot_radius)
     return OccupancyMap(occupied, resolution, (0.0, 0.0), name or f"generated_{width_m:g}x{height_m:g}_seed{seed}")
 
 
-def _grow(mask: np.ndarray, cells: int) -> np.ndarray:
+def border_cells(resolution: float) -> int:
+    """The border walls' thickness in cells: ``BORDER_M`` at ``resolution`` (metres per cell), at least 2."""
+    return max(2, round(BORDER_M / resolution))
+
+
+def bordered(rows: int, cols: int, border: int) -> np.ndarray:
+    """[rows, cols] bool: free but for ``border`` cells of wall along every edge."""
+    occupied = np.zeros((rows, cols), dtype=bool)
+    occupied[:border], occupied[-border:], occupied[:, :border], occupied[:, -border:] = True, True, True, True
+    return occupied
+
+
+def place(occupied: np.ndarray, blocked: np.ndarray, window: tuple[slice, slice], mask: np.ndarray,
+          spacing: int) -> None:
+    """Add an obstacle, in place: ``mask`` ([h, w] bool) into ``occupied[window]``, and to ``blocked``
+    (the [H, W] cells where no new obstacle cell may go) every cell closer than ``spacing`` cells to
+    it. Only cells near the obstacle are recomputed: farther ones are >= spacing away from it."""
+    rows, cols = window
+    pad = spacing + 1
+    big = (slice(max(rows.start - pad, 0), min(rows.stop + pad, occupied.shape[0])),
+           slice(max(cols.start - pad, 0), min(cols.stop + pad, occupied.shape[1])))
+    occupied[window] |= mask
+    local = np.zeros((big[0].stop - big[0].start, big[1].stop - big[1].start), dtype=bool)
+    local[rows.start - big[0].start: rows.stop - big[0].start,
+          cols.start - big[1].start: cols.stop - big[1].start] = mask
+    blocked[big] |= grow(local, spacing)
+
+
+def grow(mask: np.ndarray, cells: int) -> np.ndarray:
     """[H, W] bool: cells whose centre is closer than ``cells`` cell widths to a True cell of ``mask``."""
     if not mask.any():
         return np.zeros_like(mask)

@@ -32,8 +32,8 @@ import zlib
 import numpy as np
 
 from flashnav.maps import family_layouts
-from flashnav.maps.canvas import BORDER_M, Canvas
-from flashnav.maps.clutter import connect_free_space, generate_map
+from flashnav.maps.canvas import Canvas
+from flashnav.maps.clutter import BORDER_M, connect_free_space, generate_map
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import MAP_FAMILIES, VALIDATION_SEEDS, check_name
 

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from flashnav.maps.clutter import BORDER_M, connect_free_space, generate_map  # noqa: F401 (the API of old)
+from flashnav.maps.clutter import border_cells
 from flashnav.maps.grid import OccupancyMap
 
 
@@ -60,7 +61,7 @@ def main(argv: list[str] | None = None) -> None:
         "--resolution", f"{a.resolution:g}", "--seed", str(a.seed), "--robot-radius", f"{a.robot_radius:g}",
         "--density", f"{a.density:g}", "--margin", f"{a.margin:g}", "--format", a.format, "--out", str(a.out),
     ])
-    border = max(2, round(BORDER_M / a.resolution))
+    border = border_cells(a.resolution)
     interior = grid.occupied[border:-border, border:-border].mean()
     _save(grid, a.out, a.format, a.robot_radius, command,
           f"occupied {grid.occupied.mean():.1%} (interior inside the border walls: {interior:.1%})")
