@@ -67,3 +67,24 @@ def check_robot(value: str) -> str:
     if value not in ROBOTS and not str(value).endswith((".yaml", ".yml")):
         raise ValueError(f"unknown robot {value!r}; allowed: {', '.join(ROBOTS)} or a preset YAML path")
     return value
+
+
+def parse_names(kind: str, text: str | list[str], allowed: tuple[str, ...], option: str | None = None) -> list[str]:
+    """A comma list of ``kind`` names (``"wander-8, crossing"``; or a list of names, as YAML gives)
+    or ``all`` -> the names, each checked against ``allowed``; ``all`` -> every allowed name, in their
+    order. Blank items are skipped. A ValueError names ``option`` (the flag or key, when given) and
+    the bad name, with the choices."""
+    where = f"{option}: " if option else ""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    names = [n.strip() if isinstance(n, str) else n for n in items]
+    names = [n for n in names if n != ""]
+    if names == ["all"]:
+        return list(allowed)
+    if not names:
+        raise ValueError(f"{where}no {kind} named in {text!r}; use one of {', '.join(allowed)}, or all")
+    for name in names:
+        try:
+            check_name(kind, name, allowed)
+        except ValueError as exc:
+            raise ValueError(f"{where}{exc}") from None
+    return names

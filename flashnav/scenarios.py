@@ -21,7 +21,7 @@ import torch
 
 from flashnav.config import RobotPreset
 from flashnav.evaluate import play_episodes
-from flashnav.names import SCENARIOS, check_name
+from flashnav.names import SCENARIOS, check_name, parse_names
 from flashnav.presets import load_robot
 
 WANDER_MIX = {"waypoints": 0.5, "bounce": 0.5}
@@ -41,11 +41,8 @@ def scenario_preset(robot: str | RobotPreset, name: str) -> RobotPreset:
 
 
 def scenario_names(text: str) -> list[str]:
-    """``"wander-8,crossing"`` or ``"all"`` -> the scenario names, each checked."""
-    names = list(SCENARIOS) if text.strip() == "all" else [t.strip() for t in text.split(",") if t.strip()]
-    if not names:
-        raise ValueError(f"--scenario: no scenario named in {text!r}; use one of {', '.join(SCENARIOS)} or all")
-    return [check_name("scenario", n, SCENARIOS) for n in names]
+    """``"wander-8,crossing"`` or ``"all"`` -> the scenario names, each checked (``--scenario``)."""
+    return parse_names("scenario", text, SCENARIOS, "--scenario")
 
 
 @torch.no_grad()

@@ -83,12 +83,10 @@ def _save(grid: OccupancyMap, out: Path, fmt: str, robot_radius: float, command:
 def _write_families(p: argparse.ArgumentParser, a: argparse.Namespace, known: tuple[str, ...]) -> None:
     """``--family``: ``--count`` maps per family into the directory ``--out``, named <family>_<seed>."""
     from flashnav.maps.families import generate_family
-    from flashnav.names import check_name
+    from flashnav.names import parse_names
 
-    families = list(known) if a.family == "all" else [f.strip() for f in a.family.split(",")]
     try:
-        for f in families:
-            check_name("map family", f, known)
+        families = parse_names("map family", a.family, known, "--family")
     except ValueError as exc:
         p.error(str(exc))
     if a.count < 1 or a.seed < 0:

@@ -25,7 +25,7 @@ from pydantic import Field, field_validator
 from flashnav.config import KnownKeys
 from flashnav.maps.families import HELD_OUT_SEED_START, SIZE_RANGE, check_training_seed, generate_family
 from flashnav.maps.grid import OccupancyMap
-from flashnav.names import MAP_FAMILIES, check_name
+from flashnav.names import MAP_FAMILIES, parse_names
 
 #: ``--maps family:rooms,offices``: the command line's form of generated maps.
 FAMILY_PREFIX = "family:"
@@ -34,7 +34,7 @@ FAMILY_PREFIX = "family:"
 class GeneratedMaps(KnownKeys):
     """Maps generated during training instead of loaded from files (see the module docstring)."""
 
-    family: list[str] = Field(description=f"map families ({', '.join(MAP_FAMILIES)}), a list, or 'all'")
+    family: list[str] = Field(description=f"map families ({', '.join(MAP_FAMILIES)}): a list, a comma list, or 'all'")
     count: int = Field(16, gt=0, description="maps per set: the env's slots draw among them when they reset")
     refresh_every: int | None = Field(None, gt=0, description="cycles (vector steps) between new sets "
                                                               "(None = the first set for the whole run)")
@@ -44,16 +44,8 @@ class GeneratedMaps(KnownKeys):
     @field_validator("family", mode="before")
     @classmethod
     def _families(cls, value: Any) -> Any:
-        names = [value] if isinstance(value, str) else value
-        if isinstance(names, list):
-            names = [n.strip() if isinstance(n, str) else n for n in names]
-            if names == ["all"]:
-                return list(MAP_FAMILIES)
-            if not names:
-                raise ValueError("name at least one map family")
-            for name in names:
-                check_name("map family", name, MAP_FAMILIES)
-        return names
+        # anything but a string or a list is left to pydantic's type error
+        return parse_names("map family", value, MAP_FAMILIES) if isinstance(value, (str, list)) else value
 
     def seeds(self, index: int) -> list[tuple[str, int]]:
         """(family, seed) of every map of set ``index``."""
@@ -84,7 +76,7 @@ def parse_family_maps(value: Any) -> Any:
     else is returned as it is."""
     if isinstance(value, str) and value.startswith(FAMILY_PREFIX):
         defaults = {name: f.default for name, f in GeneratedMaps.model_fields.items() if name != "family"}
-        return {"family": [f for f in value[len(FAMILY_PREFIX):].split(",") if f.strip()], **defaults}
+        return {"family": value[len(FAMILY_PREFIX):], **defaults}  # the comma list: GeneratedMaps parses it
     return value
 
 
