@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from flashnav.bench.update import compile_networks, parse_ways, random_batches, run_spec, time_updates
+from flashnav.bench.update import compile_networks, parse_ways, random_batches, run_spec, time_steps, time_updates
 from flashnav.cli import main as cli_main
 from flashnav.learn.hparams import load_hparams
 from flashnav.learn.learners import make_learner
@@ -26,6 +26,23 @@ def test_time_updates_counts_whole_updates():
     row = time_updates(spec, "eager", seconds=0.2, warmup=2)
     assert row["way"] == "eager" and row["batch_size"] == 32
     assert row["updates"] >= 8 and row["updates"] % 8 == 0 and row["ms_per_update"] > 0
+
+
+def test_time_steps_warms_up_apart_then_times_whole_steps_until_the_budget():
+    # A fake clock that only the steps advance: warm-up steps take 5 s each, timed steps 0.3 s.
+    now, calls = [0.0], []
+
+    def warm(i):
+        calls.append(("warm", i))
+        now[0] += 5.0
+
+    def step():
+        calls.append("step")
+        now[0] += 0.3
+
+    row = time_steps(warm, 3, step, 4, seconds=1.0, device="cpu", clock=lambda: now[0])
+    assert calls == [("warm", 0), ("warm", 1), ("warm", 2)] + ["step"] * 4  # 4 x 0.3 s is the first >= 1 s
+    assert row == {"warmup_s": 15.0, "updates": 16, "ms_per_update": pytest.approx(1000.0 * 1.2 / 16)}
 
 
 def _learner(way):

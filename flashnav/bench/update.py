@@ -21,6 +21,7 @@ import argparse
 import datetime as dt
 import json
 import time
+from typing import Any, Callable
 
 from rich.console import Console
 from rich.table import Table
@@ -120,32 +121,19 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
     if way in GRAPH_WAYS:
         return _time_cycles(learner, layout.obs_dim, batches, hp, device, seconds=seconds, warmup=warmup)
 
-    def sync():
-        if str(device).startswith("cuda"):
-            torch.cuda.synchronize(device)
-
     def update(batch):
         if way in AUTOCAST_WAYS:
             with torch.autocast(torch.device(device).type, dtype=torch.bfloat16):
                 return learner.update(batch)
         return learner.update(batch)
 
-    start = time.perf_counter()
-    for i in range(warmup):
-        update(batches[i % num_batches])
-    sync()
-    warmup_s = time.perf_counter() - start
-    updates, start = 0, time.perf_counter()
-    while True:
+    def all_batches():
         for batch in batches:
             update(batch)
-        updates += num_batches
-        sync()
-        elapsed = time.perf_counter() - start
-        if elapsed >= seconds:
-            break
-    return {"way": way, "batch_size": hp.batch_size, "warmup_s": warmup_s, "updates": updates,
-            "ms_per_update": 1000.0 * elapsed / updates}
+
+    timed = time_steps(lambda i: update(batches[i % num_batches]), warmup, all_batches, num_batches,
+                       seconds=seconds, device=device)
+    return {"way": way, "batch_size": hp.batch_size, **timed}
 
 
 def _time_cycles(learner, obs_dim: int, batches: list, hp, device, *, seconds: float, warmup: int) -> dict:
@@ -158,32 +146,43 @@ def _time_cycles(learner, obs_dim: int, batches: list, hp, device, *, seconds: f
 
     from flashnav.learn.cuda_graph import CycleUpdates
 
-    dev = torch.device(device)
     u = hp.updates_per_step
-    cycles = CycleUpdates(learner, obs_dim, 2, hp.batch_size, u, capture=dev.type == "cuda")
+    cycles = CycleUpdates(learner, obs_dim, 2, hp.batch_size, u, capture=torch.device(device).type == "cuda")
     for i in range(u):
         for dst, src in zip(cycles.batches, batches[i % len(batches)]):
             dst[i].copy_(src)
+    timed = time_steps(lambda i: cycles.run(), max(2, math.ceil(warmup / u)), cycles.run, u,
+                       seconds=seconds, device=device)
+    return {"way": "cuda-graph", "batch_size": hp.batch_size, **timed, "captured": cycles.graphs > 0}
+
+
+def time_steps(warm_step: Callable[[int], Any], warm_steps: int, step: Callable[[], Any], updates_per_step: int,
+               *, seconds: float, device, clock: Callable[[], float] = time.perf_counter) -> dict:
+    """The timing harness of every way: ``warm_step(i)`` for i < ``warm_steps`` (untimed apart), then
+    ``step()`` (``updates_per_step`` updates) again and again until at least ``seconds`` have passed,
+    the device synchronised before each reading of ``clock``.
+
+    Returns ``{"warmup_s", "updates", "ms_per_update"}``."""
+    import torch
 
     def sync():
-        if dev.type == "cuda":
-            torch.cuda.synchronize(dev)
+        if torch.device(device).type == "cuda":
+            torch.cuda.synchronize(device)
 
-    start = time.perf_counter()
-    for _ in range(max(2, math.ceil(warmup / u))):
-        cycles.run()
+    start = clock()
+    for i in range(warm_steps):
+        warm_step(i)
     sync()
-    warmup_s = time.perf_counter() - start
-    updates, start = 0, time.perf_counter()
+    warmup_s = clock() - start
+    updates, start = 0, clock()
     while True:
-        cycles.run()
-        updates += u
+        step()
+        updates += updates_per_step
         sync()
-        elapsed = time.perf_counter() - start
+        elapsed = clock() - start
         if elapsed >= seconds:
             break
-    return {"way": "cuda-graph", "batch_size": hp.batch_size, "warmup_s": warmup_s, "updates": updates,
-            "ms_per_update": 1000.0 * elapsed / updates, "captured": cycles.graphs > 0}
+    return {"warmup_s": warmup_s, "updates": updates, "ms_per_update": 1000.0 * elapsed / updates}
 
 
 def run_bench_update(args) -> int:
