@@ -117,7 +117,8 @@ def per_map_markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def markdown(docs: list[dict]) -> str:
+def markdown(summary: pd.DataFrame, maps: pd.DataFrame) -> str:
+    """The page: :func:`summary_table` and :func:`per_map_table` as Markdown, with what they mean."""
     return "\n".join([
         "# Generalisation", "",
         "Success of each policy on map suites it was not trained on (`flashnav eval POLICY --maps SUITE`): the "
@@ -125,17 +126,15 @@ def markdown(docs: list[dict]) -> str:
         "episodes; worst: the map with the lowest success. 'Beyond goal scale': maps whose diagonal exceeds the "
         "policy's goal-distance scale (its training map's diagonal), and the episodes whose goal-distance input "
         "went beyond it (passed unclipped).", "",
-        summary_markdown(summary_table(docs)), "## Success per map", "", per_map_markdown(per_map_table(docs))])
+        summary_markdown(summary), "## Success per map", "", per_map_markdown(maps)])
 
 
-def html(docs: list[dict]) -> str:
-    """A self-contained page with both tables (escaped cells)."""
-    summary = summary_table(docs)
-    for c in ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean"):
-        summary[c] = summary[c].map(_pct)
-    maps = per_map_table(docs)
-    for c in maps.columns[2:]:
-        maps[c] = maps[c].map(_pct)
+def html(summary: pd.DataFrame, maps: pd.DataFrame) -> str:
+    """A self-contained page with :func:`summary_table` and :func:`per_map_table` (escaped cells; the
+    tables given are left as they are)."""
+    summary = summary.assign(**{c: summary[c].map(_pct) for c in
+                                ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean")})
+    maps = maps.assign(**{c: maps[c].map(_pct) for c in maps.columns[2:]})
     style = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin-bottom:2em}"
              "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:nth-child(-n+2){text-align:left}")
     return ("<!doctype html><html><head><meta charset='utf-8'><title>FlashNav generalisation</title>"
@@ -149,6 +148,7 @@ def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[
     """Write generalisation.md / generalisation.csv + generalisation_maps.csv / generalisation.html (the
     formats among ``formats``) into ``out_dir``; returns {name: Path}."""
     docs = load_evals(paths)
+    summary, maps = summary_table(docs), per_map_table(docs)  # the rows, once; each format below formats them
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = {}
@@ -158,12 +158,12 @@ def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[
         written[name] = out / filename
 
     if "md" in formats:
-        put("generalisation_md", "generalisation.md", markdown(docs))
+        put("generalisation_md", "generalisation.md", markdown(summary, maps))
     if "csv" in formats:
         put("generalisation_csv", "generalisation.csv",
-            summary_table(docs).to_csv(index=False, float_format="%.4f", lineterminator="\n"))
+            summary.to_csv(index=False, float_format="%.4f", lineterminator="\n"))
         put("generalisation_maps_csv", "generalisation_maps.csv",
-            per_map_table(docs).to_csv(index=False, float_format="%.4f", lineterminator="\n"))
+            maps.to_csv(index=False, float_format="%.4f", lineterminator="\n"))
     if "html" in formats:
-        put("generalisation_html", "generalisation.html", html(docs))
+        put("generalisation_html", "generalisation.html", html(summary, maps))
     return written

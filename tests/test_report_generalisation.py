@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import json
 
+import pandas as pd
 import pytest
 
 from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, aggregate
-from services.report_generalisation import (FORMAT, KIND, load_evals, per_map_markdown, per_map_table,
-                                            summary_markdown, summary_table, write_generalisation)
+from services.report_generalisation import (FORMAT, KIND, html, load_evals, markdown, per_map_markdown,
+                                            per_map_table, summary_markdown, summary_table, write_generalisation)
 
 
 def _doc(label, suite, rates):
@@ -55,6 +56,15 @@ def test_per_map_cells_and_suite_means():
     assert rows[("real", "mean over maps")]["single"] == pytest.approx(0.75)
     md = per_map_markdown(t)
     assert "| heldout | big | 50.0 |  |" in md and "| heldout | **mean over maps** | **75.0** | **87.5** |" in md
+
+
+def test_page_formats_read_the_tables_once_built_and_leave_them_as_they_are():
+    summary, maps = summary_table(DOCS), per_map_table(DOCS)
+    page, md = html(summary, maps), markdown(summary, maps)
+    pd.testing.assert_frame_equal(summary, summary_table(DOCS))  # still fractions, for the CSV beside them
+    pd.testing.assert_frame_equal(maps, per_map_table(DOCS))
+    assert "<td>75.0</td>" in page and "<td>87.5</td>" in page  # single's mean, general's map a, in per cent
+    assert summary_markdown(summary) in md and per_map_markdown(maps) in md
 
 
 def test_files_in_every_format_and_bad_input_named(tmp_path):
