@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from flashnav.version import __version__
+
 #: Version of the exported-policy metadata (bumped when its layout changes incompatibly; new keys are
 #: added without a bump, and readers fall back to the ``preset`` block for files that lack them).
 POLICY_FORMAT_VERSION = 1
@@ -23,8 +25,6 @@ def parse_metadata(path: str | Path, text: str | bytes | None) -> dict[str, Any]
 
     Raises ValueError naming ``path`` for missing metadata, invalid JSON, no integer ``obs_dim`` or a
     format version newer than this FlashNav reads."""
-    from flashnav import __version__
-
     if not text:
         raise ValueError(f"{path}: no FlashNav metadata ({METADATA_KEY}); export it with flashnav.export.export_policy")
     try:
