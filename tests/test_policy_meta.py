@@ -29,22 +29,18 @@ def test_parse_metadata_reads_and_names_the_file_on_bad_input():
 
 
 def test_policy_meta_imports_and_checks_without_torch():
-    # a robot-side runtime reads policy metadata without torch installed: torch is blocked here
+    # a robot-side runtime reads policy metadata without torch: importing and checking must not load it
+    newer = json.dumps({"format_version": POLICY_FORMAT_VERSION + 1, "obs_dim": 3})
     code = textwrap.dedent(f"""
         import sys
-        class Block:
-            def find_spec(self, name, path=None, target=None):
-                if name == "torch" or name.startswith("torch."):
-                    raise ImportError("torch is blocked in this test")
-        sys.meta_path.insert(0, Block())
         from flashnav.policy_meta import parse_metadata
         try:
-            parse_metadata("p.pt", '{{"format_version": {POLICY_FORMAT_VERSION + 1}, "obs_dim": 3}}')
+            parse_metadata("p.pt", {newer!r})
         except ValueError as exc:
             assert "this FlashNav {__version__} reads" in str(exc), exc
         else:
             raise AssertionError("a newer format version was accepted")
-        assert "torch" not in sys.modules
+        assert "torch" not in sys.modules, "flashnav.policy_meta imported torch"
         print("ok")
     """)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
