@@ -65,6 +65,18 @@ def learner_threads(device: str = "cpu") -> int | None:
     return int(torch.get_num_threads())
 
 
+def single_threaded_numba() -> None:
+    """Numba kernels called from this thread use this thread only (``numba.set_num_threads`` is
+    thread-local): for a worker thread (the collector, the map stream) beside others that own the
+    cores. Nothing where numba is absent or its threading layer refuses."""
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
+
+
 def split_device_name(name: str | None) -> tuple[str | None, int | None]:
     """``device_name`` of either spelling -> (machine, threads parsed from it, or None).
 

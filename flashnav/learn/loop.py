@@ -35,7 +35,7 @@ from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
-from flashnav.machine import learner_threads, machine_name
+from flashnav.machine import learner_threads, machine_name, single_threaded_numba
 from flashnav.maps.stream import GeneratedMaps, MapStream, generation_radius
 from flashnav.metrics import reaches
 from flashnav.sim.env import NavVecEnv
@@ -154,7 +154,7 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
 
     def collect() -> None:
         if overlap and dev.type == "cpu":
-            _single_threaded_numba()
+            single_threaded_numba()  # the learner owns the other core
         if collector_stream is not None:
             with torch.cuda.stream(collector_stream):
                 _collect()
@@ -285,16 +285,6 @@ def _map_stream(spec: RunSpec, cycles: int) -> MapStream | None:
         NavVecEnv(spec.robot, 1, grid=grids, device="cpu", raycaster=spec.config.raycaster)
 
     return MapStream(maps, generation_radius(spec.robot), warm=warm, sets=maps.sets_needed(cycles))
-
-
-def _single_threaded_numba() -> None:
-    """In the collector thread: numba kernels use this thread only (the learner owns the other core)."""
-    try:
-        import numba
-
-        numba.set_num_threads(1)  # thread-local setting
-    except (ImportError, ValueError):
-        pass
 
 
 def _evaluate(learner: Learner, eval_env: NavVecEnv, config: TrainConfig, env_steps: int,

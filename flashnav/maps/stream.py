@@ -24,6 +24,7 @@ from pydantic import Field, field_validator
 
 from flashnav.config import KnownKeys
 from flashnav.maps.families import HELD_OUT_SEED_START, SIZE_RANGE, check_training_seed, generate_family
+from flashnav.machine import single_threaded_numba
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import MAP_FAMILIES, parse_names
 
@@ -118,7 +119,7 @@ class MapStream:
 
     def _build(self, index: int) -> tuple[OccupancyMap, ...]:
         if self._pool is not None:
-            _single_threaded_numba()
+            single_threaded_numba()  # the collector and learner own the cores
         grids = generate_set(self.maps, index, self.robot_radius)
         if self.warm is not None:
             self.warm(grids)
@@ -139,13 +140,3 @@ class MapStream:
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)  # a set being drawn finishes on its own
-
-
-def _single_threaded_numba() -> None:
-    """On the map thread: numba kernels use this thread only (the collector and learner own the cores)."""
-    try:
-        import numba
-
-        numba.set_num_threads(1)  # thread-local setting
-    except (ImportError, ValueError):
-        pass
