@@ -111,7 +111,7 @@ class NavVecEnv(VectorEnv):
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
-        k = preset.observation.scan_history  # None with 0: the paper's observation, no extra work
+        k = preset.observation.scan_history  # k = 0: no history at all, the step is exactly the paper's
         self.history = ScanHistory(n, k, preset.lidar.sectors, self.device) if k else None
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
@@ -202,7 +202,7 @@ class NavVecEnv(VectorEnv):
 
     def _observe(self, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor,
                  velocity: torch.Tensor) -> torch.Tensor:
-        """Assemble the paper's observations [n, base_obs_dim] from ranges [n, beams] and the state of n slots."""
+        """The paper's observations [n, base_obs_dim] from ranges [n, beams] and the state of n slots."""
         lidar = self.preset.lidar
         pooled = self._sensor(ranges).view(-1, lidar.sectors, lidar.beams_per_sector).amin(dim=2)
         delta = goal - pose[:, :2]
