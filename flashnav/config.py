@@ -179,6 +179,18 @@ class Agents(Strict):
         return self
 
 
+#: Largest ``observation.scan_history``: each frame adds ``lidar.sectors`` columns to every network's input.
+MAX_SCAN_HISTORY = 16
+
+
+class Observation(Strict):
+    """What the policy sees besides the paper's layout; the default is the paper's observation."""
+
+    scan_history: int = Field(0, ge=0, le=MAX_SCAN_HISTORY, description="previous pooled scans appended "
+                              "after the paper's observation, newest first (0 = the paper's observation); "
+                              "one frame per control step, a new episode starts with its first scan repeated")
+
+
 class RobotPreset(Strict):
     """One embodiment: everything the simulator needs (paper appendix B)."""
 
@@ -191,10 +203,17 @@ class RobotPreset(Strict):
     map: str = Field(description="bundled map name (flashnav/maps/data/NAME.yaml) or a ROS map YAML path")
     map_size: tuple[float, float] = Field(description="the paper's map extent (x, y), metres, for reference")
     agents: Agents = Field(default_factory=Agents, description="moving obstacles (none by default)")
+    observation: Observation = Field(default_factory=Observation, description="opt-in observation extras")
+
+    @property
+    def base_obs_dim(self) -> int:
+        """The paper's observation: sectors + goal (distance, angle) + velocity state."""
+        return self.lidar.sectors + 2 + self.motion.velocity_state_dims
 
     @property
     def obs_dim(self) -> int:
-        return self.lidar.sectors + 2 + self.motion.velocity_state_dims
+        """The paper's observation plus ``observation.scan_history`` previous frames of ``sectors`` each."""
+        return self.base_obs_dim + self.observation.scan_history * self.lidar.sectors
 
 
 class DuplicateKeyError(yaml.YAMLError):

@@ -85,6 +85,7 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
     inside the network, when known). Keys are only ever added, so older files stay readable."""
     s, lidar, m = preset.lidar.sectors, preset.lidar, preset.motion
     velocity = ["v", "w"] if m.velocity_state_dims == 2 else ["vx", "vy", "w"]
+    base, k = preset.base_obs_dim, preset.observation.scan_history
     units = {"v": "m/s", "vx": "m/s", "vy": "m/s", "w": "rad/s"}
     return {
         "format_version": POLICY_FORMAT_VERSION,
@@ -108,9 +109,14 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
             "goal_distance": {"column": s, "units": "m"},
             "goal_angle": {"column": s + 1, "units": "rad", "range": [-math.pi, math.pi],
                            "convention": "robot frame, positive = left"},
-            "velocity": {"columns": [s + 2, preset.obs_dim], "names": velocity,
+            "velocity": {"columns": [s + 2, base], "names": velocity,
                          "units": [units[v] for v in velocity],
                          "meaning": "the command executed in the last control step (0 after a reset)"},
+            # always written (0 = none), so a reader can tell a history-free policy from an old file
+            "scan_history": {"frames": k, "columns": [base, preset.obs_dim], "units": "m",
+                             "order": "frame j (0-based) is the pooled scan of j + 1 control steps ago, "
+                                      "newest first; each frame has the 'lidar' sector layout",
+                             "reset": "a new episode (goal) fills every frame with its first scan"},
         },
         "command_bounds": {"v": list(m.v_bounds), "w": list(m.w_bounds),
                            "max_linear_velocity": m.max_linear_velocity,
@@ -199,24 +205,30 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
                         goal_distance_max: float | None = None) -> torch.Tensor:
     """``[n, D]`` float32 observations spread over the valid ranges (for export checks and tests).
 
-    LiDAR readings are uniform in [inscribed radius, max range] with about a tenth exactly at each
-    end (the IPAPRec pole side and the no-return reading); goal distance in [0, goal_distance_max]
+    LiDAR readings (the current frame and any history frames) are uniform in [inscribed radius, max
+    range] with about a tenth exactly at each end (the IPAPRec pole side and the no-return reading); goal distance in [0, goal_distance_max]
     (default: the diagonal of the preset's map size), goal
     angle in [-pi, pi), velocities inside the command bounds (vy = 0 for a 3-D velocity state).
     """
     s, lidar, m = preset.lidar.sectors, preset.lidar, preset.motion
     r_in, r_max = preset.footprint.inscribed_radius, lidar.max_range
     u = lambda *shape: torch.rand(*shape, generator=generator)  # noqa: E731
-    ranges = r_in + (r_max - r_in) * u(n, s)
-    pick = u(n, s)
-    ranges = torch.where(pick < 0.1, torch.full_like(ranges, r_in), ranges)
-    ranges = torch.where(pick > 0.9, torch.full_like(ranges, r_max), ranges)
+    ranges = _readings(n, s, r_in, r_max, u)
     dist = (goal_distance_max or math.hypot(*preset.map_size)) * u(n, 1)
     angle = math.pi * (2.0 * u(n, 1) - 1.0)
     v = m.v_bounds[0] + (m.v_bounds[1] - m.v_bounds[0]) * u(n, 1)
     w = m.w_bounds[0] + (m.w_bounds[1] - m.w_bounds[0]) * u(n, 1)
     velocity = [v, w] if m.velocity_state_dims == 2 else [v, torch.zeros_like(v), w]
-    return torch.cat([ranges, dist, angle, *velocity], dim=1)
+    history = [_readings(n, s, r_in, r_max, u) for _ in range(preset.observation.scan_history)]
+    return torch.cat([ranges, dist, angle, *velocity, *history], dim=1)
+
+
+def _readings(n: int, s: int, r_in: float, r_max: float, u) -> torch.Tensor:
+    """``[n, s]`` LiDAR readings for :func:`sample_observations` from the uniform draw ``u``."""
+    ranges = r_in + (r_max - r_in) * u(n, s)
+    pick = u(n, s)
+    ranges = torch.where(pick < 0.1, torch.full_like(ranges, r_in), ranges)
+    return torch.where(pick > 0.9, torch.full_like(ranges, r_max), ranges)
 
 
 # ---- loading -------------------------------------------------------------------------------------

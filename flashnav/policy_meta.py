@@ -38,3 +38,17 @@ def parse_metadata(path: str | Path, text: str | bytes | None) -> dict[str, Any]
         raise ValueError(f"{path}: policy format version {version!r} is not supported "
                          f"(this FlashNav {__version__} reads <= {POLICY_FORMAT_VERSION})")
     return meta
+
+
+def scan_history_frames(meta: dict[str, Any], path: str | Path = "<policy>") -> int:
+    """The number of previous pooled scans k the policy's observation carries (``observation.scan_history``,
+    :mod:`flashnav.sim.history`): ``observation.scan_history.frames``, else the exported preset's
+    ``observation.scan_history``, else 0 (files written before the history existed).
+
+    Raises ValueError naming ``path`` when the recorded value is not an integer >= 0."""
+    recorded = ((meta.get("observation") or {}).get("scan_history") or {}).get("frames")
+    if recorded is None:
+        recorded = ((meta.get("preset") or {}).get("observation") or {}).get("scan_history", 0)
+    if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < 0:
+        raise ValueError(f"{path}: the policy's metadata records scan_history {recorded!r}; expected an integer >= 0")
+    return recorded

@@ -115,6 +115,7 @@ def test_this_runs_optimiser_settings_and_env_count_apply(tmp_path):
     ({"robot.lidar.max_range": 12.0}, "robot.lidar.max_range"),
     ({"robot.footprint.radius": 0.25}, "robot.footprint"),
     ({"robot.motion.v_bounds": [0.0, 0.7]}, "robot.motion.v_bounds"),
+    ({"robot.observation.scan_history": 2}, "robot.observation.scan_history"),
 ])
 def test_a_network_mismatch_is_refused_by_name(tmp_path, overrides, key):
     _, _, run = trained_checkpoint(tmp_path, updates=1)

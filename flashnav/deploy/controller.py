@@ -15,6 +15,12 @@ and the tests all drive this one state machine, so the safety behaviour is writt
 The velocity state given to the policy is the command the controller sent last (what the simulator
 calls the executed command; a stop counts as (0, 0)); a new goal starts from the robot's measured
 velocity being unknown, so from (0, 0) as in the simulator's episodes.
+
+A policy with a scan history (``observation.scan_history`` k > 0, :mod:`flashnav.sim.history`) gets the
+sectors of the k previous control steps (only the scans that ran a step count: one frame per control
+period, as one per env step in the simulator). Like the simulator's new episode, the first control
+step after a new goal - or after any stop (stale, reached), which also zeroes the velocity state -
+sees its own scan in every history frame.
 Times are seconds on one clock (ROS time: wall or simulated).
 """
 
@@ -59,6 +65,8 @@ class Controller:
         self.velocity = (0.0, 0.0)
         self.distance = math.nan
         self.last_action: list[float] | None = None
+        self.last_obs: np.ndarray | None = None  # the observation of the last control step
+        self.frames: list[np.ndarray] = []  # sectors of the previous control steps, newest first
         self.steps = 0
 
     # ---- inputs ---------------------------------------------------------------------------------
@@ -69,7 +77,7 @@ class Controller:
         if self.state == "stopped":
             return
         self.goal, self.velocity, self.last_step_stamp = (float(x), float(y)), (0.0, 0.0), -math.inf
-        self.state = "driving"
+        self.state, self.frames = "driving", []
 
     def on_odom(self, x: float, y: float, yaw: float, now: float) -> None:
         self.pose, self.odom_time = (float(x), float(y), float(yaw)), float(now)
@@ -85,9 +93,9 @@ class Controller:
         if self._stale(now):
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
-        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity)
+        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity, self._history(sectors))
         self.last_step_stamp, self.steps = float(stamp), self.steps + 1
-        self.distance = d.distance
+        self.distance, self.last_obs = d.distance, d.obs
         self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
         if d.state == "reached":
             return self._stop("reached")
@@ -110,8 +118,18 @@ class Controller:
         return (self.pose is None or now - self.scan_time > self.timeout or now - self.odom_time > self.timeout)
 
     def _stop(self, state: str) -> Command:
-        self.state, self.velocity = state, (0.0, 0.0)
+        self.state, self.velocity, self.frames = state, (0.0, 0.0), []
         return Command(0.0, 0.0, state)
+
+    def _history(self, sectors: np.ndarray) -> np.ndarray | None:
+        """The previous frames [k, S] for this control step (None without a scan history), then
+        ``sectors`` becomes the newest frame. A fresh start repeats ``sectors`` k times."""
+        k = self.rt.scan_history
+        if not k:
+            return None
+        past = self.frames or [sectors] * k
+        self.frames = [sectors, *past[:-1]]
+        return np.stack(past)
 
     def status(self, now: float) -> dict:
         """What the node publishes on its status topic (JSON)."""

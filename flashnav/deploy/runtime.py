@@ -9,7 +9,9 @@ d.state, d.v, d.w                                                               
 
 The observation is the simulator's (``flashnav/sim/env.py``): the pooled sectors, the goal distance
 (m) and angle (rad, robot frame, [-pi, pi), positive = left), then the velocity state, the command
-executed in the last control step (``(v, w)``; ``(vx, 0, w)`` for a 3-D velocity state). The network
+executed in the last control step (``(v, w)``; ``(vx, 0, w)`` for a 3-D velocity state), then, for
+a policy trained with ``observation.scan_history`` k > 0, the sectors of the k previous control steps
+(newest first; ``history`` [k, S], kept by :class:`flashnav.deploy.controller.Controller`). The network
 holds its own input scaling, so the runtime passes physical units. Inside the goal radius the runtime
 commands (0, 0) without running the network.
 """
@@ -24,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
-from flashnav.policy_meta import METADATA_KEY, parse_metadata
+from flashnav.policy_meta import METADATA_KEY, parse_metadata, scan_history_frames
 
 
 def wrap_angle(a: float) -> float:
@@ -78,9 +80,11 @@ class PolicyRuntime:
         self.control_period = float(meta.get("control_period_s", episode.get("dt", 0.0)))
         if not self.goal_threshold > 0 or not self.control_period > 0:
             raise ValueError(f"{path}: the policy's metadata lacks goal_threshold / control_period_s")
-        self.velocity_dims = self.obs_dim - self.layout.sectors - 2
+        self.scan_history = scan_history_frames(meta, path)  # k previous frames after the paper's layout
+        self.velocity_dims = self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
         if self.velocity_dims not in (2, 3):
-            raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + velocity")
+            raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + "
+                             f"velocity + {self.scan_history} history frames")
         bounds = meta.get("command_bounds") or {}
         self.v_limit = float(bounds.get("max_linear_velocity", math.inf))
         self.w_limit = float(bounds.get("max_angular_velocity", math.inf))
@@ -122,15 +126,26 @@ class PolicyRuntime:
         dx, dy = float(goal[0]) - float(pose[0]), float(goal[1]) - float(pose[1])
         return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - float(pose[2]))
 
-    def observation(self, sectors, pose, goal, velocity) -> np.ndarray:
-        """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed."""
+    def observation(self, sectors, pose, goal, velocity, history=None) -> np.ndarray:
+        """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed,
+        then ``history`` [k, S] m (the sectors of the k previous control steps, newest first; None
+        when the policy has no scan history)."""
         sectors = np.asarray(sectors, np.float32).reshape(-1)
         if sectors.size != self.layout.sectors:
             raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
         dist, angle = self.goal_in_robot_frame(pose, goal)
         v, w = float(velocity[0]), float(velocity[1])
         vel = [v, w] if self.velocity_dims == 2 else [v, 0.0, w]
-        return np.concatenate([sectors, np.array([dist, angle, *vel], np.float32)])
+        parts = [sectors, np.array([dist, angle, *vel], np.float32)]
+        want = (self.scan_history, self.layout.sectors)
+        if history is not None or self.scan_history:
+            past = np.asarray(history, np.float32) if history is not None else None
+            if past is None or past.shape != want:
+                got = None if past is None else list(past.shape)
+                raise ValueError(f"history must be [{want[0]}, {want[1]}] (the policy's scan_history frames "
+                                 f"of sectors, newest first), got {got}")
+            parts.append(past.reshape(-1))
+        return np.concatenate(parts)
 
     # ---- the command ----------------------------------------------------------------------------
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -144,9 +159,10 @@ class PolicyRuntime:
         w = min(max(float(command[0, 1]), -self.w_limit), self.w_limit)
         return action[0], v, w
 
-    def decide(self, sectors, pose, goal, velocity) -> Decision:
-        """One control step: stop inside the goal radius, else the policy's command."""
-        obs = self.observation(sectors, pose, goal, velocity)
+    def decide(self, sectors, pose, goal, velocity, history=None) -> Decision:
+        """One control step: stop inside the goal radius, else the policy's command (``history`` as
+        in :meth:`observation`)."""
+        obs = self.observation(sectors, pose, goal, velocity, history)
         dist, angle = float(obs[self.layout.sectors]), float(obs[self.layout.sectors + 1])
         if dist < self.goal_threshold:
             return Decision("reached", 0.0, 0.0, dist, angle, None, obs)

@@ -3,7 +3,9 @@
 Observation layout (raw physical units, from the simulator), ``obs [N, D] float32``:
 columns ``0..S-1`` pooled LiDAR sector minima (metres, ``(0, max_range]``), ``S`` goal distance
 (metres), ``S+1`` goal angle in the robot frame (radians, ``[-pi, pi)``), then the velocity state
-(``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5). Actions are ``[N, A]`` in ``[-1, 1]``.
+(``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5); with a scan history of k frames
+(:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans newest first.
+Actions are ``[N, A]`` in ``[-1, 1]``.
 
 Every network owns its input transform: LiDAR readings become ``1 / (l - beta)`` with a trainable
 ``beta = r_in - margin - softplus(rho)`` that always stays below the inscribed radius ``r_in``; the
@@ -42,6 +44,7 @@ class ObsLayout:
     ``max_range``: LiDAR maximum range, metres.
     ``goal_scale``: ``(distance, angle)`` divisors, metres and radians (a float = distance, angle pi).
     ``velocity_scales``: one divisor per velocity column (m/s or rad/s), e.g. ``(0.5, pi/4)``.
+    ``scan_history``: previous pooled scans k after those columns (k * S more LiDAR columns; 0 = none).
     """
 
     sectors: int
@@ -49,6 +52,7 @@ class ObsLayout:
     max_range: float
     goal_scale: tuple[float, float]
     velocity_scales: tuple[float, ...]
+    scan_history: int = 0
 
     def __post_init__(self) -> None:
         goal = self.goal_scale
@@ -64,11 +68,18 @@ class ObsLayout:
             raise ValueError(f"inscribed_radius {self.inscribed_radius} m is too small for beta init {BETA_INIT}")
         if min(self.goal_scale) <= 0 or any(v <= 0 for v in self.velocity_scales):
             raise ValueError("ObsLayout scales must all be > 0")
+        if not isinstance(self.scan_history, int) or self.scan_history < 0:
+            raise ValueError(f"ObsLayout.scan_history must be an integer >= 0, got {self.scan_history!r}")
+
+    @property
+    def base_dim(self) -> int:
+        """B = sectors + 2 goal features + velocity features: the paper's observation."""
+        return self.sectors + 2 + len(self.velocity_scales)
 
     @property
     def obs_dim(self) -> int:
-        """D = sectors + 2 goal features + velocity features."""
-        return self.sectors + 2 + len(self.velocity_scales)
+        """D = B + scan_history * sectors."""
+        return self.base_dim + self.scan_history * self.sectors
 
     def feature_scales(self) -> torch.Tensor:
         """``[D - S]`` divisors for the non-LiDAR columns (goal distance, angle, velocities)."""
@@ -88,7 +99,7 @@ class ObsLayout:
         velocity = (v_max, w_max) if preset.motion.velocity_state_dims == 2 else (v_max, v_max, w_max)
         return cls(sectors=preset.lidar.sectors, inscribed_radius=preset.footprint.inscribed_radius,
                    max_range=preset.lidar.max_range, goal_scale=(float(goal_distance_max), math.pi),
-                   velocity_scales=velocity)
+                   velocity_scales=velocity, scan_history=preset.observation.scan_history)
 
 
 class IPAPRec(nn.Module):
@@ -100,6 +111,9 @@ class IPAPRec(nn.Module):
     observation can read inside the footprint, and must not reach the pole of the reciprocal.
     ``normalize``: the features are then centred and scaled by running statistics (buffers, updated
     only by :meth:`update_stats`), like the reference code's empirical observation normaliser.
+    History frames (columns from ``layout.base_dim`` on) get the same ``1 / (l - beta)`` with the same
+    beta: one reading means the same distance whenever it was taken, and sharing keeps one parameter
+    per transform. The output keeps the input's column order.
     """
 
     def __init__(self, layout: ObsLayout, copies: int = 0, normalize: bool = False):
@@ -108,6 +122,8 @@ class IPAPRec(nn.Module):
         self.r_in = float(layout.inscribed_radius)
         self.max_range = float(layout.max_range)
         self.copies = copies
+        self.base_dim = layout.base_dim
+        self.history = layout.obs_dim > layout.base_dim  # a Python bool: tracing records one path
         # softplus(rho0) = r_in - margin - BETA_INIT puts beta at BETA_INIT
         gap = self.r_in - BETA_MARGIN - BETA_INIT
         rho0 = gap + math.log(-math.expm1(-gap))
@@ -149,16 +165,25 @@ class IPAPRec(nn.Module):
 
     def features(self, obs: torch.Tensor, detach_rho: bool = False) -> torch.Tensor:
         """The transform before any normalisation: LiDAR ``1 / (l - beta)``, the rest / bounds."""
-        lidar = obs[..., : self.sectors].clamp(min=self.r_in, max=self.max_range)
-        rest = obs[..., self.sectors:] * self.inv_scale
         beta = self.beta(detach_rho)
         if self.copies > 0:
             beta = beta.view(-1, 1, 1)
-            inv = torch.reciprocal(lidar.unsqueeze(0) - beta)
-            rest = rest.unsqueeze(0).expand(self.copies, -1, -1)
-        else:
-            inv = torch.reciprocal(lidar - beta)
-        return torch.cat([inv, rest], dim=-1)
+        if not self.history:
+            return torch.cat([self._reciprocal(obs[..., : self.sectors], beta),
+                              self._scaled(obs[..., self.sectors:])], dim=-1)
+        return torch.cat([self._reciprocal(obs[..., : self.sectors], beta),
+                          self._scaled(obs[..., self.sectors: self.base_dim]),
+                          self._reciprocal(obs[..., self.base_dim:], beta)], dim=-1)
+
+    def _reciprocal(self, lidar: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
+        """LiDAR columns ``[B, L]`` -> ``1 / (clamp(l) - beta)``, ``[B, L]`` or ``[C, B, L]``."""
+        lidar = lidar.clamp(min=self.r_in, max=self.max_range)
+        return torch.reciprocal((lidar.unsqueeze(0) if self.copies > 0 else lidar) - beta)
+
+    def _scaled(self, rest: torch.Tensor) -> torch.Tensor:
+        """Goal and velocity columns divided by their bounds, expanded over copies."""
+        rest = rest * self.inv_scale
+        return rest.unsqueeze(0).expand(self.copies, -1, -1) if self.copies > 0 else rest
 
 
 def _uniform_(tensor: torch.Tensor, fan_in: int, generator: torch.Generator | None) -> None:

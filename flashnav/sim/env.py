@@ -16,6 +16,8 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     S + 1       goal angle in the robot frame, radians, wrapped to [-pi, pi) (positive = to the left)
     S + 2 ...   velocity state: (v, w) for 2 dims; (vx, vy, w) for 3 dims (vy = 0 for diff-drive);
                 m/s and rad/s, the command executed in the last step (0 after a reset)
+    then, only with ``observation.scan_history`` k > 0, the k previous pooled scans, newest first
+    (:mod:`flashnav.sim.history`; a new episode starts with its first scan repeated); obs_dim += k S
 
 Rewards: goal reached (distance < goal_threshold) -> +goal, terminated; else collision -> collision,
 terminated (the goal is checked first, as the paper lists it); else progress * (d_old - d_new).
@@ -54,6 +56,7 @@ from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
+from flashnav.sim.history import ScanHistory
 from flashnav.sim.inputs import as_batch, check_finite
 from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
                                   sim_frame)
@@ -108,6 +111,8 @@ class NavVecEnv(VectorEnv):
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
+        k = preset.observation.scan_history  # k = 0: no history at all, the step is exactly the paper's
+        self.history = ScanHistory(n, k, preset.lidar.sectors, self.device) if k else None
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
@@ -161,7 +166,8 @@ class NavVecEnv(VectorEnv):
             [v_lo, 0.0, w_lo], [v_hi, 0.0, w_hi])
         low = np.array([0.0] * s + [0.0, -math.pi] + vel_lo, dtype=np.float32)
         high = np.array([p.lidar.max_range] * s + [self.goal_distance_max, math.pi] + vel_hi, dtype=np.float32)
-        return low, high
+        k = p.observation.scan_history  # history frames: the LiDAR bounds again
+        return np.concatenate([low, np.tile(low[:s], k)]), np.concatenate([high, np.tile(high[:s], k)])
 
     # ---- observation ------------------------------------------------------------------------------
     def scan(self) -> torch.Tensor:
@@ -196,7 +202,7 @@ class NavVecEnv(VectorEnv):
 
     def _observe(self, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor,
                  velocity: torch.Tensor) -> torch.Tensor:
-        """Assemble observations [n, obs_dim] from ranges [n, beams] and the state of n slots."""
+        """The paper's observations [n, base_obs_dim] from ranges [n, beams] and the state of n slots."""
         lidar = self.preset.lidar
         pooled = self._sensor(ranges).view(-1, lidar.sectors, lidar.beams_per_sector).amin(dim=2)
         delta = goal - pose[:, :2]
@@ -229,7 +235,8 @@ class NavVecEnv(VectorEnv):
         self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
         if self.agents is not None:  # the slots' agents start with their episodes, on the slots' maps
             self.agents.reset(idx, pose, goal, self._gen, self._maps_of(idx))
-        self.obs[idx] = self._observe(self._scan(pose, idx), pose, goal, zeros)
+        obs = self._observe(self._scan(pose, idx), pose, goal, zeros)
+        self.obs[idx] = obs if self.history is None else self.history.start(idx, obs)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Reset all slots, or only ``options["reset_mask"]`` ([N] bool). ``seed`` reseeds the
@@ -362,6 +369,8 @@ class NavVecEnv(VectorEnv):
         reward = torch.where(success, p.reward.goal, torch.where(collision, p.reward.collision, progress))
         episode_return = self.episode_return[sel] + reward
         obs = self._observe(ranges, pose, goal, velocity)
+        if self.history is not None:  # the frames before this step, then this scan joins them
+            obs = self.history.push(sel, obs)
 
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs
