@@ -143,6 +143,11 @@ class Reward(Strict):
     goal: float = Field(description="terminal reward on reaching the goal")
     collision: float = Field(description="terminal reward on collision")
     progress: float = Field(description="coefficient c1 of the shaping term c1 * (d_old - d_new)")
+    agent_proximity: float = Field(0.0, ge=0, description="with agents: penalty per step and metre by which the "
+                                   "robot is nearer an agent than agent_proximity_distance (0 = off, the paper's "
+                                   "reward)")
+    agent_proximity_distance: float = Field(0.5, gt=0, description="metres of gap (footprint to agent disc) "
+                                            "below which agent_proximity applies")
 
 
 class Agents(Strict):

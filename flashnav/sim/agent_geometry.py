@@ -76,3 +76,23 @@ def footprint_hits_discs(pose: torch.Tensor, footprint: Footprint, centres: torc
         gy = (ly.abs() - 0.5 * footprint.width).clamp(min=0.0)
         touch = gx * gx + gy * gy < r * r
     return (touch & active).any(dim=1)
+
+
+def footprint_disc_gap(pose: torch.Tensor, footprint: Footprint, centres: torch.Tensor, radii: torch.Tensor,
+                       active: torch.Tensor) -> torch.Tensor:
+    """[n] float32: the smallest gap (m) between the footprint at ``pose`` [n, 3] and an active disc
+    (arguments as :func:`footprint_hits_discs`); 0 where they overlap, inf where no disc is active."""
+    p = pose.double()
+    ddx = centres[..., 0].double() - p[:, 0:1]  # [n, K]
+    ddy = centres[..., 1].double() - p[:, 1:2]
+    if footprint.kind == "disc":
+        gap = torch.sqrt(ddx * ddx + ddy * ddy) - footprint.radius
+    else:
+        c, s = torch.cos(p[:, 2:3]), torch.sin(p[:, 2:3])
+        lx, ly = ddx * c + ddy * s, ddy * c - ddx * s  # the disc centre in the robot's frame
+        gx = (lx.abs() - 0.5 * footprint.length).clamp(min=0.0)
+        gy = (ly.abs() - 0.5 * footprint.width).clamp(min=0.0)
+        gap = torch.sqrt(gx * gx + gy * gy)
+    gap = (gap - radii.double()).clamp(min=0.0)
+    gap = torch.where(active, gap, torch.full_like(gap, float("inf")))
+    return gap.min(dim=1).values.float()

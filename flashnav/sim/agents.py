@@ -41,7 +41,7 @@ from flashnav.maps.fields import PAD, safe_field
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import AGENT_BEHAVIOURS
 from flashnav.sim.agent_draws import coarse_first, hash_uniform
-from flashnav.sim.agent_geometry import footprint_hits_discs, ray_disc_ranges
+from flashnav.sim.agent_geometry import footprint_disc_gap, footprint_hits_discs, ray_disc_ranges
 
 WAYPOINTS, BOUNCE, CROSSING = (AGENT_BEHAVIOURS.index(b) for b in ("waypoints", "bounce", "crossing"))
 SPAWN_CANDIDATES = 16  # random places tried per new agent
@@ -388,6 +388,11 @@ class AgentWorld:
     def collides(self, pose: torch.Tensor, sel) -> torch.Tensor:
         """[k] bool: the robot's footprint at ``pose`` [k, 3] overlaps an active agent of slots ``sel``."""
         return footprint_hits_discs(pose, self.preset.footprint, self.pos[sel], self.radius[sel], self.active[sel])
+
+    def gap(self, pose: torch.Tensor, sel) -> torch.Tensor:
+        """[k] m: the smallest gap between the robot's footprint at ``pose`` [k, 3] and an active agent of
+        slots ``sel`` (0 on contact, inf with none active)."""
+        return footprint_disc_gap(pose, self.preset.footprint, self.pos[sel], self.radius[sel], self.active[sel])
 
 
 def _first(cand, ok: torch.Tensor):

@@ -366,6 +366,9 @@ class NavVecEnv(VectorEnv):
         terminated = success | collision
         truncated = (steps >= p.episode.horizon) & ~terminated
         progress = p.reward.progress * (self.goal_distance[sel] - dist)
+        if self.agents is not None and p.reward.agent_proximity > 0:  # off by default: the paper's reward
+            near = (p.reward.agent_proximity_distance - self.agents.gap(pose, sel)).clamp(min=0.0)
+            progress = progress - p.reward.agent_proximity * near
         reward = torch.where(success, p.reward.goal, torch.where(collision, p.reward.collision, progress))
         episode_return = self.episode_return[sel] + reward
         obs = self._observe(ranges, pose, goal, velocity)
