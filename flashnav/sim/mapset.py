@@ -119,18 +119,12 @@ def check_map_scale(grid: OccupancyMap, preset) -> None:
                          f"{cells:.3g} cells (limit {grid_module.MAX_CELLS})")
 
 
-def sample_on_maps(samplers: Sequence, draw: MapDraw, n: int,
+def sample_on_maps(sampler, draw: MapDraw, n: int,
                    gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """New episodes for ``n`` resetting slots of a many-map env: each slot draws its map (``draw``),
-    then each map's sampler serves its group of slots, in map order. Returns ``map_index [n]`` (long),
+    then ``sampler`` (a :class:`flashnav.sim.sampling.MapSetSampler` over all the maps) draws every
+    slot's episode on its map in one batch, without a host sync. Returns ``map_index [n]`` (long),
     ``pose [n, 3]`` and ``goal [n, 2]`` in each map's own frame."""
     maps = draw(n, gen)
-    device = maps.device
-    pose = torch.empty(n, 3, device=device)
-    goal = torch.empty(n, 2, device=device)
-    counts = torch.bincount(maps, minlength=len(samplers)).tolist()  # one host sync per reset
-    for m, count in enumerate(counts):
-        if count:
-            group = (maps == m).nonzero().squeeze(1)
-            pose[group], goal[group] = samplers[m].sample(count, gen)
+    pose, goal = sampler.sample(maps, gen)
     return maps, pose, goal
