@@ -44,6 +44,30 @@ def pack(arrays: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return flat, offsets
 
 
+def map_table(grids: Sequence[OccupancyMap], device: torch.device | str, pad: int,
+              dtype: torch.dtype = torch.float64) -> dict[str, torch.Tensor]:
+    """The [M] per-map values that the many-map kernels gather per slot (raycasters, collision,
+    agents): ``ox``, ``oy`` (origin), ``res``, ``inv`` (1 / res, divided in float64), ``xmax``, ``ymax``
+    (upper bounds), metres, in ``dtype``; ``h``, ``w`` (shape) and ``hp``, ``wp`` (shape padded by
+    ``pad`` cells on each side), cells, long. Built in float64 and then cast, so each float32 value
+    is the nearest to the map's (as the single-map ops' Python numbers give)."""
+    f64 = dict(device=device, dtype=torch.float64)
+    long = dict(device=device, dtype=torch.long)
+    floats = {
+        "ox": torch.tensor([g.origin[0] for g in grids], **f64),
+        "oy": torch.tensor([g.origin[1] for g in grids], **f64),
+        "res": torch.tensor([g.resolution for g in grids], **f64),
+        "inv": torch.tensor([1.0 / g.resolution for g in grids], **f64),
+        "xmax": torch.tensor([g.bounds[2] for g in grids], **f64),
+        "ymax": torch.tensor([g.bounds[3] for g in grids], **f64),
+    }
+    table = {key: value.to(dtype) for key, value in floats.items()}
+    table["h"] = torch.tensor([g.shape[0] for g in grids], **long)
+    table["w"] = torch.tensor([g.shape[1] for g in grids], **long)
+    table["hp"], table["wp"] = table["h"] + 2 * pad, table["w"] + 2 * pad
+    return table
+
+
 def check_map_index(map_index, n: int, num_maps: int, device: torch.device) -> torch.Tensor:
     """``map_index`` as a [n] long tensor on ``device``; a ValueError for another shape or dtype, and
     (on the CPU, where it costs no device sync) for an index outside [0, num_maps)."""
