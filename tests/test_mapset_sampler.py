@@ -192,3 +192,16 @@ def test_many_map_env_resets_through_the_batched_sampler(euclid_maps):
         a = cells(g, env.pose[sel, :2].double().numpy())
         b = cells(g, env.goal[sel].double().numpy())
         assert (labels.reshape(-1)[a] > 0).all() and (labels.reshape(-1)[a] == labels.reshape(-1)[b]).all()
+
+
+@pytest.mark.parametrize("mode", ["euclidean", "geodesic"])
+def test_per_map_samplers_draw_the_same_episodes_once_their_tables_are_shared(euclid_maps, mode):
+    # eval_maps' fixed episodes come from the per-map samplers: viewing their tables inside the
+    # concatenated ones must leave their draws bit for bit as they were
+    samplers = per_map_samplers(euclid_maps[1:4], robot(mode))
+    before = [s.sample(300, torch.Generator().manual_seed(m)) for m, s in enumerate(samplers)]
+    batched = MapSetSampler(samplers)
+    for m, s in enumerate(samplers):
+        pose, goal = s.sample(300, torch.Generator().manual_seed(m))
+        assert torch.equal(pose, before[m][0]) and torch.equal(goal, before[m][1])
+        assert s.centres.untyped_storage().data_ptr() == batched.centres.untyped_storage().data_ptr()
