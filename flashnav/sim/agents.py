@@ -42,6 +42,7 @@ from flashnav.maps.grid import OccupancyMap
 from flashnav.names import AGENT_BEHAVIOURS
 from flashnav.sim.agent_draws import coarse_first, hash_uniform
 from flashnav.sim.agent_geometry import footprint_disc_gap, footprint_hits_discs, ray_disc_ranges
+from flashnav.sim.mapset import map_table
 
 WAYPOINTS, BOUNCE, CROSSING = (AGENT_BEHAVIOURS.index(b) for b in ("waypoints", "bounce", "crossing"))
 SPAWN_CANDIDATES = 16  # random places tried per new agent
@@ -112,13 +113,12 @@ class AgentWorld:
             first.append(sum(len(c) for c in cells))
             count.append(rows.size)
             cells.append(np.stack([g.origin[0] + cols * g.resolution, g.origin[1] + rows * g.resolution], axis=1))
-        dev, f64 = self.device, dict(device=self.device, dtype=torch.float64)
+        dev = self.device
         self._clear = torch.from_numpy(np.concatenate(flats)).to(dev)
         self._offset = torch.tensor(offsets, dtype=torch.long, device=dev)
-        self._wp = torch.tensor([g.shape[1] + 2 * PAD for g in grids], dtype=torch.long, device=dev)
-        self._hp = torch.tensor([g.shape[0] + 2 * PAD for g in grids], dtype=torch.long, device=dev)
-        self._origin = torch.tensor([g.origin for g in grids], **f64)
-        self._res = torch.tensor([g.resolution for g in grids], **f64)
+        table = map_table(grids, dev, PAD)
+        self._wp, self._hp, self._res = table["wp"], table["hp"], table["res"]
+        self._origin = torch.stack([table["ox"], table["oy"]], dim=1)  # [M, 2]
         self._cells = torch.from_numpy(np.concatenate(cells)).to(dev)  # [C, 2] lower-left corners, m
         self._cell_first = torch.tensor(first, dtype=torch.long, device=dev)
         self._cell_count = torch.tensor(count, dtype=torch.long, device=dev)

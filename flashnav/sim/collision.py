@@ -34,7 +34,7 @@ import torch
 from flashnav.config import Footprint
 from flashnav.maps.fields import PAD, clear_cells
 from flashnav.maps.grid import OccupancyMap
-from flashnav.sim.mapset import as_grids, check_map_index, pack
+from flashnav.sim.mapset import as_grids, check_map_index, map_table, pack
 
 
 class CollisionChecker:
@@ -68,20 +68,11 @@ class CollisionChecker:
         # one map: Python numbers (the single-map ops, unchanged); several: [M] values gathered per pose
         self._maps = None
         if len(self.grids) > 1:
-            f64 = dict(device=self.device, dtype=torch.float64)
-            long = dict(device=self.device, dtype=torch.long)
-            self._maps = {
-                "ox": torch.tensor([m.origin[0] for m in self.grids], **f64),
-                "oy": torch.tensor([m.origin[1] for m in self.grids], **f64),
-                "res": torch.tensor([m.resolution for m in self.grids], **f64),
-                "xmax": torch.tensor([m.bounds[2] for m in self.grids], **f64),
-                "ymax": torch.tensor([m.bounds[3] for m in self.grids], **f64),
-                "h": torch.tensor([m.shape[0] for m in self.grids], **long),
-                "w": torch.tensor([m.shape[1] for m in self.grids], **long),
-                "occ_base": torch.as_tensor(occ_base, **long),
-            }
+            table = map_table(self.grids, self.device, self._pad)
+            self._maps = {key: table[key] for key in ("ox", "oy", "res", "xmax", "ymax", "h", "w")}
+            self._maps["occ_base"] = torch.as_tensor(occ_base, device=self.device, dtype=torch.long)
             if self.prefilter:
-                self._maps["clear_base"] = torch.as_tensor(clear_base, **long)
+                self._maps["clear_base"] = torch.as_tensor(clear_base, device=self.device, dtype=torch.long)
 
     def _geometry(self, map_index: torch.Tensor | None) -> dict:
         """Each pose's map: origin, resolution, upper bounds (m), shape (cells), padded width and

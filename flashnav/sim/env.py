@@ -62,7 +62,7 @@ from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_s
                                   sim_frame)
 from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
 from flashnav.sim.raycast import make_raycaster
-from flashnav.sim.sampling import EpisodeSampler
+from flashnav.sim.sampling import EpisodeSampler, MapSetSampler
 
 def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
     """[beams] float32 radians relative to the heading: bin centres across the field of view, from
@@ -135,6 +135,7 @@ class NavVecEnv(VectorEnv):
         self._collides = make_collision_checker(preset.footprint, geometry, self.device)
         self.samplers = [EpisodeSampler(g, preset, self.device) for g in self.frame_maps]
         self.sampler = self.samplers[0]
+        self._map_sampler = MapSetSampler(self.samplers) if len(self.maps) > 1 else None
         self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
         self.goal_distance_max = max(g.diagonal_m for g in self.maps)
         # moving agents (issue 13): None with agents.count 0, and then every step is exactly the static one;
@@ -215,14 +216,14 @@ class NavVecEnv(VectorEnv):
     # ---- episode control --------------------------------------------------------------------------
     def _reset_slots(self, idx: torch.Tensor) -> None:
         """Start new episodes in slots ``idx`` [k] (long); every other slot is left untouched. With
-        several maps each slot first draws its map; each map's sampler then serves its group."""
+        several maps each slot first draws its map, then one batched sampler serves all of them."""
         if idx.numel() == 0:
             return
         if len(self.maps) == 1:
             pose, goal = self.sampler.sample(idx.numel(), self._gen)
             self._place(idx, pose, goal)
             return
-        self.map_index[idx], pose, goal = sample_on_maps(self.samplers, self._draw_map, idx.numel(), self._gen)
+        self.map_index[idx], pose, goal = sample_on_maps(self._map_sampler, self._draw_map, idx.numel(), self._gen)
         self._place(idx, pose, goal)
 
     def _place(self, idx: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor) -> None:

@@ -44,6 +44,30 @@ def pack(arrays: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return flat, offsets
 
 
+def map_table(grids: Sequence[OccupancyMap], device: torch.device | str, pad: int,
+              dtype: torch.dtype = torch.float64) -> dict[str, torch.Tensor]:
+    """The [M] per-map values that the many-map kernels gather per slot (raycasters, collision,
+    agents): ``ox``, ``oy`` (origin), ``res``, ``inv`` (1 / res, divided in float64), ``xmax``, ``ymax``
+    (upper bounds), metres, in ``dtype``; ``h``, ``w`` (shape) and ``hp``, ``wp`` (shape padded by
+    ``pad`` cells on each side), cells, long. Built in float64 and then cast, so each float32 value
+    is the nearest to the map's (as the single-map ops' Python numbers give)."""
+    f64 = dict(device=device, dtype=torch.float64)
+    long = dict(device=device, dtype=torch.long)
+    floats = {
+        "ox": torch.tensor([g.origin[0] for g in grids], **f64),
+        "oy": torch.tensor([g.origin[1] for g in grids], **f64),
+        "res": torch.tensor([g.resolution for g in grids], **f64),
+        "inv": torch.tensor([1.0 / g.resolution for g in grids], **f64),
+        "xmax": torch.tensor([g.bounds[2] for g in grids], **f64),
+        "ymax": torch.tensor([g.bounds[3] for g in grids], **f64),
+    }
+    table = {key: value.to(dtype) for key, value in floats.items()}
+    table["h"] = torch.tensor([g.shape[0] for g in grids], **long)
+    table["w"] = torch.tensor([g.shape[1] for g in grids], **long)
+    table["hp"], table["wp"] = table["h"] + 2 * pad, table["w"] + 2 * pad
+    return table
+
+
 def check_map_index(map_index, n: int, num_maps: int, device: torch.device) -> torch.Tensor:
     """``map_index`` as a [n] long tensor on ``device``; a ValueError for another shape or dtype, and
     (on the CPU, where it costs no device sync) for an index outside [0, num_maps)."""
@@ -119,18 +143,12 @@ def check_map_scale(grid: OccupancyMap, preset) -> None:
                          f"{cells:.3g} cells (limit {grid_module.MAX_CELLS})")
 
 
-def sample_on_maps(samplers: Sequence, draw: MapDraw, n: int,
+def sample_on_maps(sampler, draw: MapDraw, n: int,
                    gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """New episodes for ``n`` resetting slots of a many-map env: each slot draws its map (``draw``),
-    then each map's sampler serves its group of slots, in map order. Returns ``map_index [n]`` (long),
+    then ``sampler`` (a :class:`flashnav.sim.sampling.MapSetSampler` over all the maps) draws every
+    slot's episode on its map in one batch, without a host sync. Returns ``map_index [n]`` (long),
     ``pose [n, 3]`` and ``goal [n, 2]`` in each map's own frame."""
     maps = draw(n, gen)
-    device = maps.device
-    pose = torch.empty(n, 3, device=device)
-    goal = torch.empty(n, 2, device=device)
-    counts = torch.bincount(maps, minlength=len(samplers)).tolist()  # one host sync per reset
-    for m, count in enumerate(counts):
-        if count:
-            group = (maps == m).nonzero().squeeze(1)
-            pose[group], goal[group] = samplers[m].sample(count, gen)
+    pose, goal = sampler.sample(maps, gen)
     return maps, pose, goal

@@ -40,7 +40,7 @@ from flashnav.maps.fields import cone_field, safe_field
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import RAYCASTERS  # defined once; re-exported here
 from flashnav.sim import raycast_torch
-from flashnav.sim.mapset import pack
+from flashnav.sim.mapset import map_table, pack
 from flashnav.sim.raycast_base import JUMP_MIN_CELLS, PAD, Raycaster
 
 __all__ = ["RAYCASTERS", "NumbaExactRaycaster", "Raycaster", "error_stats", "make_raycaster",
@@ -60,13 +60,10 @@ class NumbaExactRaycaster(Raycaster):
         self._kernel = raycast_numba.cast_exact
         fields = [cone_field(g, PAD) for g in self.grids]
         self._field, self._base0 = pack(fields)
-        i64 = lambda values: np.array(values, dtype=np.int64)  # noqa: E731
-        f64 = lambda values: np.array(values, dtype=np.float64)  # noqa: E731
-        self._sectors = i64([f.shape[0] for f in fields])
-        self._hs, self._ws = i64([g.shape[0] for g in self.grids]), i64([g.shape[1] for g in self.grids])
-        self._hps, self._wps = i64([f.shape[1] for f in fields]), i64([f.shape[2] for f in fields])
-        self._ox, self._oy = f64([g.origin[0] for g in self.grids]), f64([g.origin[1] for g in self.grids])
-        self._res = f64([g.resolution for g in self.grids])
+        self._sectors = np.array([f.shape[0] for f in fields], dtype=np.int64)
+        table = {key: value.numpy() for key, value in map_table(self.grids, "cpu", PAD).items()}  # int64 / float64
+        self._hs, self._ws, self._hps, self._wps = table["h"], table["w"], table["hp"], table["wp"]
+        self._ox, self._oy, self._res = table["ox"], table["oy"], table["res"]
         # map_index and cast order of a single map, grown on demand
         self._zeros, self._order = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         a = self.beam_angles.cpu().double().numpy()

@@ -23,7 +23,7 @@ import math
 import torch
 
 from flashnav.maps.fields import cone_field
-from flashnav.sim.mapset import pack
+from flashnav.sim.mapset import map_table, pack
 from flashnav.sim.raycast_base import AXIS_SNAP, DELTA, EPS, PAD, Raycaster
 
 #: A round costs a few dozen tensor ops whatever it does, so jump wherever the field allows a cell
@@ -230,19 +230,10 @@ def _clamp(index: torch.Tensor, high):
 def _per_map(grids, device, *, sectors, cone_base, occ_base) -> dict[str, torch.Tensor]:
     """[M] tensors of each map's values, gathered per env by the multi-map raycasters."""
     long = dict(device=device, dtype=torch.long)
-    f64 = dict(device=device, dtype=torch.float64)
-    return {
-        "h": torch.tensor([g.shape[0] for g in grids], **long),
-        "w": torch.tensor([g.shape[1] for g in grids], **long),
-        "hp": torch.tensor([g.shape[0] + 2 * PAD for g in grids], **long),
-        "wp": torch.tensor([g.shape[1] + 2 * PAD for g in grids], **long),
-        "sectors": torch.tensor(sectors, **long),
-        "cone_base": torch.as_tensor(cone_base, **long),
-        "occ_base": torch.as_tensor(occ_base, **long),
-        "ox": torch.tensor([g.origin[0] for g in grids], **f64),
-        "oy": torch.tensor([g.origin[1] for g in grids], **f64),
-        "res": torch.tensor([g.resolution for g in grids], **f64),
-    }
+    table = map_table(grids, device, PAD)
+    return {**{key: table[key] for key in ("h", "w", "hp", "wp", "ox", "oy", "res")},
+            "sectors": torch.tensor(sectors, **long), "cone_base": torch.as_tensor(cone_base, **long),
+            "occ_base": torch.as_tensor(occ_base, **long)}
 
 
 class MarchRaycaster(Raycaster):
@@ -266,14 +257,11 @@ class MarchRaycaster(Raycaster):
         self._flat = torch.from_numpy(occ.copy()).to(self.device)
         self._hp, self._wp = self.grid.shape[0] + 2, self.grid.shape[1] + 2
         # [M] per map, gathered per ray; float32 as the single-map ops' Python numbers act on float32
-        f32 = dict(device=self.device, dtype=torch.float32)
-        self._maps = None if len(self.grids) == 1 else {
-            "ox": torch.tensor([g.origin[0] for g in self.grids], **f32),
-            "oy": torch.tensor([g.origin[1] for g in self.grids], **f32),
-            "inv": torch.tensor([1.0 / g.resolution for g in self.grids], **f32),
-            "hp": torch.tensor([g.shape[0] + 2 for g in self.grids], **f32),
-            "wp": torch.tensor([g.shape[1] + 2 for g in self.grids], **f32),
-            "base": torch.as_tensor(occ_base, device=self.device, dtype=torch.long)}
+        self._maps = None
+        if len(self.grids) > 1:
+            table = map_table(self.grids, self.device, 1, torch.float32)
+            self._maps = {key: table[key].float() for key in ("ox", "oy", "inv", "hp", "wp")}
+            self._maps["base"] = torch.as_tensor(occ_base, device=self.device, dtype=torch.long)
 
     def __call__(self, pose: torch.Tensor, map_index=None) -> torch.Tensor:
         mi = self._check(pose, map_index)

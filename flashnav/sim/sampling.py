@@ -22,6 +22,7 @@ same seed -> same episodes, on any device.
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 
@@ -163,3 +164,121 @@ def geodesic_band(preset: RobotPreset) -> tuple[float, float]:
             f"{HORIZON_PATH_FRACTION:g} x horizon {ep.horizon} x dt {ep.dt:g} s x top speed "
             f"{preset.motion.v_bounds[1]:g} m/s)")
     return ep.min_goal_distance, hi
+
+
+class MapSetSampler:
+    """Draws episodes for slots spread over M maps in one chain of batched ops, whatever the number
+    of maps: every map's candidate-cell tables (its :class:`EpisodeSampler`'s cell centres, per-cell
+    component ranges, geodesic pairs) are concatenated, with per-map offsets into them.
+
+    Each slot's episode has its map's own sampler's distribution (the same validity rules: cells,
+    distance band, nearest-candidate fallback, geodesic pairs; the per-map samplers' construction
+    already refused impossible maps and warned of fallbacks). Only the uniform index over a map's
+    cells or pairs is drawn as ``floor(u * count)`` from a float64 ``u`` instead of
+    ``torch.randint(count)`` (each of up to 2**31 entries within 2**-22 relative of 1 / count), and
+    the generator's stream is consumed in another order, so the draws are not those of the per-map
+    loop. The per-map samplers' tables become views of the concatenated ones (no second copy).
+
+    Attributes:
+        out_of_band: [M] int64 on the device: euclidean fallbacks per map, shared with the per-map
+            samplers (``samplers[m].out_of_band`` is a view of entry m), so either path counts there.
+    """
+
+    def __init__(self, samplers: list[EpisodeSampler]):
+        if not samplers:
+            raise ValueError("MapSetSampler needs at least one map's EpisodeSampler, got none")
+        first = samplers[0]
+        for m, s in enumerate(samplers):
+            if (s.mode, s.d_min, s.d_max, s.device) != (first.mode, first.d_min, first.d_max, first.device):
+                raise ValueError(f"samplers[{m}] has mode {s.mode!r}, band {s.d_min:g}-{s.d_max:g} m on {s.device}; "
+                                 f"samplers[0] has {first.mode!r}, {first.d_min:g}-{first.d_max:g} m on "
+                                 f"{first.device}: one map set samples with one episode preset")
+        self.mode, self.d_min, self.d_max, self.device = first.mode, first.d_min, first.d_max, first.device
+        dev = self.device
+        # per-map tables concatenated; indices inside them stay local to their map (+ cell_first[m])
+        self.centres = _concat(samplers, "centres")  # [sum of cells, 2] metres
+        cells = [s.num_cells for s in samplers]
+        self.cell_first = torch.tensor(_starts(cells), dtype=torch.long, device=dev)  # [M]
+        self.num_cells = torch.tensor(cells, dtype=torch.float64, device=dev)  # [M]
+        self.resolution = torch.tensor([s.resolution for s in samplers], dtype=torch.float32, device=dev)  # [M]
+        self.out_of_band = _concat(samplers, "out_of_band", lambda t: t.reshape(1))  # [M]
+        if self.mode == "geodesic":
+            pairs = [s.pair_start.numel() for s in samplers]
+            self.pair_first = torch.tensor(_starts(pairs), dtype=torch.long, device=dev)  # [M]
+            self.num_pairs = torch.tensor(pairs, dtype=torch.float64, device=dev)  # [M]
+            self.pair_start, self.pair_goal = _concat(samplers, "pair_start"), _concat(samplers, "pair_goal")
+        else:
+            self.comp_first, self.comp_count = _concat(samplers, "comp_first"), _concat(samplers, "comp_count")
+
+    @staticmethod
+    def _pick(u: torch.Tensor, first: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+        """Uniform indices: entry ``first + floor(u * count)`` (float64 ``u`` in [0, 1), so every one of up
+        to 2**31 entries has probability 1 / count within 2**-22 relative), clamped into the range."""
+        local = torch.minimum((u * count).long(), count.long() - 1)
+        return first + local
+
+    def sample(self, maps: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Episodes for slots on maps ``maps`` [n] (long, in [0, M)): pose [n, 3] (x, y m in each map's
+        frame, yaw rad in [-pi, pi)) and goal [n, 2] (m)."""
+        if self.mode == "geodesic":
+            return self._sample_geodesic(maps, gen)
+        pose, goal, outside = self._sample_euclidean(maps, gen)
+        self.out_of_band.index_add_(0, maps, outside.long())
+        return pose, goal
+
+    def _jitter(self, maps: torch.Tensor, k: int, gen: torch.Generator) -> torch.Tensor:
+        """[n, k, 2] offsets uniform within each slot's map cell (m)."""
+        n = maps.numel()
+        u = torch.rand(n, k, 2, generator=gen, device=self.device)
+        return (u - 0.5) * self.resolution[maps][:, None, None]
+
+    def _sample_euclidean(self, maps: torch.Tensor, gen: torch.Generator):
+        """As EpisodeSampler._sample_euclidean, per slot on its map: (pose, goal, outside [n] bool)."""
+        dev, n = self.device, maps.numel()
+        first = self.cell_first[maps]
+        u = torch.rand(n, generator=gen, device=dev, dtype=torch.float64)
+        start_idx = self._pick(u, first, self.num_cells[maps])
+        start = self.centres[start_idx] + self._jitter(maps, 1, gen)[:, 0]
+        yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
+        count = self.comp_count[start_idx, None]  # float32, exactly as the per-map sampler computes it
+        offset = (torch.rand(n, GOAL_CANDIDATES, generator=gen, device=dev) * count).long()
+        offset = torch.minimum(offset, count.long() - 1)
+        cand = self.centres[(first + self.comp_first[start_idx])[:, None] + offset]
+        cand = cand + self._jitter(maps, GOAL_CANDIDATES, gen)
+        dist = torch.linalg.vector_norm(cand - start[:, None, :], dim=-1)  # [n, C]
+        miss = (self.d_min - dist).clamp(min=0) + (dist - self.d_max).clamp(min=0)
+        index = torch.arange(GOAL_CANDIDATES, device=dev, dtype=torch.float32)
+        pick = (miss * 1e3 + index * 1e-3).argmin(dim=1)
+        rows = torch.arange(n, device=dev)
+        return torch.cat([start, yaw[:, None]], dim=1), cand[rows, pick], miss[rows, pick] > 0
+
+    def _sample_geodesic(self, maps: torch.Tensor, gen: torch.Generator):
+        dev, n = self.device, maps.numel()
+        u = torch.rand(n, generator=gen, device=dev, dtype=torch.float64)
+        pair = self._pick(u, self.pair_first[maps], self.num_pairs[maps])
+        swap = torch.rand(n, generator=gen, device=dev) < 0.5  # a pair serves both ways
+        first = self.cell_first[maps]
+        a, b = first + self.pair_start[pair], first + self.pair_goal[pair]
+        start_idx, goal_idx = torch.where(swap, b, a), torch.where(swap, a, b)
+        jitter = self._jitter(maps, 2, gen)
+        start = self.centres[start_idx] + jitter[:, 0]
+        goal = self.centres[goal_idx] + jitter[:, 1]
+        yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
+        return torch.cat([start, yaw[:, None]], dim=1), goal
+
+
+def _starts(sizes: list[int]) -> list[int]:
+    """Where each of consecutive blocks of ``sizes`` starts."""
+    return [0, *itertools.accumulate(sizes)][:-1]
+
+
+def _concat(samplers: list[EpisodeSampler], name: str, shape=lambda t: t) -> torch.Tensor:
+    """The samplers' tensors ``name`` concatenated along dim 0; each sampler's attribute then becomes
+    its view into the result (its values unchanged), so the table is held once."""
+    parts = [shape(getattr(s, name)) for s in samplers]
+    whole = torch.cat(parts)
+    start = 0
+    for s, part in zip(samplers, parts):
+        setattr(s, name, whole[start:start + part.shape[0]].view(getattr(s, name).shape))
+        start += part.shape[0]
+    return whole
