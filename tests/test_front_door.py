@@ -66,6 +66,19 @@ def test_train_validation_errors_leave_no_folder(tmp_path, capsys, argv, named):
     assert not out.exists()
 
 
+def test_overrides_before_and_after_options_all_apply(tmp_path, capsys):
+    # argparse alone refuses key=value items on both sides of an option; both groups must reach the config
+    out = tmp_path / "run"
+    line = fails(capsys, "train", "eval.episodes=64", "--out", str(out), "algo.batch_sise=512")
+    assert "batch_sise" in line and not out.exists()
+    with pytest.raises(SystemExit):  # anything that is not key=value stays an argparse error
+        main(["train", "eval.episodes=64", "--out", str(out), "stray"])
+    assert "unrecognized arguments: stray" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # a command without overrides takes none
+        main(["eval", "p.onnx", "--episodes", "4", "a=b"])
+    assert "unrecognized arguments: a=b" in capsys.readouterr().err
+
+
 def test_train_on_cuda_without_cuda(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     line = fails(capsys, "train", "--device", "cuda:1", "--out", str(tmp_path / "run"))
