@@ -49,10 +49,13 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
 
 
 def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
-                       thresholds: tuple[float, ...] = THRESHOLDS) -> Path:
-    """Save a PNG of evaluation success against training seconds, one line per run (``bench train``
-    JSON records: ``robot``, ``algorithm``, ``seed`` and ``curve``), one panel per robot x algorithm,
-    with each run's first crossing of ``thresholds`` marked."""
+                       thresholds: tuple[float, ...] = THRESHOLDS, x: str = "train_seconds") -> Path:
+    """Save a PNG of evaluation success against ``x`` (``train_seconds`` or ``env_steps``), one line
+    per run (``bench train`` JSON records: ``robot``, ``algorithm``, ``seed`` or ``label``, and
+    ``curve``), one panel per robot x algorithm, with each run's first crossing of ``thresholds`` marked."""
+    if x not in ("train_seconds", "env_steps"):
+        raise ValueError(f"plot_training_runs: x must be train_seconds or env_steps, got {x!r}")
+    hits_key = "time_to_threshold" if x == "train_seconds" else "env_steps_to_threshold"
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in runs:
         groups.setdefault((r.get("robot", "?"), r.get("algorithm", "?")), []).append(r)
@@ -61,17 +64,17 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
     fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False, sharey=True)
     for ax, ((robot, algo), members) in zip(axes[0], groups.items()):
         for r in members:
-            t = [p["train_seconds"] for p in r["curve"]]
+            t = [p[x] for p in r["curve"]]
             s = [100 * p["success_rate"] for p in r["curve"]]
-            (line,) = ax.plot(t, s, lw=1.2, label=f"seed {r.get('seed', '?')}")
+            (line,) = ax.plot(t, s, lw=1.2, label=r.get("label") or f"seed {r.get('seed', '?')}")
             for th in thresholds:
-                hit = r.get("time_to_threshold", {}).get(str(th))
+                hit = (r.get(hits_key) or {}).get(str(th))
                 if hit is not None:
                     ax.plot([hit], [100 * th], "o", ms=4, color=line.get_color())
         for th in thresholds:
             ax.axhline(100 * th, color="grey", lw=0.6, ls=":")
         ax.set_title(f"{robot} {algo}")
-        ax.set_xlabel("training seconds (collection + learning)")
+        ax.set_xlabel("training seconds (collection + learning)" if x == "train_seconds" else "environment steps")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
     axes[0][0].set_ylabel("evaluation success (%)")

@@ -65,7 +65,8 @@ def test_bench_train_command_writes_every_run(tmp_path, capsys):
 def _curve_run(seed, rates, t90=None):
     return {"robot": "turtlebot2", "algorithm": "fastdsac", "seed": seed,
             "time_to_threshold": {"0.9": t90, "0.95": None, "1.0": None},
-            "curve": [{"train_seconds": 10.0 * i, "success_rate": r} for i, r in enumerate(rates)]}
+            "curve": [{"train_seconds": 10.0 * i, "env_steps": 5120 * (i + 1), "success_rate": r}
+                      for i, r in enumerate(rates)]}
 
 
 def test_bench_plot_redraws_a_saved_json(tmp_path):
@@ -77,9 +78,39 @@ def test_bench_plot_redraws_a_saved_json(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
 
 
+def test_bench_plot_draws_run_folders_and_bench_files_together(tmp_path, capsys):
+    run = tmp_path / "agents-k3"
+    run.mkdir()
+    r = _curve_run(0, [0.0, 0.5, 0.95], t90=20.0)
+    (run / "metrics.json").write_text(json.dumps({
+        "config": {"robot": "turtlebot2", "algorithm": "fastdsac", "seed": 4}, "curve": r["curve"],
+        "time_to_threshold": {"0.9": 20.0}, "env_steps_to_threshold": {"0.9": 10240}}))
+    src = tmp_path / "bench.json"
+    src.write_text(json.dumps({"date": "2026-11-23 10:00", "runs": [_curve_run(1, [0.0, 0.2, 0.4])]}))
+    for axis in ("env-steps", "seconds"):
+        png = tmp_path / f"{axis}.png"
+        assert cli_main(["bench", "plot", str(run), str(src), "--x", axis, "--out", str(png)]) == 0
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    from flashnav.bench.train import load_curves
+    (loaded,), _ = load_curves(run)
+    assert loaded["label"] == "agents-k3" and loaded["seed"] == 4 and loaded["env_steps_to_threshold"]["0.9"] == 10240
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli_main(["bench", "plot", str(empty), "--out", str(tmp_path / "x.png")]) == 2
+    assert "empty is not a `flashnav bench train --json` file or a `flashnav train` run folder" in capsys.readouterr().out
+
+
 def test_bench_plot_names_a_bad_file(tmp_path, capsys):
     bad = tmp_path / "sim.json"
     bad.write_text(json.dumps({"rows": []}))
     assert cli_main(["bench", "plot", str(bad), "--out", str(tmp_path / "x.png")]) == 2
     assert "sim.json is not a `flashnav bench train --json` file" in capsys.readouterr().out
     assert not (tmp_path / "x.png").exists()
+    old = tmp_path / "old.json"  # curves without env steps: drawable against seconds only
+    run = _curve_run(0, [0.0, 0.5])
+    for point in run["curve"]:
+        del point["env_steps"]
+    old.write_text(json.dumps({"runs": [run]}))
+    assert cli_main(["bench", "plot", str(old), "--out", str(tmp_path / "y.png")]) == 2
+    assert "old.json: its curves have no env_steps; use --x seconds" in capsys.readouterr().out
+    assert cli_main(["bench", "plot", str(old), "--x", "seconds", "--out", str(tmp_path / "y.png")]) == 0

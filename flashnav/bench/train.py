@@ -7,6 +7,7 @@ import datetime as dt
 import json
 import statistics
 from dataclasses import replace
+from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
@@ -29,9 +30,13 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", metavar="PNG", help="draw success against training seconds, one line per seed")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="as for flashnav train")
     p.set_defaults(func=run_bench_train)
-    q = bsub.add_parser("plot", help="redraw the success curves of a `bench train --json` file")
-    q.add_argument("json_file", metavar="JSON", help="written by flashnav bench train --json")
+    q = bsub.add_parser("plot", help="draw the success curves of `bench train --json` files and/or "
+                                     "`flashnav train` run folders")
+    q.add_argument("sources", nargs="+", metavar="JSON_OR_RUN_DIR",
+                   help="a file written by flashnav bench train --json, or a run folder (its metrics.json)")
     q.add_argument("--out", required=True, metavar="PNG")
+    q.add_argument("--x", choices=("env-steps", "seconds"), default="env-steps",
+                   help="horizontal axis: environment steps (default; machine-independent) or training seconds")
     q.set_defaults(func=run_bench_plot)
 
 
@@ -104,17 +109,41 @@ def _plot_title(when: str, budget_seconds: float | None) -> str:
 def run_bench_plot(args) -> int:
     from flashnav.viz import plot_training_runs
 
-    try:
-        with open(args.json_file, encoding="utf-8") as f:
-            data = json.load(f)
-        runs = data["runs"]
-        if not runs or not all("curve" in r for r in runs):
-            raise KeyError("curve")
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
-        print(f"flashnav bench plot: {args.json_file} is not a `flashnav bench train --json` file ({e})")
-        return 2
-    print(f"success curves: {plot_training_runs(runs, args.out, _plot_title(data.get('date', '?'), None))}")
+    x = "env_steps" if args.x == "env-steps" else "train_seconds"
+    runs, dates = [], []
+    for source in args.sources:
+        try:
+            found, date = load_curves(Path(source))
+        except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
+            print(f"flashnav bench plot: {source} is not a `flashnav bench train --json` file or a "
+                  f"`flashnav train` run folder with metrics.json ({e})")
+            return 2
+        if not all(x in p for r in found for p in r["curve"]):
+            print(f"flashnav bench plot: {source}: its curves have no {x}; use --x seconds")
+            return 2
+        runs += found
+        dates.append(date)
+    print(f"success curves: {plot_training_runs(runs, args.out, _plot_title(', '.join(sorted(set(dates))), None), x=x)}")
     return 0
+
+
+def load_curves(source: Path) -> tuple[list[dict], str]:
+    """The runs (records with ``curve``) of a ``bench train --json`` file, or the one run of a
+    ``flashnav train`` folder (its metrics.json; labelled with the folder's name), and their date."""
+    if source.is_dir():
+        with open(source / "metrics.json", encoding="utf-8") as f:
+            m = json.load(f)
+        config = m["config"]
+        run = {"robot": config["robot"], "algorithm": config["algorithm"], "seed": config["seed"],
+               "label": source.name, **{k: m[k] for k in ("curve", "time_to_threshold", "env_steps_to_threshold")}}
+        when = dt.datetime.fromtimestamp((source / "metrics.json").stat().st_mtime).strftime("%Y-%m-%d")
+        return [run], when
+    with open(source, encoding="utf-8") as f:
+        data = json.load(f)
+    runs = data["runs"]
+    if not runs or not all("curve" in r for r in runs):
+        raise KeyError("curve")
+    return runs, data.get("date", "?")
 
 
 def _save(path: str | None, when: str, groups, runs: list[dict]) -> None:
