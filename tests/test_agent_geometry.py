@@ -114,11 +114,11 @@ def test_tangent_beam_hits_and_a_disc_behind_the_sensor_is_unseen():
     assert out[k + 1:].eq(20.0).all()  # the beams left of it pass; the disc behind is in no beam
 
 
-def reference_collision(pose, footprint: Footprint, centres, radii, active) -> np.ndarray:
-    """Positive-area overlap of footprint and disc, by another route: disc-disc by the distance of the
-    centres; rectangle: the centre strictly inside the rectangle (cross products against its four
-    edges), or nearer than r to one of the edges (point-segment distance)."""
-    out = np.zeros(pose.shape[0], bool)
+def footprint_centre_distances(pose, footprint: Footprint, centres, radii, active):
+    """(row, disc radius, distance from the footprint to the disc's centre) for every active disc, by
+    another route than the kernels: disc footprint by the distance of the centres (minus its radius);
+    rectangle: 0 with the centre strictly inside (cross products against its four edges), else the
+    point-segment distance to the nearest edge."""
     for n in range(pose.shape[0]):
         x, y, yaw = (float(v) for v in pose[n])
         for j in range(centres.shape[1]):
@@ -126,14 +126,20 @@ def reference_collision(pose, footprint: Footprint, centres, radii, active) -> n
                 continue
             cx, cy, r = float(centres[n, j, 0]), float(centres[n, j, 1]), float(radii[n, j])
             if footprint.kind == "disc":
-                hit = math.hypot(cx - x, cy - y) < footprint.radius + r
-            else:
-                hl, hw, c, s = footprint.length / 2, footprint.width / 2, math.cos(yaw), math.sin(yaw)
-                corners = [(x + c * u - s * v, y + s * u + c * v) for u, v in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]
-                edges = list(zip(corners, corners[1:] + corners[:1]))
-                inside = all((bx - ax) * (cy - ay) - (by - ay) * (cx - ax) > 0 for (ax, ay), (bx, by) in edges)
-                hit = inside or min(_segment_distance(cx, cy, a, b) for a, b in edges) < r
-            out[n] |= hit
+                yield n, r, math.hypot(cx - x, cy - y) - footprint.radius
+                continue
+            hl, hw, c, s = footprint.length / 2, footprint.width / 2, math.cos(yaw), math.sin(yaw)
+            corners = [(x + c * u - s * v, y + s * u + c * v) for u, v in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]
+            edges = list(zip(corners, corners[1:] + corners[:1]))
+            inside = all((bx - ax) * (cy - ay) - (by - ay) * (cx - ax) > 0 for (ax, ay), (bx, by) in edges)
+            yield n, r, 0.0 if inside else min(_segment_distance(cx, cy, a, b) for a, b in edges)
+
+
+def reference_collision(pose, footprint: Footprint, centres, radii, active) -> np.ndarray:
+    """Positive-area overlap of footprint and disc: the centre nearer the footprint than the radius."""
+    out = np.zeros(pose.shape[0], bool)
+    for n, r, d in footprint_centre_distances(pose, footprint, centres, radii, active):
+        out[n] |= d < r
     return out
 
 
@@ -144,15 +150,20 @@ def _segment_distance(px, py, a, b) -> float:
     return math.hypot(px - (ax + t * (bx - ax)), py - (ay + t * (by - ay)))
 
 
+def random_discs(n: int, k: int, seed: int, extent: float, p_active: float):
+    """Random robot poses [n, 3] in an extent x extent square and k discs per row near them: centres
+    [n, k, 2], radii [n, k] in [0.05, 0.35] m, active [n, k] with probability p_active."""
+    g = torch.Generator().manual_seed(seed)
+    pose = torch.cat([torch.rand(n, 2, generator=g) * extent, (torch.rand(n, 1, generator=g) * 2 - 1) * math.pi], 1)
+    centres = torch.rand(n, k, 2, generator=g) * extent
+    radii = 0.05 + 0.3 * torch.rand(n, k, generator=g)
+    return pose, centres, radii, torch.rand(n, k, generator=g) < p_active
+
+
 @pytest.mark.parametrize("footprint", [Footprint(kind="disc", radius=0.2),
                                        Footprint(kind="rectangle", length=0.8, width=0.41)])
 def test_footprint_disc_collision_matches_the_geometric_reference(footprint):
-    g = torch.Generator().manual_seed(4)
-    n, k = 4000, 3
-    pose = torch.cat([torch.rand(n, 2, generator=g) * 2, (torch.rand(n, 1, generator=g) * 2 - 1) * math.pi], 1)
-    centres = torch.rand(n, k, 2, generator=g) * 2
-    radii = 0.05 + 0.3 * torch.rand(n, k, generator=g)
-    active = torch.rand(n, k, generator=g) < 0.9
+    pose, centres, radii, active = random_discs(4000, 3, seed=4, extent=2.0, p_active=0.9)
     got = footprint_hits_discs(pose, footprint, centres, radii, active).numpy()
     ref = reference_collision(pose, footprint, centres, radii, active)
     assert 0.1 < ref.mean() < 0.9  # both outcomes are exercised

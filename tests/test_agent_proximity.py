@@ -13,40 +13,21 @@ from flashnav.config import Footprint
 from flashnav.presets import load_robot
 from flashnav.sim.agent_geometry import footprint_disc_gap, footprint_hits_discs
 from flashnav.sim.env import make_env
-from tests.test_agent_geometry import _segment_distance
+from tests.test_agent_geometry import footprint_centre_distances, random_discs
 
 
 def reference_gap(pose, footprint: Footprint, centres, radii, active) -> np.ndarray:
-    """Per row, the smallest gap to an active disc, by another route: disc footprint by the centre
-    distance; rectangle by the point-segment distance to its four edges (0 when the centre is inside)."""
+    """Per row, the smallest gap to an active disc (inf with none), from the reference distances."""
     out = np.full(pose.shape[0], np.inf)
-    for n in range(pose.shape[0]):
-        x, y, yaw = (float(v) for v in pose[n])
-        for j in range(centres.shape[1]):
-            if not active[n, j]:
-                continue
-            cx, cy, r = float(centres[n, j, 0]), float(centres[n, j, 1]), float(radii[n, j])
-            if footprint.kind == "disc":
-                d = math.hypot(cx - x, cy - y) - footprint.radius
-            else:
-                hl, hw, c, s = footprint.length / 2, footprint.width / 2, math.cos(yaw), math.sin(yaw)
-                corners = [(x + c * u - s * v, y + s * u + c * v) for u, v in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]
-                edges = list(zip(corners, corners[1:] + corners[:1]))
-                inside = all((bx - ax) * (cy - ay) - (by - ay) * (cx - ax) > 0 for (ax, ay), (bx, by) in edges)
-                d = 0.0 if inside else min(_segment_distance(cx, cy, a, b) for a, b in edges)
-            out[n] = min(out[n], max(d - r, 0.0))
+    for n, r, d in footprint_centre_distances(pose, footprint, centres, radii, active):
+        out[n] = min(out[n], max(d - r, 0.0))
     return out
 
 
 @pytest.mark.parametrize("footprint", [Footprint(kind="disc", radius=0.2),
                                        Footprint(kind="rectangle", length=0.8, width=0.41)])
 def test_gap_matches_the_geometric_reference_and_is_zero_exactly_on_collision(footprint):
-    g = torch.Generator().manual_seed(7)
-    n, k = 3000, 3
-    pose = torch.cat([torch.rand(n, 2, generator=g) * 3, (torch.rand(n, 1, generator=g) * 2 - 1) * math.pi], 1)
-    centres = torch.rand(n, k, 2, generator=g) * 3
-    radii = 0.05 + 0.3 * torch.rand(n, k, generator=g)
-    active = torch.rand(n, k, generator=g) < 0.8
+    pose, centres, radii, active = random_discs(3000, 3, seed=7, extent=3.0, p_active=0.8)
     active[0] = False  # a row with no active agent: an infinite gap
     got = footprint_disc_gap(pose, footprint, centres, radii, active).numpy()
     ref = reference_gap(pose, footprint, centres, radii, active)
