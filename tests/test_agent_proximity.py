@@ -3,8 +3,6 @@ gap against a geometric reference, and the reward it changes (and only that)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
