@@ -8,6 +8,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 
 from flashnav.maps.grid import OccupancyMap  # noqa: E402
@@ -75,6 +76,8 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
             ax.axhline(100 * th, color="grey", lw=0.6, ls=":")
         ax.set_title(f"{robot} {algo}")
         ax.set_xlabel("training seconds (collection + learning)" if x == "train_seconds" else "environment steps")
+        if x == "env_steps":
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
     axes[0][0].set_ylabel("evaluation success (%)")

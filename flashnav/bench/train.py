@@ -123,7 +123,8 @@ def run_bench_plot(args) -> int:
             return 2
         runs += found
         dates.append(date)
-    print(f"success curves: {plot_training_runs(runs, args.out, _plot_title(', '.join(sorted(set(dates))), None), x=x)}")
+    title = f"success curves, {', '.join(sorted(set(dates)))}; dots: first 90/95/100 % crossing"
+    print(f"success curves: {plot_training_runs(runs, args.out, title, x=x)}")
     return 0
 
 

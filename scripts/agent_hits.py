@@ -1,0 +1,83 @@
+"""How often do the moving agents hit the robot, and from where? (issue 13, done-means 3)
+
+    .venv/bin/python scripts/agent_hits.py [POLICY ...] [--episodes 1024] [--seed 2026] [--scenario wander-8]
+
+First a robot that stands still (action v = 0, w = 0) on the episodes of every agent scenario
+(:mod:`flashnav.scenarios`): the share of them in which an agent walks into it within the horizon - the
+hits that no policy avoids without moving out of the way. Then, for each exported POLICY, its episodes of
+``--scenario`` played with its deterministic actions, and for each agent collision the bearing of the
+agent that hit, relative to the robot's heading at the moment of contact: behind the LiDAR's field of view,
+from the side (45-135 deg) or from the front (within 45 deg).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+import torch
+
+from flashnav.config import RobotPreset
+from flashnav.export import load_policy
+from flashnav.names import SCENARIOS
+from flashnav.scenarios import run_scenario, scenario_preset
+from flashnav.sim.env import make_env
+
+
+def stand_still(preset) -> torch.Tensor:
+    """The action [1, 2] that maps to v = 0, w = 0 on ``preset`` (the action bounds may be asymmetric)."""
+    m = preset.motion
+    to_action = lambda x, lo, hi: 2.0 * (x - lo) / (hi - lo) - 1.0  # noqa: E731
+    return torch.tensor([[to_action(0.0, *m.v_bounds), to_action(0.0, *m.w_bounds)]])
+
+
+def hit_bearings(policy, preset, episodes: int, seed: int) -> list[float]:
+    """Degrees in [0, 180]: |bearing| of the hitting agent (the one nearest the footprint) per agent collision."""
+    env = make_env(preset, episodes, seed=seed)
+    obs, _ = env.reset(seed=seed)
+    active, out = torch.arange(episodes), []
+    for _ in range(preset.episode.horizon):
+        t = env.step_slots(active, policy(obs))
+        for i in active[t["collision_agent"]].tolist():
+            d = env.agents.pos[i] - env.pose[i, :2]
+            gap = torch.linalg.vector_norm(d, dim=1) - env.agents.radius[i]
+            gap = torch.where(env.agents.active[i], gap, torch.full_like(gap, math.inf))
+            j = int(gap.argmin())
+            b = math.atan2(float(d[j, 1]), float(d[j, 0])) - float(env.pose[i, 2])
+            out.append(abs(math.degrees(math.atan2(math.sin(b), math.cos(b)))))
+        running = ~(t["terminated"] | t["truncated"])
+        active, obs = active[running], t["obs"][running]
+        if active.numel() == 0:
+            break
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("policies", nargs="*", metavar="POLICY", help="exported policy.pt / policy.onnx")
+    ap.add_argument("--episodes", type=int, default=1024)
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--scenario", default="wander-8", choices=[s for s in SCENARIOS if s != "static"])
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    for name in SCENARIOS:
+        if name == "static":
+            continue
+        preset = scenario_preset("turtlebot2", name)
+        still = stand_still(preset)
+        r = run_scenario(lambda o: still.expand(o.shape[0], 2), make_env(preset, args.episodes, seed=args.seed), args.seed)
+        print(f"stand still, {name}: agent collision {r['agent_collision_rate']:.1%} of {r['scored']} scored episodes")
+    for path in args.policies:
+        policy, meta = load_policy(path)  # the policy's own preset (e.g. its scan history), as `flashnav eval` does
+        robot = RobotPreset.model_validate(meta["preset"]) if "preset" in meta else meta["robot"]
+        preset = scenario_preset(robot, args.scenario)
+        half_fov = preset.lidar.fov_deg / 2
+        b = np.array(hit_bearings(policy, preset, args.episodes, args.seed))
+        print(f"{path} on {args.scenario}: {b.size} agent collisions in {args.episodes} episodes; agent behind the "
+              f"field of view (> {half_fov:g} deg) {(b > half_fov).sum()}, side (45-{half_fov:g} deg) "
+              f"{((b > 45) & (b <= half_fov)).sum()}, front (<= 45 deg) {(b <= 45).sum()}")
+
+
+if __name__ == "__main__":
+    main()
