@@ -40,7 +40,6 @@ with several maps the largest diagonal among them: one fixed scale for every map
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -60,15 +59,10 @@ from flashnav.sim.history import ScanHistory
 from flashnav.sim.inputs import as_batch, check_finite
 from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
                                   sim_frame)
-from flashnav.sim.motion import action_to_velocity, integrate, wrap_angle
+from flashnav.sim.motion import action_to_velocity, integrate
+from flashnav.sim.observation import beam_angles, observation_bounds, observe  # noqa: F401 (beam_angles: re-exported)
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.sampling import EpisodeSampler, MapSetSampler
-
-def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
-    """[beams] float32 radians relative to the heading: bin centres across the field of view, from
-    -fov/2 (right) counter-clockwise. For 360 deg the beams are evenly spaced with no duplicate."""
-    fov = math.radians(fov_deg)
-    return torch.tensor([-0.5 * fov + (k + 0.5) * fov / beams for k in range(beams)], dtype=torch.float32)
 
 
 class NavVecEnv(VectorEnv):
@@ -160,15 +154,7 @@ class NavVecEnv(VectorEnv):
 
     # ---- spaces -----------------------------------------------------------------------------------
     def _obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        p = self.preset
-        s = p.lidar.sectors
-        (v_lo, v_hi), (w_lo, w_hi) = p.motion.v_bounds, p.motion.w_bounds
-        vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if p.motion.velocity_state_dims == 2 else (
-            [v_lo, 0.0, w_lo], [v_hi, 0.0, w_hi])
-        low = np.array([0.0] * s + [0.0, -math.pi] + vel_lo, dtype=np.float32)
-        high = np.array([p.lidar.max_range] * s + [self.goal_distance_max, math.pi] + vel_hi, dtype=np.float32)
-        k = p.observation.scan_history  # history frames: the LiDAR bounds again
-        return np.concatenate([low, np.tile(low[:s], k)]), np.concatenate([high, np.tile(high[:s], k)])
+        return observation_bounds(self.preset, self.goal_distance_max)
 
     # ---- observation ------------------------------------------------------------------------------
     def scan(self) -> torch.Tensor:
@@ -190,28 +176,10 @@ class NavVecEnv(VectorEnv):
         """The map index of slots ``sel`` for the geometry, or None with a single map."""
         return None if len(self.maps) == 1 else self.map_index[sel]
 
-    def _sensor(self, ranges: torch.Tensor) -> torch.Tensor:
-        """Apply the optional range noise and beam dropout (off by default)."""
-        lidar = self.preset.lidar
-        if lidar.noise_std > 0:
-            noise = torch.randn(ranges.shape, generator=self._gen, device=self.device) * lidar.noise_std
-            ranges = (ranges + noise).clamp(0.0, lidar.max_range)
-        if lidar.dropout > 0:
-            drop = torch.rand(ranges.shape, generator=self._gen, device=self.device) < lidar.dropout
-            ranges = torch.where(drop, torch.full_like(ranges, lidar.max_range), ranges)
-        return ranges
-
     def _observe(self, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor,
                  velocity: torch.Tensor) -> torch.Tensor:
         """The paper's observations [n, base_obs_dim] from ranges [n, beams] and the state of n slots."""
-        lidar = self.preset.lidar
-        pooled = self._sensor(ranges).view(-1, lidar.sectors, lidar.beams_per_sector).amin(dim=2)
-        delta = goal - pose[:, :2]
-        dist = torch.linalg.vector_norm(delta, dim=1)
-        angle = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2])
-        if self.preset.motion.velocity_state_dims == 3:
-            velocity = torch.stack([velocity[:, 0], torch.zeros_like(velocity[:, 0]), velocity[:, 1]], dim=1)
-        return torch.cat([pooled, dist[:, None], angle[:, None], velocity], dim=1)
+        return observe(self.preset, ranges, pose, goal, velocity, self._gen)
 
     # ---- episode control --------------------------------------------------------------------------
     def _reset_slots(self, idx: torch.Tensor) -> None:

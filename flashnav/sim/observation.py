@@ -1,0 +1,58 @@
+"""The paper's observation of one batch of slots: the beams' directions, the optional sensor noise,
+pooling into sectors, goal distance and angle, the velocity state, and the observation space's
+bounds (the layout is in :mod:`flashnav.sim.env`'s docstring)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from flashnav.config import RobotPreset
+from flashnav.sim.motion import wrap_angle
+
+
+def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
+    """[beams] float32 radians relative to the heading: bin centres across the field of view, from
+    -fov/2 (right) counter-clockwise. For 360 deg the beams are evenly spaced with no duplicate."""
+    fov = math.radians(fov_deg)
+    return torch.tensor([-0.5 * fov + (k + 0.5) * fov / beams for k in range(beams)], dtype=torch.float32)
+
+
+def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) [obs_dim] float32 of the observation space; history frames repeat the LiDAR bounds."""
+    s = preset.lidar.sectors
+    (v_lo, v_hi), (w_lo, w_hi) = preset.motion.v_bounds, preset.motion.w_bounds
+    vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if preset.motion.velocity_state_dims == 2 else (
+        [v_lo, 0.0, w_lo], [v_hi, 0.0, w_hi])
+    low = np.array([0.0] * s + [0.0, -math.pi] + vel_lo, dtype=np.float32)
+    high = np.array([preset.lidar.max_range] * s + [goal_distance_max, math.pi] + vel_hi, dtype=np.float32)
+    k = preset.observation.scan_history
+    return np.concatenate([low, np.tile(low[:s], k)]), np.concatenate([high, np.tile(high[:s], k)])
+
+
+def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator) -> torch.Tensor:
+    """``ranges`` with the optional range noise and beam dropout (off by default), drawn from ``gen``."""
+    lidar = preset.lidar
+    if lidar.noise_std > 0:
+        noise = torch.randn(ranges.shape, generator=gen, device=ranges.device) * lidar.noise_std
+        ranges = (ranges + noise).clamp(0.0, lidar.max_range)
+    if lidar.dropout > 0:
+        drop = torch.rand(ranges.shape, generator=gen, device=ranges.device) < lidar.dropout
+        ranges = torch.where(drop, torch.full_like(ranges, lidar.max_range), ranges)
+    return ranges
+
+
+def observe(preset: RobotPreset, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor,
+            velocity: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """The paper's observations [n, base_obs_dim] from ranges [n, beams] (sensor effects applied here)
+    and the state of n slots: pose [n, 3], goal [n, 2], velocity [n, 2] (the executed command)."""
+    lidar = preset.lidar
+    pooled = apply_sensor(ranges, preset, gen).view(-1, lidar.sectors, lidar.beams_per_sector).amin(dim=2)
+    delta = goal - pose[:, :2]
+    dist = torch.linalg.vector_norm(delta, dim=1)
+    angle = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2])
+    if preset.motion.velocity_state_dims == 3:
+        velocity = torch.stack([velocity[:, 0], torch.zeros_like(velocity[:, 0]), velocity[:, 1]], dim=1)
+    return torch.cat([pooled, dist[:, None], angle[:, None], velocity], dim=1)
