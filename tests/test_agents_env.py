@@ -183,18 +183,18 @@ def test_leg_check_kernels_agree_and_clear_legs_are_clear():
     a = env.agents
     g = torch.Generator().manual_seed(7)
     p = 3000
-    start = a._free_points(torch.zeros(p, dtype=torch.long), g)
+    start = a.space.free_points(torch.zeros(p, dtype=torch.long), g)
     angle = torch.rand(p, generator=g) * 2 * math.pi
     end = start + (0.5 + 2.5 * torch.rand(p, 1, generator=g)) * torch.stack([torch.cos(angle), torch.sin(angle)], -1)
     radius = 0.2 + 0.1 * torch.rand(p, generator=g)
     maps = torch.zeros(p, dtype=torch.long)
-    numba_ok = a.segment_clear(start, end, radius, maps, kernel="numba")
-    torch_ok = a.segment_clear(start, end, radius, maps, kernel="torch")
+    numba_ok = a.space.segment_clear(start, end, radius, maps, kernel="numba")
+    torch_ok = a.space.segment_clear(start, end, radius, maps, kernel="torch")
     assert torch.equal(numba_ok, torch_ok) and 50 < int(numba_ok.sum()) < p - 50
     # broadcasting, as the leg search calls it: one start [P, 1, 2] for several ends [P, C, 2]
     ends = torch.stack([end, start + 0.5 * (end - start), start + 2.0 * (end - start)], dim=1)
     args = (start[:, None], ends, radius[:, None], maps[:, None])
-    assert torch.equal(a.segment_clear(*args, kernel="numba"), a.segment_clear(*args, kernel="torch"))
+    assert torch.equal(a.space.segment_clear(*args, kernel="numba"), a.space.segment_clear(*args, kernel="torch"))
     # brute force: every centimetre of a clear leg keeps the whole disc off the walls
     rows = numba_ok.nonzero()[:, 0][:40]
     s = torch.linspace(0, 1, 121, dtype=torch.float64)

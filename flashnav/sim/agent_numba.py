@@ -106,7 +106,7 @@ def lower_by_discs(pose, cos_a, sin_a, a0, step, centres, radii, active, max_ran
 @njit(cache=True)  # serial: a few thousand short segments, less than a thread launch is worth
 def segments_clear(a, b, radius, maps, samples, clear, offset, origin, res, wp, hp, pad, out):
     """``out[i] = every sample of segment a[i] -> b[i] has clearance >= radius[i] + spacing / 2``
-    (:meth:`flashnav.sim.agents.AgentWorld.segment_clear`, the same float64 lookups), stopping at the
+    (:meth:`flashnav.sim.agent_space.AgentSpace.segment_clear`, the same float64 lookups), stopping at the
     first sample that fails.
 
     Args:

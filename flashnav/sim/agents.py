@@ -23,9 +23,9 @@ robot's footprint (its circumscribed disc) at the start and at the goal; an agen
 place among SPAWN_CANDIDATES draws is absent for the episode. Agents may overlap each other.
 
 Sensing and collision are exact (:mod:`flashnav.sim.agent_geometry`; the CPU beams run the numba
-kernel :mod:`flashnav.sim.agent_numba`). State is float32 metres in the simulator frame of each
-slot's map; several maps (``grids``, and a map index per slot in every call) share one flat
-clearance buffer with per-map offsets.
+kernel :mod:`flashnav.sim.agent_numba`); where agents may be on the maps (clearance, free cells, clear
+legs) is :class:`flashnav.sim.agent_space.AgentSpace`. State is float32 metres in the simulator frame of
+each slot's map; with several maps (``grids``) every call takes a map index per slot.
 """
 
 from __future__ import annotations
@@ -37,12 +37,12 @@ import numpy as np
 import torch
 
 from flashnav.config import RobotPreset
-from flashnav.maps.fields import PAD, safe_field
+from flashnav.maps.fields import PAD
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import AGENT_BEHAVIOURS
-from flashnav.sim.agent_draws import coarse_first, hash_uniform
+from flashnav.sim.agent_draws import hash_uniform
 from flashnav.sim.agent_geometry import footprint_disc_gap, footprint_hits_discs, ray_disc_ranges
-from flashnav.sim.mapset import map_table
+from flashnav.sim.agent_space import AgentSpace
 
 WAYPOINTS, BOUNCE, CROSSING = (AGENT_BEHAVIOURS.index(b) for b in ("waypoints", "bounce", "crossing"))
 SPAWN_CANDIDATES = 16  # random places tried per new agent
@@ -71,9 +71,9 @@ class AgentWorld:
         self.dt = preset.episode.dt
         self.robot_speed = max(abs(v) for v in preset.motion.v_bounds)
         self.mix = torch.tensor([cfg.mix.get(b, 0.0) for b in AGENT_BEHAVIOURS], dtype=torch.float64, device=self.device)
-        self._build_fields(grids, cfg.radius[1])
         max_leg = max(LEG_LENGTH[1], 2.0 * cfg.crossing_offset[1])
-        self._samples = coarse_first(math.ceil(max_leg / SEGMENT_SPACING) + 1).to(self.device)
+        #: where agents may be on the maps: clearance lookups, free cells, clear legs
+        self.space = AgentSpace(grids, cfg.radius[1], math.ceil(max_leg / SEGMENT_SPACING) + 1, self.device)
         n, k, dev = num_envs, cfg.count, self.device
         self.pos = torch.zeros(n, k, 2, device=dev)  # centres, m
         self.vel = torch.zeros(n, k, 2, device=dev)  # bounce: velocity, m/s
@@ -98,84 +98,6 @@ class AgentWorld:
         #: "numba" (the CPU default) or "torch": how :meth:`step` moves the agents
         self.step_kernel = "numba" if self.device.type == "cpu" else "torch"
 
-    # ---- the map: clearance lookups and free cells -----------------------------------------------
-    def _build_fields(self, grids: tuple[OccupancyMap, ...], r_max: float) -> None:
-        flats, offsets, cells, first, count = [], [], [], [], []
-        total = 0
-        for g in grids:
-            clear = safe_field(g).astype(np.float64) * g.resolution  # <0 on occupied cells
-            offsets.append(total)
-            flats.append(clear.reshape(-1))
-            total += clear.size
-            rows, cols = np.nonzero(clear[PAD:-PAD, PAD:-PAD] >= r_max)
-            if rows.size == 0:
-                raise ValueError(f"map {g.name!r}: no free cell for an agent of radius {r_max} m (agents.radius)")
-            first.append(sum(len(c) for c in cells))
-            count.append(rows.size)
-            cells.append(np.stack([g.origin[0] + cols * g.resolution, g.origin[1] + rows * g.resolution], axis=1))
-        dev = self.device
-        self._clear = torch.from_numpy(np.concatenate(flats)).to(dev)
-        self._offset = torch.tensor(offsets, dtype=torch.long, device=dev)
-        table = map_table(grids, dev, PAD)
-        self._wp, self._hp, self._res = table["wp"], table["hp"], table["res"]
-        self._origin = torch.stack([table["ox"], table["oy"]], dim=1)  # [M, 2]
-        self._cells = torch.from_numpy(np.concatenate(cells)).to(dev)  # [C, 2] lower-left corners, m
-        self._cell_first = torch.tensor(first, dtype=torch.long, device=dev)
-        self._cell_count = torch.tensor(count, dtype=torch.long, device=dev)
-        g = grids[0]
-        self._single = None if len(grids) > 1 else (g.origin[0], g.origin[1], g.resolution, g.shape[1] + 2 * PAD,
-                                                    g.shape[0] + 2 * PAD)
-
-    def clearance(self, points: torch.Tensor, maps: torch.Tensor) -> torch.Tensor:
-        """A lower bound on the distance (m, float64) from ``points`` [..., 2] to any wall or the map
-        boundary, negative on occupied cells and off the map; ``maps`` [...] long, each point's map."""
-        p = points.double()
-        if self._single is not None:  # one map: scalars instead of per-point gathers
-            ox, oy, res, wp, hp = self._single
-            j = (torch.floor((p[..., 0] - ox) / res).long() + PAD).clamp(0, wp - 1)
-            i = (torch.floor((p[..., 1] - oy) / res).long() + PAD).clamp(0, hp - 1)
-            return self._clear[i * wp + j]
-        res, org = self._res[maps], self._origin[maps]
-        j = (torch.floor((p[..., 0] - org[..., 0]) / res).long() + PAD).clamp(min=0)
-        i = (torch.floor((p[..., 1] - org[..., 1]) / res).long() + PAD).clamp(min=0)
-        wp, hp = self._wp[maps], self._hp[maps]
-        j, i = torch.minimum(j, wp - 1), torch.minimum(i, hp - 1)
-        return self._clear[self._offset[maps] + i * wp + j]
-
-    def _free_points(self, maps: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
-        """[...] map indices -> [..., 2] float32 points uniform over the cells whose every point has
-        clearance >= the largest agent radius."""
-        u = torch.rand(*maps.shape, 3, generator=gen, device=self.device, dtype=torch.float64)
-        count = self._cell_count[maps]
-        cell = self._cell_first[maps] + torch.minimum((u[..., 0] * count).long(), count - 1)
-        # a hair inside the cell, so that float32 rounding cannot move a point into a neighbour
-        inner = 1e-3 + u[..., 1:] * (1.0 - 2e-3)
-        return (self._cells[cell] + inner * self._res[maps][..., None]).float()
-
-    def segment_clear(self, a: torch.Tensor, b: torch.Tensor, radius: torch.Tensor, maps: torch.Tensor,
-                      kernel: str | None = None) -> torch.Tensor:
-        """[...] bool: a disc of ``radius`` swept from ``a`` to ``b`` ([..., 2] m) stays clear of walls
-        (clearance >= radius + half the sample spacing at every sample of the segment). ``kernel``:
-        "numba" (the CPU default: stops at a segment's first failing sample) or "torch"."""
-        kernel = kernel or ("numba" if self.device.type == "cpu" else "torch")
-        if kernel == "numba":
-            from flashnav.sim.agent_numba import segments_clear
-
-            shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], radius.shape, maps.shape)
-            out = np.empty(shape.numel(), dtype=np.bool_)
-            flat = lambda t, *tail: t.expand(*shape, *tail).reshape(-1, *tail).contiguous().numpy()  # noqa: E731
-            segments_clear(flat(a, 2), flat(b, 2), flat(radius), flat(maps), self._samples.numpy(),
-                           self._clear.numpy(), self._offset.numpy(), self._origin.numpy(), self._res.numpy(),
-                           self._wp.numpy(), self._hp.numpy(), PAD, out)
-            return torch.from_numpy(out).view(shape)
-        a, b = a.double(), b.double()
-        s = self._samples
-        pts = a[..., None, :] + (b - a)[..., None, :] * s[:, None]  # [..., S, 2]
-        spacing = torch.linalg.vector_norm(b - a, dim=-1) / (s.numel() - 1)
-        need = radius.double() + 0.5 * spacing
-        clear = self.clearance(pts, maps[..., None].expand(pts.shape[:-1]))
-        return (clear >= need[..., None]).all(dim=-1)
-
     # ---- episode start ---------------------------------------------------------------------------
     def reset(self, idx: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, gen: torch.Generator,
               maps: torch.Tensor | None = None) -> None:
@@ -194,7 +116,7 @@ class AgentWorld:
         heading = (u[..., 3] * 2.0 - 1.0) * math.pi
         # free places: the first candidate far enough from the robot's start and goal
         mk = maps[:, None, None].expand(k, K, SPAWN_CANDIDATES)
-        cand = self._free_points(mk, gen)  # [k, K, C, 2]
+        cand = self.space.free_points(mk, gen)  # [k, K, C, 2]
         ok = self._clear_of_robot(cand, radius[..., None], pose[:, None, None, :2], goal[:, None, None])
         pos, placed = _first(cand, ok)
         target = pos.clone()  # a waypoints agent chooses its first leg on its first step
@@ -245,8 +167,9 @@ class AgentWorld:
         a, b = ends
         r = radius[..., None].expand(k, K, C)
         mk = maps[:, None, None].expand(k, K, C)
-        ok = ((self.clearance(a, mk) >= r) & (self.clearance(q, mk) >= r) & (self.clearance(b, mk) >= r)
-              & self.segment_clear(a, q, r, mk) & self.segment_clear(q, b, r, mk))
+        space = self.space
+        ok = ((space.clearance(a, mk) >= r) & (space.clearance(q, mk) >= r) & (space.clearance(b, mk) >= r)
+              & space.segment_clear(a, q, r, mk) & space.segment_clear(q, b, r, mk))
         ok &= self._clear_of_robot(a, r, start, goal[:, None, None])
         (a, q, b), found = _first([a, q, b], ok)
         frac = torch.gather(frac, 2, ok.float().argmax(dim=-1, keepdim=True)).squeeze(2)
@@ -281,7 +204,7 @@ class AgentWorld:
         length = speed * self.dt * self._reaction(pos, direction, radius, robot, self.reactive[sel])
         length = torch.where(walker, torch.minimum(length, remaining), length)
         proposed = pos + direction * length[..., None]
-        ok = self.clearance(proposed, mk) >= radius
+        ok = self.space.clearance(proposed, mk) >= radius
         new_pos = torch.where((ok & active)[..., None], proposed, pos)
         vel = self._bounce(active & ~ok & (kind == BOUNCE), pos, new_pos, vel, direction * length[..., None], radius, mk)
         # crossing agents at the crossing point head for the far point; waypoints agents at the end
@@ -307,9 +230,8 @@ class AgentWorld:
         step_agents(v(slots.long()), v(robot_pose.float()), v(steps.int()), v(maps.long()), self.pos.numpy(),
                     self.vel.numpy(), self.target.numpy(), self.final.numpy(), self.radius.numpy(),
                     self.speed.numpy(), self.kind.numpy(), self.reactive.numpy(), self.placed.numpy(),
-                    self.active.numpy(), self.appear.numpy(), self.key.numpy(), self._clear.numpy(),
-                    self._offset.numpy(), self._origin.numpy(), self._res.numpy(), self._wp.numpy(),
-                    self._hp.numpy(), PAD, self._samples.numpy(), consts)
+                    self.active.numpy(), self.appear.numpy(), self.key.numpy(), *self.space.numba_tables(),
+                    PAD, self.space.samples.numpy(), consts)
 
     def _bounce(self, blocked, pos, new_pos, vel, move, radius, mk) -> torch.Tensor:
         """Bounce agents ``blocked`` [k, K] by a wall: the move reflected in x, in y, or reversed, the
@@ -321,7 +243,7 @@ class AgentWorld:
         p, r, m = pos[n_, j_], radius[n_, j_], mk[n_, j_]
         flips = torch.tensor([[-1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]], device=self.device)
         alt = p[:, None] + move[n_, j_][:, None] * flips  # [b, 3, 2]
-        fits = self.clearance(alt, m[:, None].expand(-1, 3)) >= r[:, None]
+        fits = self.space.clearance(alt, m[:, None].expand(-1, 3)) >= r[:, None]
         pick = fits.float().argmax(dim=1)
         found = fits.any(dim=1)[:, None]
         new_pos[n_, j_] = torch.where(found, alt[torch.arange(len(pick), device=self.device), pick], p)
@@ -357,7 +279,7 @@ class AgentWorld:
         end = start + reach[..., None] * torch.stack([torch.cos(angle), torch.sin(angle)], dim=-1)
         r = radius[n_, j_][:, None].expand(-1, LEG_CANDIDATES)
         m = mk[n_, j_][:, None].expand(-1, LEG_CANDIDATES)
-        ok = self.segment_clear(start, end, r, m) & (self.clearance(end, m) >= r)
+        ok = self.space.segment_clear(start, end, r, m) & (self.space.clearance(end, m) >= r)
         chosen, found = _first(end, ok)
         target = target.clone()
         target[n_, j_] = torch.where(found[:, None], chosen, pos[n_, j_])
