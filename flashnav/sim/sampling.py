@@ -100,19 +100,11 @@ class EpisodeSampler:
         yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
         # goal candidates uniform over the start's component
         u = torch.rand(n, GOAL_CANDIDATES, generator=gen, device=dev)
-        offset = (u * self.comp_count[start_idx, None]).long()
-        offset = torch.minimum(offset, self.comp_count[start_idx, None].long() - 1)
+        offset = floor_index(u, self.comp_count[start_idx, None])
         cand = self.centres[self.comp_first[start_idx, None] + offset]  # [n, C, 2]
         cand = cand + self._jitter(n * GOAL_CANDIDATES, gen).view(n, GOAL_CANDIDATES, 2)
-        dist = torch.linalg.vector_norm(cand - start[:, None, :], dim=-1)  # [n, C]
-        # distance outside the band: 0 inside it; the first zero (else the nearest) wins
-        miss = (self.d_min - dist).clamp(min=0) + (dist - self.d_max).clamp(min=0)
-        index = torch.arange(GOAL_CANDIDATES, device=dev, dtype=torch.float32)
-        score = miss * 1e3 + index * 1e-3
-        pick = score.argmin(dim=1)
-        rows = torch.arange(n, device=dev)
-        goal = cand[rows, pick]
-        return torch.cat([start, yaw[:, None]], dim=1), goal, miss[rows, pick] > 0
+        goal, outside = first_in_band(cand, start, self.d_min, self.d_max)
+        return torch.cat([start, yaw[:, None]], dim=1), goal, outside
 
     def _sample_geodesic(self, n: int, gen: torch.Generator):
         dev = self.device
@@ -166,6 +158,24 @@ def geodesic_band(preset: RobotPreset) -> tuple[float, float]:
     return ep.min_goal_distance, hi
 
 
+def floor_index(u: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """Uniform indices ``floor(u * count)`` (long) for ``u`` in [0, 1), clamped below ``count`` (rounding
+    of ``u * count`` can reach it)."""
+    return torch.minimum((u * count).long(), count.long() - 1)
+
+
+def first_in_band(cand: torch.Tensor, start: torch.Tensor, d_min: float, d_max: float):
+    """Of the goal candidates ``cand`` [n, C, 2] of starts ``start`` [n, 2]: the first whose straight-line
+    distance is in [d_min, d_max], else the nearest to the band; returns (goal [n, 2], outside [n] bool)."""
+    dist = torch.linalg.vector_norm(cand - start[:, None, :], dim=-1)  # [n, C]
+    # distance outside the band: 0 inside it; the first zero (else the nearest) wins
+    miss = (d_min - dist).clamp(min=0) + (dist - d_max).clamp(min=0)
+    index = torch.arange(cand.shape[1], device=cand.device, dtype=torch.float32)
+    pick = (miss * 1e3 + index * 1e-3).argmin(dim=1)
+    rows = torch.arange(cand.shape[0], device=cand.device)
+    return cand[rows, pick], miss[rows, pick] > 0
+
+
 class MapSetSampler:
     """Draws episodes for slots spread over M maps in one chain of batched ops, whatever the number
     of maps: every map's candidate-cell tables (its :class:`EpisodeSampler`'s cell centres, per-cell
@@ -214,8 +224,7 @@ class MapSetSampler:
     def _pick(u: torch.Tensor, first: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
         """Uniform indices: entry ``first + floor(u * count)`` (float64 ``u`` in [0, 1), so every one of up
         to 2**31 entries has probability 1 / count within 2**-22 relative), clamped into the range."""
-        local = torch.minimum((u * count).long(), count.long() - 1)
-        return first + local
+        return first + floor_index(u, count)
 
     def sample(self, maps: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Episodes for slots on maps ``maps`` [n] (long, in [0, M)): pose [n, 3] (x, y m in each map's
@@ -241,16 +250,11 @@ class MapSetSampler:
         start = self.centres[start_idx] + self._jitter(maps, 1, gen)[:, 0]
         yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
         count = self.comp_count[start_idx, None]  # float32, exactly as the per-map sampler computes it
-        offset = (torch.rand(n, GOAL_CANDIDATES, generator=gen, device=dev) * count).long()
-        offset = torch.minimum(offset, count.long() - 1)
+        offset = floor_index(torch.rand(n, GOAL_CANDIDATES, generator=gen, device=dev), count)
         cand = self.centres[(first + self.comp_first[start_idx])[:, None] + offset]
         cand = cand + self._jitter(maps, GOAL_CANDIDATES, gen)
-        dist = torch.linalg.vector_norm(cand - start[:, None, :], dim=-1)  # [n, C]
-        miss = (self.d_min - dist).clamp(min=0) + (dist - self.d_max).clamp(min=0)
-        index = torch.arange(GOAL_CANDIDATES, device=dev, dtype=torch.float32)
-        pick = (miss * 1e3 + index * 1e-3).argmin(dim=1)
-        rows = torch.arange(n, device=dev)
-        return torch.cat([start, yaw[:, None]], dim=1), cand[rows, pick], miss[rows, pick] > 0
+        goal, outside = first_in_band(cand, start, self.d_min, self.d_max)
+        return torch.cat([start, yaw[:, None]], dim=1), goal, outside
 
     def _sample_geodesic(self, maps: torch.Tensor, gen: torch.Generator):
         dev, n = self.device, maps.numel()
