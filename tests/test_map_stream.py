@@ -13,7 +13,7 @@ import torch
 from flashnav.learn import loop
 from flashnav.maps.families import HELD_OUT_SEED_START, generate_family
 from flashnav.maps.generate import generate_map
-from flashnav.maps.stream import GeneratedMaps, MapStream, generate_set
+from flashnav.maps.stream import GeneratedMaps, MapStream, generate_set, parse_family_maps
 from flashnav.names import MAP_FAMILIES
 from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
@@ -29,6 +29,14 @@ def test_sets_draw_each_seed_once_families_in_turn():
     assert [maps.sets_needed(c) for c in (1, 10, 11, 20, 21)] == [1, 1, 2, 2, 3]  # new sets at cycles 11, 21, ...
     assert GeneratedMaps(family="all").family == list(MAP_FAMILIES)
     assert GeneratedMaps(family="all", count=2).sets_needed(10**6) == 1  # no refresh_every: one set
+
+
+def test_a_family_named_twice_is_drawn_twice_as_often():
+    maps = GeneratedMaps.model_validate(parse_family_maps("family:mazes,rooms,mazes") | {"count": 6})
+    assert maps.family == ["mazes", "rooms", "mazes"]
+    families = [f for f, _ in maps.seeds(0)]
+    assert families.count("mazes") == 4 and families.count("rooms") == 2
+    assert len({s for _, s in maps.seeds(0)}) == 6  # still one seed per map
 
 
 def test_held_out_seeds_are_refused():

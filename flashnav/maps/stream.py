@@ -35,7 +35,9 @@ FAMILY_PREFIX = "family:"
 class GeneratedMaps(KnownKeys):
     """Maps generated during training instead of loaded from files (see the module docstring)."""
 
-    family: list[str] = Field(description=f"map families ({', '.join(MAP_FAMILIES)}): a list, a comma list, or 'all'")
+    family: list[str] = Field(description=f"map families ({', '.join(MAP_FAMILIES)}): a list, a comma list, or 'all'; "
+                                          "a family named twice is drawn twice as often (mazes,mazes,rooms: 2 mazes "
+                                          "to 1 rooms map in a set)")
     count: int = Field(16, gt=0, description="maps per set: the env's slots draw among them when they reset")
     refresh_every: int | None = Field(None, gt=0, description="cycles (vector steps) between new sets "
                                                               "(None = the first set for the whole run)")
