@@ -143,6 +143,23 @@ def test_layer_norm_keeps_the_linear_draws_and_normalises_each_hidden_layer():
     torch.testing.assert_close(pre.var(-1, unbiased=False), torch.ones(32), atol=1e-3, rtol=0)
 
 
+def test_actor_output_init_small_by_default_and_uniform_at_zero():
+    gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
+    small, uniform = Actor(TB2, 2, (100, 100), 3, gen()), Actor(TB2, 2, (100, 100), 3, gen(), out_init_std=0.0)
+    out_small, out_uniform = small.mlp.net[-1], uniform.mlp.net[-1]
+    assert out_small.weight.std().item() == pytest.approx(networks.ACTOR_OUT_INIT_STD, rel=0.2)
+    assert torch.count_nonzero(out_small.bias) == 0
+    bound = 1 / math.sqrt(100)  # the uniform draw every other layer gets (PyTorch's nn.Linear default)
+    assert out_uniform.weight.abs().max() <= bound and out_uniform.weight.std() > bound / 3
+    assert torch.count_nonzero(out_uniform.bias) > 0
+    hidden = lambda a: [m.weight for m in a.mlp.net[:-1] if isinstance(m, nn.Linear)]  # noqa: E731
+    assert all(torch.equal(a, b) for a, b in zip(hidden(small), hidden(uniform)))  # same hidden draws
+    # the DEM logits (third head) vary with the state only with the uniform draw
+    obs = random_obs(TB2, 256)
+    logits_small, logits_uniform = small(obs)[:, 4:], uniform(obs)[:, 4:]
+    assert logits_uniform.std(0).mean() > 5 * logits_small.std(0).mean()
+
+
 @pytest.mark.parametrize("layer_norm", [False, True])
 def test_detached_critic_trains_the_action_only(layer_norm):
     twin = TwinCritic(TB2, 2, (100, 100), 2, torch.Generator().manual_seed(0), layer_norm=layer_norm)

@@ -232,12 +232,14 @@ class Actor(nn.Module):
     """
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], heads: int,
-                 generator: torch.Generator | None = None, layer_norm: bool = False, obs_norm: bool = False):
+                 generator: torch.Generator | None = None, layer_norm: bool = False, obs_norm: bool = False,
+                 out_init_std: float = ACTOR_OUT_INIT_STD):
         super().__init__()
         self.action_dim = action_dim
         self.heads = heads
         self.transform = IPAPRec(layout, normalize=obs_norm)
-        self.mlp = MLP(layout.obs_dim, hidden, heads * action_dim, generator, ACTOR_OUT_INIT_STD, layer_norm)
+        # out_init_std 0: the output layer keeps the uniform draw of every other layer (PyTorch's default)
+        self.mlp = MLP(layout.obs_dim, hidden, heads * action_dim, generator, out_init_std or None, layer_norm)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.mlp(self.transform(obs))
