@@ -96,6 +96,38 @@ def test_train_command_writes_artefacts(tmp_path):
     assert rates["success_rate"] + rates["collision_rate"] + rates["timeout_rate"] == pytest.approx(1.0)
 
 
+def _interrupt_at(cycle_steps):
+    def on_progress(m):
+        if m["env_steps"] >= cycle_steps:
+            raise KeyboardInterrupt
+    return on_progress
+
+
+def test_ctrl_c_ends_an_interruptible_run_with_what_it_has():
+    result = train(tiny(), on_progress=_interrupt_at(32 * 5), interruptible=True)
+    assert result.stop_reason == "interrupted" and result.env_steps == 32 * 5
+    assert [c["env_steps"] for c in result.curve] == [64, 128]  # the evaluations before the interrupt
+    assert result.best_policy is not None
+    with pytest.raises(KeyboardInterrupt):  # a library call keeps Ctrl-C for its caller by default
+        train(tiny(), on_progress=_interrupt_at(32 * 5))
+
+
+def test_interrupted_train_command_still_writes_its_artefacts(tmp_path, monkeypatch):
+    from flashnav.learn import loop
+
+    real_train = loop.train
+    monkeypatch.setattr(loop, "train", lambda spec, **kw: real_train(
+        spec, **{**kw, "on_progress": _interrupt_at(96)}))
+    out = tmp_path / "run"
+    code = cli_main(["train", "--recipe", "cpu", "--device", "cpu", "--out", str(out),
+                     *[f"{k}={v}" for k, v in TINY.items()], "budget.max_env_steps=320", "eval.episodes=8"])
+    assert code == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["stop_reason"] == "interrupted" and metrics["env_steps"] == 96
+    for name in ("config.yaml", "checkpoint.pt", "policy.pt", "policy.onnx"):
+        assert (out / name).stat().st_size > 0, name
+
+
 def test_bad_config_is_named():
     with pytest.raises(ValueError, match="algo."):
         TrainConfig(overrides={"batch_size": 3})

@@ -67,7 +67,9 @@ def run_train(args) -> int:
         console.print(f"fine-tuning from {spec.init.path} (seed {run['seed']}, {run['recipe']} recipe, saved "
                       f"{run['saved_at']}); goal-distance scale {spec.goal_distance_max:.2f} m from its run")
     with TrainProgress(console) as progress:
-        result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress)
+        result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress, interruptible=True)
+    if result.stop_reason == "interrupted":
+        console.print("[yellow]interrupted[/]: writing the run so far (Ctrl-C again aborts)")
 
     out.mkdir(parents=True, exist_ok=True)  # only now: a failed run leaves no empty folder
     _write_artefacts(result, out)

@@ -106,19 +106,23 @@ class _Timer:
 
 
 def train(config: TrainConfig | RunSpec | None = None, *, on_eval: Callable[[dict], bool | None] | None = None,
-          on_progress: Callable[[dict], None] | None = None) -> TrainResult:
+          on_progress: Callable[[dict], None] | None = None, interruptible: bool = False) -> TrainResult:
     """Train one policy; see docs/train-api.md. ``config``: a TrainConfig (resolved here by
     :func:`flashnav.spec.resolve`) or an already resolved RunSpec. ``on_progress`` (optional, outside
-    the clock) gets a dict with env_steps, train_seconds and the last evaluation after every cycle."""
+    the clock) gets a dict with env_steps, train_seconds and the last evaluation after every cycle.
+    ``interruptible``: a KeyboardInterrupt (Ctrl-C) during the cycles ends the run like a budget
+    (``stop_reason`` "interrupted", the curve and best policy so far kept) instead of propagating;
+    ``flashnav train`` sets it, so a stopped run still writes its artefacts. Off by default: a sweep
+    or script that calls train() keeps Ctrl-C for itself."""
     spec = config if isinstance(config, RunSpec) else resolve(config)
     threads_before = torch.get_num_threads()
     try:
-        return _train(spec, on_eval, on_progress)
+        return _train(spec, on_eval, on_progress, interruptible)
     finally:
         torch.set_num_threads(threads_before)
 
 
-def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
+def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> TrainResult:
     config, preset, hp = spec.config, spec.robot, spec.hparams
     dev = torch.device(spec.device)
     torch.manual_seed(config.seed)
@@ -234,6 +238,12 @@ def _train(spec: RunSpec, on_eval, on_progress) -> TrainResult:
             if out_of_time:
                 stop_reason = "budget_seconds"
                 break
+    except KeyboardInterrupt:
+        if not interruptible:
+            raise
+        # The cycle in flight is dropped where it stood (its collector finishes below); the learner state
+        # may be between two steps of one update; the evaluations and the best policy so far are whole.
+        stop_reason = "interrupted"
     finally:
         if pool is not None:
             pool.shutdown(wait=True)
