@@ -49,11 +49,9 @@ class EvalSettings(KnownKeys):
     every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
     seed: int = Field(12345, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
     maps: str | list[str] | None = Field(
-        None, description="evaluate on other maps than the training maps: a directory, glob pattern or list of ROS "
-                          "map YAML files, or 'validation' (the generated validation suite, seeds from 800000: "
-                          "flashnav/maps/validation.py); the episodes are spread over the maps in blocks "
-                          "(flashnav/eval_maps.py, EvalSet); None = the training maps. The benchmark suites "
-                          "(heldout, real) are refused")
+        None, description="evaluate on other maps than the training maps (None): a directory, glob or list of ROS map "
+                          "YAML files, or 'validation' (generated, seeds from 800000; flashnav/maps/validation.py), "
+                          "episodes spread over them in blocks; the benchmark suites (heldout, real) are refused")
     maps_per_family: int = Field(4, gt=0, description="with maps: validation, the suite's maps per family")
 
     @field_validator("maps")
