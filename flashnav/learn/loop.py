@@ -301,7 +301,8 @@ def _eval_set(spec: RunSpec, grid, dev: torch.device) -> Callable[[torch.nn.Modu
     """The run's fixed evaluation set, as a function of the policy: ``eval.episodes`` episodes on the
     training maps (``grid``; their first set for generated maps), slots drawing their maps as the training
     env's do; or, with ``eval.maps``, spread over those maps (:class:`flashnav.eval_maps.EvalSet`). Either
-    way on the run's robot preset (its goal sampling) and the policy's goal-distance scale is the run's."""
+    way the episodes follow the run's robot preset (its goal sampling), and the policy reads goal distances
+    on the run's scale (its input transform holds ``spec.goal_distance_max``; the env passes them unclipped)."""
     config = spec.config
     eval_grids = spec.eval_env_maps()
     if eval_grids is not None:
