@@ -26,8 +26,9 @@ from pathlib import Path
 
 import torch
 
-from flashnav.evaluate import play_episodes
+from flashnav.evaluate import episode_rates, play_episodes
 from flashnav.maps.grid import OccupancyMap
+from flashnav.maps.validation import spread_episodes
 from flashnav.names import BENCHMARK_SUITES
 from flashnav.outputs import write_json_report
 from flashnav.sim.env import NavVecEnv
@@ -60,6 +61,37 @@ def fixed_episodes(env, m: int, count: int, seed: int) -> tuple[torch.Tensor, to
     pose[:, 0] += ox
     pose[:, 1] += oy
     return pose, goal + torch.tensor([ox, oy], dtype=torch.float64, device=env.device)
+
+
+class EvalSet:
+    """The fixed evaluation set of a training run on maps other than its training maps (``eval.maps``).
+
+    ``episodes`` slots over the ``M`` maps of ``grids`` (:func:`spread_episodes`): slots are in blocks, map
+    0's first; map ``m``'s ``n_m`` episodes are those a one-map env on that map with ``n_m`` slots draws with
+    ``reset(seed=seed)`` (:func:`fixed_episodes`), with the preset's goal sampling, so they do not depend on
+    the other maps. Every :meth:`evaluate` plays the same episodes (one per slot, deterministic policy)
+    and returns what :func:`flashnav.evaluate.evaluate` returns, over all episodes pooled.
+    """
+
+    def __init__(self, preset, grids: tuple[OccupancyMap, ...] | list[OccupancyMap], episodes: int, seed: int, *,
+                 device: torch.device | str = "cpu", raycaster: str | None = None):
+        counts = spread_episodes(episodes, len(grids))
+        self.seed, self.counts = int(seed), counts
+        self.env = NavVecEnv(preset, episodes, grid=grids[0] if len(grids) == 1 else tuple(grids), device=device,
+                             seed=seed, raycaster=raycaster)
+        poses, goals = zip(*(fixed_episodes(self.env, m, n, seed) for m, n in enumerate(counts)))
+        self.pose, self.goal = torch.cat(poses), torch.cat(goals)  # [E, 3], [E, 2] float64, world
+        self.map_index = (torch.arange(len(grids), device=self.env.device)
+                          .repeat_interleave(torch.tensor(counts, device=self.env.device)) if len(grids) > 1 else None)
+
+    @torch.no_grad()
+    def evaluate(self, policy) -> dict[str, float]:
+        """success_rate, collision_rate, timeout_rate, mean_return, mean_steps of ``policy`` (obs [k, D] ->
+        action [k, 2]) over the set's episodes."""
+        self.env.reset(seed=self.seed)  # reseeds the generator the placement draws from (agents, sensor noise)
+        obs = self.env.set_state(self.pose, self.goal, map_index=self.map_index)
+        e = play_episodes(policy, self.env, obs)
+        return episode_rates(e["success"], e["collision"], e["episode_return"], e["episode_steps"])
 
 
 def map_labels(grids: list[OccupancyMap]) -> list[str]:

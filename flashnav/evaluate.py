@@ -30,7 +30,7 @@ def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, see
     if dense:
         return _evaluate_dense(policy, env, seed)
     e = evaluate_episodes(policy, env, seed)
-    return _rates(e["success"], e["collision"], e["episode_return"], e["episode_steps"])
+    return episode_rates(e["success"], e["collision"], e["episode_return"], e["episode_steps"])
 
 
 def evaluate_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv,
@@ -92,10 +92,11 @@ def _evaluate_dense(policy, env: NavVecEnv, seed: int) -> dict[str, float]:
         returns = torch.where(first, info["episode_return"], returns)
         steps = torch.where(first, info["episode_steps"].float(), steps)
         finished |= first
-    return _rates(success, collision, returns, steps)
+    return episode_rates(success, collision, returns, steps)
 
 
-def _rates(success, collision, returns, steps) -> dict[str, float]:
+def episode_rates(success, collision, returns, steps) -> dict[str, float]:
+    """The rates :func:`evaluate` returns, from one outcome per episode ([N] bool / float tensors)."""
     return {
         "success_rate": success.float().mean().item(),
         "collision_rate": collision.float().mean().item(),

@@ -26,6 +26,7 @@ from flashnav.finetune import InitSource, check_compatible, check_goal_scale, lo
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
+from flashnav.maps.validation import check_eval_maps_value, resolve_eval_maps, spread_episodes
 from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_name, check_robot
 from flashnav.presets import load_robot
 
@@ -47,6 +48,16 @@ class EvalSettings(KnownKeys):
     episodes: int = Field(1024, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
     every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
     seed: int = Field(12345, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
+    maps: str | list[str] | None = Field(
+        None, description="evaluate on other maps than the training maps (None): a directory, glob or list of ROS map "
+                          "YAML files, or 'validation' (generated, seeds from 800000; flashnav/maps/validation.py), "
+                          "episodes spread over them in blocks; the benchmark suites (heldout, real) are refused")
+    maps_per_family: int = Field(4, gt=0, description="with maps: validation, the suite's maps per family")
+
+    @field_validator("maps")
+    @classmethod
+    def _not_benchmark(cls, value: Any) -> Any:
+        return check_eval_maps_value(value)
 
 
 class TrainConfig(KnownKeys):
@@ -245,6 +256,16 @@ class RunSpec:
     grids: tuple[OccupancyMap, ...] | None = field(default=None, repr=False, compare=False)  # every loaded map
     cuda_graph: bool = False      # static-buffer updates, CUDA-graph captured on cuda (resolve_cuda_graph)
     init: InitSource | None = None  # fine-tuning: the checkpoint the learner starts from (config.init_from)
+    eval_maps: dict[str, Any] | None = None  # config.eval.maps resolved: {"files": [...]} or the validation suite's
+                                             # {"suite", "families", "seeds", "maps_per_family"}; None = training maps
+    eval_grids: tuple[OccupancyMap, ...] | None = field(default=None, repr=False, compare=False)  # their maps
+
+    def eval_env_maps(self) -> tuple[OccupancyMap, ...] | None:
+        """The maps every evaluation plays when ``eval.maps`` is set (loaded or generated here for a spec
+        read back from a file); None = the training maps (:meth:`env_maps`)."""
+        if self.config.eval.maps is None:
+            return None
+        return self.eval_grids if self.eval_grids is not None else _load_eval_maps(self.config, self.robot)[0]
 
     def env_maps(self) -> OccupancyMap | tuple[OccupancyMap, ...]:
         """What ``NavVecEnv(grid=...)`` takes for this run: the one map, or every map (loaded here
@@ -299,6 +320,8 @@ class RunSpec:
                     robot_preset=self.robot.model_dump(mode="json"), goal_distance_max=self.goal_distance_max)
         if self.init is not None:
             data["init_source"] = self.init.to_dict()
+        if self.eval_maps is not None:
+            data["eval_maps"] = self.eval_maps
         return data
 
     @classmethod
@@ -319,7 +342,8 @@ class RunSpec:
         device = str(data.get("device", config.device))
         init = InitSource.from_dict(data["init_source"]) if data.get("init_source") else None
         return cls(config, robot, hparams, device, str(data.get("recipe", config.recipe)), float(goal),
-                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device), init=init)
+                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device), init=init,
+                   eval_maps=data.get("eval_maps") if config.eval.maps is not None else None)
 
 
 def _load_maps(config: TrainConfig, robot: RobotPreset) -> tuple[OccupancyMap, tuple[OccupancyMap, ...] | None]:
@@ -334,6 +358,16 @@ def _load_maps(config: TrainConfig, robot: RobotPreset) -> tuple[OccupancyMap, t
     else:
         grids = tuple(resolve_maps(config.maps, robot.map))
     return grids[0], grids
+
+
+def _load_eval_maps(config: TrainConfig, robot: RobotPreset) -> tuple[tuple[OccupancyMap, ...] | None, dict | None]:
+    """``eval.maps`` resolved (:func:`flashnav.maps.validation.resolve_eval_maps`): (maps, record), or
+    (None, None) for the training maps."""
+    if config.eval.maps is None:
+        return None, None
+    families = config.maps.family if isinstance(config.maps, GeneratedMaps) else None
+    return resolve_eval_maps(config.eval.maps, config.eval.maps_per_family, families, generation_radius(robot),
+                             robot.map)
 
 
 def resolve(config: TrainConfig | None = None) -> RunSpec:
@@ -353,6 +387,9 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
         check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from)
     if isinstance(config.maps, GeneratedMaps):  # before drawing set 0: every set's seeds must be valid
         config.maps.check_seeds(math.ceil((config.budget.max_env_steps or hparams.total_env_steps) / hparams.num_envs))
+    eval_grids, eval_maps = _load_eval_maps(config, robot)  # before the training maps: a bad path fails fast
+    if eval_grids is not None:
+        spread_episodes(config.eval.episodes, len(eval_grids))  # every evaluation map gets an episode
     grid, grids = _load_maps(config, robot)
     if grids is None:
         scale = grid.diagonal_m
@@ -368,4 +405,5 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
         # the network keeps the scale it was trained with, whatever the new maps' size
         scale = checkpoint.goal_distance_max
         check_goal_scale(scale, robot, config.init_from)
-    return RunSpec(config, robot, hparams, device, recipe, scale, grid, grids, cuda_graph=cuda_graph, init=init)
+    return RunSpec(config, robot, hparams, device, recipe, scale, grid, grids, cuda_graph=cuda_graph, init=init,
+                   eval_maps=eval_maps, eval_grids=eval_grids)

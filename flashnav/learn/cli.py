@@ -29,6 +29,11 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                    help="train over many maps: a directory or glob pattern of ROS map YAML files (quote the "
                         "pattern); each env slot draws a map when it resets. Or family:F1,F2 for maps generated "
                         "during training (with maps.count=K maps.refresh_every=C maps.seed=S)")
+    p.add_argument("--eval-maps", dest="eval_maps", metavar="DIR_OR_GLOB|validation",
+                   help="evaluate on other maps than the training maps (eval.maps): a directory or glob pattern "
+                        "of ROS map YAML files, or 'validation' (eval.maps_per_family=K maps of each training "
+                        "family, or of every family, seeds 800000..; never a benchmark suite). The curve, "
+                        "time-to-threshold and the best policy then measure success on those maps")
     p.add_argument("--init-from", dest="init_from", metavar="RUN_DIR_OR_CHECKPOINT",
                    help="fine-tune: start from a trained run's learner (weights, optimiser state, temperature; "
                         "not its replay); its network shapes must match this run's")
@@ -47,7 +52,9 @@ def config_from_args(args) -> TrainConfig:
                                                 "init_from")}
     if args.sequential:
         flags["overlap"] = False
-    return config_from_cli(args.config, flags, args.overrides)
+    # the path as a quoted YAML string (a bare `*.yaml` would read as a YAML alias); later key=value wins
+    assignments = ([f"eval.maps={json.dumps(args.eval_maps)}"] if args.eval_maps else []) + list(args.overrides)
+    return config_from_cli(args.config, flags, assignments)
 
 
 def run_train(args) -> int:
@@ -66,6 +73,10 @@ def run_train(args) -> int:
         run = spec.init.run
         console.print(f"fine-tuning from {spec.init.path} (seed {run['seed']}, {run['recipe']} recipe, saved "
                       f"{run['saved_at']}); goal-distance scale {spec.goal_distance_max:.2f} m from its run")
+    if spec.eval_maps is not None:
+        grids = spec.eval_env_maps()
+        console.print(f"evaluating on {len(grids)} maps of eval.maps = {config.eval.maps} "
+                      f"({config.eval.episodes} episodes spread over them), not on the training maps")
     with TrainProgress(console) as progress:
         result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress, interruptible=True)
     if result.stop_reason == "interrupted":

@@ -29,6 +29,7 @@ from typing import Any, Callable
 
 import torch
 
+from flashnav.eval_maps import EvalSet
 from flashnav.evaluate import ThresholdTracker, evaluate
 from flashnav.finetune import load_learner
 from flashnav.learn.cuda_graph import CycleUpdates
@@ -129,8 +130,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
     grid = spec.env_maps()
     env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster,
                     map_weights=config.map_weights)
-    eval_env = NavVecEnv(preset, config.eval.episodes, grid=grid, device=dev, seed=config.eval.seed,
-                         raycaster=config.raycaster, map_weights=config.map_weights)
+    play_eval = _eval_set(spec, grid, dev)
     if spec.threads:
         # After the environments exist: the first numba parallel kernel of a process starts its
         # OpenMP pool, which resets the thread count torch shares with it (the first run of every
@@ -223,7 +223,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
             out_of_time = cycle_t.total >= config.budget.max_train_seconds
             if cycle % eval_every and cycle != cycles and not out_of_time:
                 continue  # every run ends with an evaluation, whichever budget ends it
-            last_eval = _evaluate(learner, eval_env, config, env_steps, cycle_t.total, len(curve))
+            last_eval = _evaluate(learner, play_eval, env_steps, cycle_t.total, len(curve))
             curve.append(last_eval)
             tracker.update(last_eval["success_rate"], cycle_t.total, env_steps)
             if best_policy is None or last_eval["success_rate"] > best_rate:
@@ -297,12 +297,29 @@ def _map_stream(spec: RunSpec, cycles: int) -> MapStream | None:
     return MapStream(maps, generation_radius(spec.robot), warm=warm, sets=maps.sets_needed(cycles))
 
 
-def _evaluate(learner: Learner, eval_env: NavVecEnv, config: TrainConfig, env_steps: int,
+def _eval_set(spec: RunSpec, grid, dev: torch.device) -> Callable[[torch.nn.Module], dict[str, float]]:
+    """The run's fixed evaluation set, as a function of the policy: ``eval.episodes`` episodes on the
+    training maps (``grid``; their first set for generated maps), slots drawing their maps as the training
+    env's do; or, with ``eval.maps``, spread over those maps (:class:`flashnav.eval_maps.EvalSet`). Either
+    way the episodes follow the run's robot preset (its goal sampling), and the policy reads goal distances
+    on the run's scale (its input transform holds ``spec.goal_distance_max``; the env passes them unclipped)."""
+    config = spec.config
+    eval_grids = spec.eval_env_maps()
+    if eval_grids is not None:
+        eval_set = EvalSet(spec.robot, eval_grids, config.eval.episodes, config.eval.seed, device=dev,
+                           raycaster=config.raycaster)
+        return eval_set.evaluate
+    eval_env = NavVecEnv(spec.robot, config.eval.episodes, grid=grid, device=dev, seed=config.eval.seed,
+                         raycaster=config.raycaster, map_weights=config.map_weights)
+    return lambda policy: evaluate(policy, eval_env, config.eval.seed)
+
+
+def _evaluate(learner: Learner, play_eval: Callable[[torch.nn.Module], dict[str, float]], env_steps: int,
               train_seconds: float, index: int) -> dict[str, float]:
     policy = learner.policy
     was_training = policy.training
     policy.eval()
-    result = evaluate(policy, eval_env, config.eval.seed)
+    result = play_eval(policy)
     policy.train(was_training)
     return {"env_steps": env_steps, "train_seconds": train_seconds, "eval_index": index, **result}
 
