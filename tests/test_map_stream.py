@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from flashnav.learn import loop
-from flashnav.maps.families import HELD_OUT_SEED_START, generate_family
+from flashnav.maps.families import RESERVED_SEED_START, generate_family
 from flashnav.maps.generate import generate_map
 from flashnav.maps.stream import GeneratedMaps, MapStream, generate_set, parse_family_maps
 from flashnav.names import MAP_FAMILIES
@@ -40,14 +40,14 @@ def test_a_family_named_twice_is_drawn_twice_as_often():
 
 
 def test_held_out_seeds_are_refused():
-    GeneratedMaps(family="rooms", count=10, refresh_every=1, seed=HELD_OUT_SEED_START - 100).check_seeds(10)
+    GeneratedMaps(family="rooms", count=10, refresh_every=1, seed=RESERVED_SEED_START - 100).check_seeds(10)
     with pytest.raises(ValueError, match=r"maps.seed: .* seeds 799900-800009; seeds from 800000 up are reserved"):
         GeneratedMaps(family="rooms", count=10, refresh_every=1, seed=799_900).check_seeds(11)
     with pytest.raises(ValueError, match="maps.seed"):  # resolve counts the budget's cycles
         resolve(TrainConfig(device="cpu", recipe="cpu", maps={"family": "rooms", "count": 4, "refresh_every": 1,
                                                                "seed": 799_000}, budget={"max_env_steps": 128 * 300}))
     with pytest.raises(ValueError, match="reserved for validation"):
-        generate_set(GeneratedMaps(family="mazes", count=1, seed=HELD_OUT_SEED_START), 0, 0.3)
+        generate_set(GeneratedMaps(family="mazes", count=1, seed=RESERVED_SEED_START), 0, 0.3)
 
 
 def test_the_command_line_form_and_its_overrides():

@@ -42,14 +42,14 @@ RESOLUTIONS = (0.025, 0.05, 0.075, 0.1)  # metres per cell, drawn uniformly unle
 #: Seeds from here up are reserved for validation and held-out benchmark suites: training never
 #: draws them (:func:`check_training_seed`; ``maps: {family: ...}`` in a training config). The ranges
 #: themselves are defined once in :mod:`flashnav.names`.
-HELD_OUT_SEED_START = VALIDATION_SEEDS[0]
+RESERVED_SEED_START = VALIDATION_SEEDS[0]
 
 
 def check_training_seed(seed: int) -> int:
     """``seed`` if a training run may generate a map with it, else a ValueError naming it."""
-    if seed >= HELD_OUT_SEED_START:
+    if seed >= RESERVED_SEED_START:
         raise ValueError(f"map seed {seed} is reserved for validation and held-out suites (seeds >= "
-                         f"{HELD_OUT_SEED_START}); training maps use lower seeds")
+                         f"{RESERVED_SEED_START}); training maps use lower seeds")
     return seed
 
 

@@ -5,7 +5,7 @@ Set ``i`` (0, 1, 2, ...) holds K maps: map ``j`` of it is family ``families[j % 
 ``S + i K + j`` (:func:`flashnav.maps.families.generate_family`), so no seed, hence no map, comes back
 within a run. Set 0 is the run's first map set (and its fixed evaluation set); every C cycles
 (vector steps) the training env swaps to the next set (:meth:`flashnav.sim.env.NavVecEnv.replace_maps`).
-Seeds at or above :data:`flashnav.maps.families.HELD_OUT_SEED_START` are reserved for validation and
+Seeds at or above :data:`flashnav.maps.families.RESERVED_SEED_START` are reserved for validation and
 held-out benchmark suites: a configuration whose run could reach one is refused before it starts.
 
 Generating a set takes seconds (a 30 x 30 m map at 0.025 m: 0.3-0.7 s to draw and 0.2-1.2 s for the
@@ -23,7 +23,7 @@ from typing import Any, Callable
 from pydantic import Field, field_validator
 
 from flashnav.config import KnownKeys
-from flashnav.maps.families import HELD_OUT_SEED_START, SIZE_RANGE, check_training_seed, generate_family
+from flashnav.maps.families import RESERVED_SEED_START, SIZE_RANGE, check_training_seed, generate_family
 from flashnav.machine import single_threaded_numba
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import MAP_FAMILIES, parse_names
@@ -41,7 +41,7 @@ class GeneratedMaps(KnownKeys):
     count: int = Field(16, gt=0, description="maps per set: the env's slots draw among them when they reset")
     refresh_every: int | None = Field(None, gt=0, description="cycles (vector steps) between new sets "
                                                               "(None = the first set for the whole run)")
-    seed: int = Field(0, ge=0, description=f"seed of the first map; seeds stay below {HELD_OUT_SEED_START} "
+    seed: int = Field(0, ge=0, description=f"seed of the first map; seeds stay below {RESERVED_SEED_START} "
                                            "(reserved for held-out suites)")
 
     @field_validator("family", mode="before")
@@ -61,10 +61,10 @@ class GeneratedMaps(KnownKeys):
     def check_seeds(self, cycles: int) -> None:
         """A ValueError naming ``maps.seed`` when a run of ``cycles`` cycles would reach a held-out seed."""
         last = self.seed + self.sets_needed(cycles) * self.count - 1
-        if last >= HELD_OUT_SEED_START:
+        if last >= RESERVED_SEED_START:
             raise ValueError(
                 f"maps.seed: a run of {cycles:,} cycles draws {self.sets_needed(cycles)} sets of {self.count} maps, "
-                f"seeds {self.seed}-{last}; seeds from {HELD_OUT_SEED_START} up are reserved for validation and "
+                f"seeds {self.seed}-{last}; seeds from {RESERVED_SEED_START} up are reserved for validation and "
                 "held-out suites (lower maps.seed, maps.count or the budget, or raise maps.refresh_every)")
 
     @property
