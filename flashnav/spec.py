@@ -26,7 +26,7 @@ from flashnav.finetune import InitSource, check_compatible, check_goal_scale, lo
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
-from flashnav.maps.validation import check_eval_maps_value, resolve_eval_maps, spread_episodes
+from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
 from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_name, check_robot
 from flashnav.presets import load_robot
 
@@ -265,7 +265,7 @@ class RunSpec:
         read back from a file); None = the training maps (:meth:`env_maps`)."""
         if self.config.eval.maps is None:
             return None
-        return self.eval_grids if self.eval_grids is not None else _load_eval_maps(self.config, self.robot)[0]
+        return self.eval_grids if self.eval_grids is not None else load_eval_maps(self.config, self.robot)[0]
 
     def env_maps(self) -> OccupancyMap | tuple[OccupancyMap, ...]:
         """What ``NavVecEnv(grid=...)`` takes for this run: the one map, or every map (loaded here
@@ -360,16 +360,6 @@ def _load_maps(config: TrainConfig, robot: RobotPreset) -> tuple[OccupancyMap, t
     return grids[0], grids
 
 
-def _load_eval_maps(config: TrainConfig, robot: RobotPreset) -> tuple[tuple[OccupancyMap, ...] | None, dict | None]:
-    """``eval.maps`` resolved (:func:`flashnav.maps.validation.resolve_eval_maps`): (maps, record), or
-    (None, None) for the training maps."""
-    if config.eval.maps is None:
-        return None, None
-    families = config.maps.family if isinstance(config.maps, GeneratedMaps) else None
-    return resolve_eval_maps(config.eval.maps, config.eval.maps_per_family, families, generation_radius(robot),
-                             robot.map)
-
-
 def resolve(config: TrainConfig | None = None) -> RunSpec:
     """The one place a run's configuration is resolved: device, recipe, preset, hyperparameters, map.
 
@@ -387,9 +377,7 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
         check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from)
     if isinstance(config.maps, GeneratedMaps):  # before drawing set 0: every set's seeds must be valid
         config.maps.check_seeds(math.ceil((config.budget.max_env_steps or hparams.total_env_steps) / hparams.num_envs))
-    eval_grids, eval_maps = _load_eval_maps(config, robot)  # before the training maps: a bad path fails fast
-    if eval_grids is not None:
-        spread_episodes(config.eval.episodes, len(eval_grids))  # every evaluation map gets an episode
+    eval_grids, eval_maps = load_eval_maps(config, robot)  # before the training maps: a bad path fails fast
     grid, grids = _load_maps(config, robot)
     if grids is None:
         scale = grid.diagonal_m

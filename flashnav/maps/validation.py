@@ -28,6 +28,7 @@ from typing import Any
 
 from flashnav.maps.families import generate_family
 from flashnav.maps.grid import OccupancyMap
+from flashnav.maps.stream import GeneratedMaps, generation_radius
 from flashnav.names import BENCHMARK_SUITES, HELDOUT_SEEDS_FROM, MAP_FAMILIES, VALIDATION_SEEDS
 
 #: ``eval.maps: validation``: the generated validation suite.
@@ -137,5 +138,18 @@ def resolve_eval_maps(value: str | list[str], per_family: int, training_families
     return grids, {"files": [str(g.source) if g.source else g.name for g in grids]}
 
 
-__all__ = ["VALIDATION", "benchmark_dir", "check_eval_maps_value", "check_not_benchmark", "resolve_eval_maps",
+__all__ = ["VALIDATION", "benchmark_dir", "check_eval_maps_value", "check_not_benchmark", "load_eval_maps", "resolve_eval_maps",
            "spread_episodes", "validation_families", "validation_seeds"]
+
+
+def load_eval_maps(config, robot) -> tuple[tuple[OccupancyMap, ...] | None, dict[str, Any] | None]:
+    """A TrainConfig's ``eval.maps`` resolved for ``robot`` (its preset) with :func:`resolve_eval_maps`:
+    (maps, record), checked to give every map an episode; (None, None) for the training maps."""
+    if config.eval.maps is None:
+        return None, None
+    families = config.maps.family if isinstance(config.maps, GeneratedMaps) else None
+    grids, record = resolve_eval_maps(config.eval.maps, config.eval.maps_per_family, families,
+                                      generation_radius(robot), robot.map)
+    spread_episodes(config.eval.episodes, len(grids))  # every evaluation map gets an episode
+    return grids, record
+
