@@ -15,7 +15,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
-from flashnav.names import AGENT_BEHAVIOURS, GOAL_SAMPLINGS
+from flashnav.names import AGENT_BEHAVIOURS, GOAL_SAMPLINGS, PROGRESS_METRICS
 
 
 class KnownKeys(BaseModel):
@@ -148,6 +148,10 @@ class Reward(Strict):
                                    "reward)")
     agent_proximity_distance: float = Field(0.5, gt=0, description="metres of gap (footprint to agent disc) "
                                             "below which agent_proximity applies")
+    progress_metric: Literal[PROGRESS_METRICS] = Field(  # type: ignore[valid-type]
+        "euclidean", description="the distance d of the shaping term: the straight line (euclidean, the "
+        "paper's) or the path length through the free space (geodesic: training only, needs "
+        "episode.goal_sampling=geodesic; flashnav.sim.goal_fields)")
 
 
 class Agents(Strict):
@@ -209,6 +213,14 @@ class RobotPreset(Strict):
     map_size: tuple[float, float] = Field(description="the paper's map extent (x, y), metres, for reference")
     agents: Agents = Field(default_factory=Agents, description="moving obstacles (none by default)")
     observation: Observation = Field(default_factory=Observation, description="opt-in observation extras")
+
+    @model_validator(mode="after")
+    def _progress_metric(self) -> "RobotPreset":
+        if self.reward.progress_metric == "geodesic" and self.episode.goal_sampling != "geodesic":
+            raise ValueError("reward.progress_metric=geodesic needs episode.goal_sampling=geodesic (the path "
+                             f"lengths come from the geodesic sampler's source cells), got episode.goal_sampling="
+                             f"{self.episode.goal_sampling}")
+        return self
 
     @property
     def base_obs_dim(self) -> int:

@@ -32,6 +32,7 @@ from flashnav.maps.validation import spread_episodes
 from flashnav.names import BENCHMARK_SUITES
 from flashnav.outputs import write_json_report
 from flashnav.sim.env import NavVecEnv
+from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.sim.mapset import sim_frame
 
 #: Version of the ``--json`` layout written by :func:`evaluate_maps` (read by ``flashnav report
@@ -68,16 +69,18 @@ class EvalSet:
 
     ``episodes`` slots over the ``M`` maps of ``grids`` (:func:`spread_episodes`): slots are in blocks, map
     0's first; map ``m``'s ``n_m`` episodes are those a one-map env on that map with ``n_m`` slots draws with
-    ``reset(seed=seed)`` (:func:`fixed_episodes`), with the preset's goal sampling, so they do not depend on
-    the other maps. Every :meth:`evaluate` plays the same episodes (one per slot, deterministic policy)
-    and returns what :func:`flashnav.evaluate.evaluate` returns, over all episodes pooled.
+    ``reset(seed=seed)`` (:func:`fixed_episodes`), with the preset's goal sampling and the paper's
+    reward (:func:`~flashnav.sim.goal_fields.evaluation_preset`), so they do not depend on the other maps.
+    Every :meth:`evaluate` plays the same episodes (one per slot, deterministic policy) and returns what
+    :func:`flashnav.evaluate.evaluate` returns, over all episodes pooled.
     """
 
     def __init__(self, preset, grids: tuple[OccupancyMap, ...] | list[OccupancyMap], episodes: int, seed: int, *,
                  device: torch.device | str = "cpu", raycaster: str | None = None):
         counts = spread_episodes(episodes, len(grids))
         self.seed, self.counts = int(seed), counts
-        self.env = NavVecEnv(preset, episodes, grid=grids[0] if len(grids) == 1 else tuple(grids), device=device,
+        self.env = NavVecEnv(evaluation_preset(preset), episodes,
+                             grid=grids[0] if len(grids) == 1 else tuple(grids), device=device,
                              seed=seed, raycaster=raycaster)
         poses, goals = zip(*(fixed_episodes(self.env, m, n, seed) for m, n in enumerate(counts)))
         self.pose, self.goal = torch.cat(poses), torch.cat(goals)  # [E, 3], [E, 2] float64, world
@@ -114,7 +117,8 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1 per map, got {episodes}")
     m = len(grids)
-    env = NavVecEnv(preset, m * episodes, grid=grids[0] if m == 1 else grids, device=device, seed=seed)
+    env = NavVecEnv(evaluation_preset(preset), m * episodes, grid=grids[0] if m == 1 else grids, device=device,
+                    seed=seed)
     poses, goals = zip(*(fixed_episodes(env, k, episodes, seed) for k in range(m)))
     map_index = torch.arange(m, device=env.device).repeat_interleave(episodes)
     obs = env.set_state(torch.cat(poses), torch.cat(goals), map_index=map_index if m > 1 else None)

@@ -25,6 +25,9 @@ DEFAULT_RAYCASTER = RAYCASTERS[0]
 #: How the episode sampler picks goals (``episode.goal_sampling``; :mod:`flashnav.sim.sampling`):
 #: ``euclidean`` (the default, the paper task) by straight-line distance, ``geodesic`` by path length.
 GOAL_SAMPLINGS = ("euclidean", "geodesic")
+#: The distance of the reward's shaping term (``reward.progress_metric``; :mod:`flashnav.sim.goal_fields`):
+#: ``euclidean`` (the default, the paper's) or ``geodesic`` (path length; training only).
+PROGRESS_METRICS = ("euclidean", "geodesic")
 #: Families of generated maps (:mod:`flashnav.maps.families`).
 MAP_FAMILIES = ("rooms", "offices", "halls", "warehouses", "mazes", "clutter")
 #: Map suites of the generalisation benchmark, committed in ``flashnav/maps/data/benchmark/<name>/``

@@ -40,6 +40,7 @@ from flashnav.machine import learner_threads, machine_name, single_threaded_numb
 from flashnav.maps.stream import GeneratedMaps, MapStream, generation_radius
 from flashnav.metrics import reaches
 from flashnav.sim.env import NavVecEnv
+from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.spec import RunSpec, TrainConfig, resolve
 
 
@@ -309,8 +310,8 @@ def _eval_set(spec: RunSpec, grid, dev: torch.device) -> Callable[[torch.nn.Modu
         eval_set = EvalSet(spec.robot, eval_grids, config.eval.episodes, config.eval.seed, device=dev,
                            raycaster=config.raycaster)
         return eval_set.evaluate
-    eval_env = NavVecEnv(spec.robot, config.eval.episodes, grid=grid, device=dev, seed=config.eval.seed,
-                         raycaster=config.raycaster, map_weights=config.map_weights)
+    eval_env = NavVecEnv(evaluation_preset(spec.robot), config.eval.episodes, grid=grid, device=dev,
+                         seed=config.eval.seed, raycaster=config.raycaster, map_weights=config.map_weights)
     return lambda policy: evaluate(policy, eval_env, config.eval.seed)
 
 

@@ -41,6 +41,33 @@ def _append(buf, size, val):
 
 
 @njit(cache=True)
+def _relax(free, dist, c, d, bound, i0, j0, wh, ww, bufs, sizes):
+    """Dijkstra's relaxation of the 8 neighbours of window cell ``c`` (settled at distance ``d`` cells)
+    in the window (rows i0.., cols j0.., wh x ww) of ``free``: a neighbour reached shorter, within
+    ``bound``, gets its distance and joins bucket int(distance) % 3 of ``bufs`` / ``sizes``."""
+    ci, cj = c // ww, c % ww
+    for di in range(-1, 2):
+        for dj in range(-1, 2):
+            if di == 0 and dj == 0:
+                continue
+            ni, nj = ci + di, cj + dj
+            if ni < 0 or nj < 0 or ni >= wh or nj >= ww or not free[ni + i0, nj + j0]:
+                continue
+            step = 1.0
+            if di != 0 and dj != 0:
+                if not (free[ci + di + i0, cj + j0] and free[ci + i0, cj + dj + j0]):
+                    continue  # no corner cutting
+                step = _SQRT2
+            nd = d + step
+            n = ni * ww + nj
+            if nd <= bound and nd < dist[n]:
+                dist[n] = nd
+                b = int(nd) % 3
+                bufs[b] = _append(bufs[b], sizes[b], n)
+                sizes[b] += 1
+
+
+@njit(cache=True)
 def _band_cells(free, src, lo, hi, max_goals, seed, out):
     """Dijkstra (Dinitz's buckets) from cell ``src`` (flat index into ``free`` [H, W] bool) bounded at ``hi`` cells; picks
     up to ``max_goals`` cells with ``lo <= distance <= hi`` (all of them if fewer), writes their flat
@@ -77,25 +104,7 @@ def _band_cells(free, src, lo, hi, max_goals, seed, out):
             if d >= lo:
                 band[nband] = (ci + i0) * w + (cj + j0)
                 nband += 1
-            for di in range(-1, 2):
-                for dj in range(-1, 2):
-                    if di == 0 and dj == 0:
-                        continue
-                    ni, nj = ci + di, cj + dj
-                    if ni < 0 or nj < 0 or ni >= wh or nj >= ww or not free[ni + i0, nj + j0]:
-                        continue
-                    step = 1.0
-                    if di != 0 and dj != 0:
-                        if not (free[ci + di + i0, cj + j0] and free[ci + i0, cj + dj + j0]):
-                            continue  # no corner cutting
-                        step = _SQRT2
-                    nd = d + step
-                    n = ni * ww + nj
-                    if nd <= hi and nd < dist[n]:
-                        dist[n] = nd
-                        b = int(nd) % 3
-                        bufs[b] = _append(bufs[b], sizes[b], n)
-                        sizes[b] += 1
+            _relax(free, dist, c, d, hi, i0, j0, wh, ww, bufs, sizes)
         sizes[cur] = 0
     # a seeded partial Fisher-Yates shuffle picks the goals
     state = np.uint64(seed) * np.uint64(0x100000001B3) + np.uint64(src)
@@ -119,3 +128,54 @@ def band_pairs(free, sources, lo, hi, max_goals, seed):
     for k in prange(p):
         counts[k] = _band_cells(free, sources[k], lo, hi, max_goals, seed, goals[k])
     return goals, counts
+
+
+@njit(cache=True)
+def _window_field(free, src, reach, bound, out):
+    """The path length in cells from cell ``src`` (flat index into ``free`` [H, W] bool) to every cell of
+    the window of ``2 reach + 1`` cells centred on it, written to ``out`` [2 reach + 1, 2 reach + 1]
+    float32: the same bucket Dijkstra as :func:`_band_cells`, bounded at ``bound`` cells; cells farther,
+    not free, unreachable or outside the map stay inf."""
+    h, w = free.shape
+    side = 2 * reach + 1
+    si, sj = src // w, src % w
+    i0, j0 = max(si - reach, 0), max(sj - reach, 0)  # the part of the window inside the map
+    wh, ww = min(si + reach + 1, h) - i0, min(sj + reach + 1, w) - j0
+    dist = np.full(wh * ww, np.inf)
+    settled = np.zeros(wh * ww, np.bool_)
+    bufs = [np.empty(256, np.int64), np.empty(256, np.int64), np.empty(256, np.int64)]
+    sizes = np.zeros(3, np.int64)
+    start = (si - i0) * ww + (sj - j0)
+    dist[start] = 0.0
+    bufs[0] = _append(bufs[0], 0, start)
+    sizes[0] = 1
+    for k in range(int(bound) + 1):
+        cur = k % 3
+        todo = bufs[cur]
+        for e in range(sizes[cur]):
+            c = todo[e]
+            d = dist[c]
+            if settled[c] or d >= k + 1:
+                continue
+            settled[c] = True
+            _relax(free, dist, c, d, bound, i0, j0, wh, ww, bufs, sizes)
+        sizes[cur] = 0
+    out[:, :] = np.inf
+    oi, oj = i0 - (si - reach), j0 - (sj - reach)  # where the map part sits in the full window
+    for i in range(wh):
+        for j in range(ww):
+            out[oi + i, oj + j] = dist[i * ww + j]
+    return side
+
+
+@njit(parallel=True, cache=True)
+def window_fields(free, sources, reach, bound):
+    """For each source cell (flat indices [P] into ``free`` [H, W] bool), the path lengths in cells to the
+    window of ``2 reach + 1`` cells centred on it, bounded at ``bound`` cells (inf beyond):
+    [P, 2 reach + 1, 2 reach + 1] float32."""
+    p = sources.size
+    side = 2 * reach + 1
+    out = np.empty((p, side, side), np.float32)
+    for k in prange(p):
+        _window_field(free, sources[k], reach, bound, out[k])
+    return out

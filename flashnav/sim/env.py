@@ -20,7 +20,8 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     (:mod:`flashnav.sim.history`; a new episode starts with its first scan repeated); obs_dim += k S
 
 Rewards: goal reached (distance < goal_threshold) -> +goal, terminated; else collision -> collision,
-terminated (the goal is checked first, as the paper lists it); else progress * (d_old - d_new).
+terminated (the goal is checked first, as the paper lists it); else progress * (d_old - d_new), d the
+straight-line goal distance (``reward.progress_metric: geodesic``: the path length, :mod:`flashnav.sim.goal_fields`).
 Reaching the horizon without a terminal event is a truncation. Finished slots are reset in the same
 step (Gymnasium's SAME_STEP autoreset): ``info["final_obs"]`` holds the observation *before* the
 reset for every slot (equal to ``obs`` where nothing finished) and ``info["_final_obs"]`` marks the
@@ -55,6 +56,7 @@ from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
+from flashnav.sim.goal_fields import GoalFields
 from flashnav.sim.history import ScanHistory
 from flashnav.sim.inputs import as_batch, check_finite
 from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
@@ -102,6 +104,8 @@ class NavVecEnv(VectorEnv):
         self.velocity = torch.zeros(n, 2, **f32)  # executed (v m/s, w rad/s)
         self.steps = torch.zeros(n, dtype=torch.int32, device=self.device)
         self.goal_distance = torch.zeros(n, **f32)
+        self.progress_distance = torch.zeros(n, **f32)  # d of the progress term (geodesic progress only)
+        self._goal_source = torch.full((n,), -1, dtype=torch.long, device=self.device)
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
@@ -129,6 +133,9 @@ class NavVecEnv(VectorEnv):
         self._collides = make_collision_checker(preset.footprint, geometry, self.device)
         self.samplers = [EpisodeSampler(g, preset, self.device) for g in self.frame_maps]
         self.sampler = self.samplers[0]
+        # reward.progress_metric geodesic: path lengths to each goal source (None: the paper's straight line)
+        self._goal_fields = (GoalFields(self.frame_maps, self.samplers, preset, self.device)
+                             if preset.reward.progress_metric == "geodesic" else None)
         self._map_sampler = MapSetSampler(self.samplers) if len(self.maps) > 1 else None
         self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
         self.goal_distance_max = max(g.diagonal_m for g in self.maps)
@@ -202,6 +209,10 @@ class NavVecEnv(VectorEnv):
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
         self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
+        if self._goal_fields is not None:
+            maps = self._maps_of(idx)
+            self._goal_source[idx] = source = self._goal_fields.ids(goal, maps)
+            self.progress_distance[idx] = self._goal_fields.distance(pose[:, :2], source, maps, self.goal_distance[idx])
         if self.agents is not None:  # the slots' agents start with their episodes, on the slots' maps
             self.agents.reset(idx, pose, goal, self._gen, self._maps_of(idx))
         obs = self._observe(self._scan(pose, idx), pose, goal, zeros)
@@ -334,7 +345,12 @@ class NavVecEnv(VectorEnv):
         collision = static | agent
         terminated = success | collision
         truncated = (steps >= p.episode.horizon) & ~terminated
-        progress = p.reward.progress * (self.goal_distance[sel] - dist)
+        if self._goal_fields is None:
+            progress = p.reward.progress * (self.goal_distance[sel] - dist)
+        else:
+            d = self._goal_fields.distance(pose[:, :2], self._goal_source[sel], maps, dist)
+            progress = p.reward.progress * (self.progress_distance[sel] - d)
+            self.progress_distance[sel] = d
         if self.agents is not None and p.reward.agent_proximity > 0:  # off by default: the paper's reward
             near = (p.reward.agent_proximity_distance - self.agents.gap(pose, sel)).clamp(min=0.0)
             progress = progress - p.reward.agent_proximity * near

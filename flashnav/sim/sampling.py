@@ -67,6 +67,8 @@ class EpisodeSampler:
         self.mode = ep.goal_sampling
         self.device = device
         self.out_of_band = torch.zeros((), dtype=torch.long, device=device)
+        # geodesic progress (flashnav.sim.goal_fields) needs every goal on a pair's source cell
+        self.goal_at_source = preset.reward.progress_metric == "geodesic"
         if self.mode == "geodesic":
             from flashnav.maps.geodesic import geodesic_pairs
 
@@ -109,7 +111,7 @@ class EpisodeSampler:
     def _sample_geodesic(self, n: int, gen: torch.Generator):
         dev = self.device
         pair = torch.randint(self.pair_start.numel(), (n,), generator=gen, device=dev)
-        swap = torch.rand(n, generator=gen, device=dev) < 0.5  # a pair serves both ways
+        swap = (torch.rand(n, generator=gen, device=dev) < 0.5) | self.goal_at_source  # a pair serves both ways
         a, b = self.pair_start[pair], self.pair_goal[pair]
         start_idx, goal_idx = torch.where(swap, b, a), torch.where(swap, a, b)
         start = self.centres[start_idx] + self._jitter(n, gen)
@@ -199,11 +201,13 @@ class MapSetSampler:
             raise ValueError("MapSetSampler needs at least one map's EpisodeSampler, got none")
         first = samplers[0]
         for m, s in enumerate(samplers):
-            if (s.mode, s.d_min, s.d_max, s.device) != (first.mode, first.d_min, first.d_max, first.device):
+            if (s.mode, s.d_min, s.d_max, s.device, s.goal_at_source) != (
+                    first.mode, first.d_min, first.d_max, first.device, first.goal_at_source):
                 raise ValueError(f"samplers[{m}] has mode {s.mode!r}, band {s.d_min:g}-{s.d_max:g} m on {s.device}; "
                                  f"samplers[0] has {first.mode!r}, {first.d_min:g}-{first.d_max:g} m on "
                                  f"{first.device}: one map set samples with one episode preset")
         self.mode, self.d_min, self.d_max, self.device = first.mode, first.d_min, first.d_max, first.device
+        self.goal_at_source = first.goal_at_source
         dev = self.device
         # per-map tables concatenated; indices inside them stay local to their map (+ cell_first[m])
         self.centres = _concat(samplers, "centres")  # [sum of cells, 2] metres
@@ -260,7 +264,7 @@ class MapSetSampler:
         dev, n = self.device, maps.numel()
         u = torch.rand(n, generator=gen, device=dev, dtype=torch.float64)
         pair = self._pick(u, self.pair_first[maps], self.num_pairs[maps])
-        swap = torch.rand(n, generator=gen, device=dev) < 0.5  # a pair serves both ways
+        swap = (torch.rand(n, generator=gen, device=dev) < 0.5) | self.goal_at_source  # a pair serves both ways
         first = self.cell_first[maps]
         a, b = first + self.pair_start[pair], first + self.pair_goal[pair]
         start_idx, goal_idx = torch.where(swap, b, a), torch.where(swap, a, b)

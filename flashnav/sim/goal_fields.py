@@ -1,0 +1,136 @@
+"""Geodesic progress (``reward.progress_metric: geodesic``): the shaping term measured along the path.
+
+The paper's shaping term is ``progress x (d_old - d_new)`` with ``d`` the straight-line distance to the
+goal. In a maze or behind a wall that distance points through the wall: the robot is paid for walking
+into a dead end that looks towards the goal and charged for the detour that leads there. With
+``progress_metric: geodesic`` (needs ``episode.goal_sampling: geodesic``), ``d`` is the path length
+through the free space of the robot's disc instead: a potential-based change of the shaping (the
+returns of two policies that reach the goal differ only by discounting) that uses the map during
+training only. The observation stays the paper's (the policy still sees the straight-line distance and
+angle), and so does every evaluation (:func:`evaluation_preset`).
+
+How: the geodesic sampler's pairs already start from a few source cells per map
+(:mod:`flashnav.maps.geodesic`); with this metric every episode's goal is a source (the pair is played
+from its other end), and each source keeps the path lengths to the window of cells around it
+(``max_goal_distance`` + :data:`MARGIN_M`, the bounded Dijkstra of :mod:`flashnav.maps.geodesic_numba`,
+float16 metres, cached on the map like every derived field). A position's distance is the smallest
+``field[c] + |position - centre(c)|`` over the 3 x 3 cells around it (continuous, and defined beside
+walls where the robot's own cell is not free), capped at the window's bound: beyond it progress is 0.
+Cost: about 8-40 MB per map, and 9 gathers per slot and step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from flashnav.config import RobotPreset
+from flashnav.maps.fields import _radius_key, cached, free_space
+from flashnav.maps.grid import OccupancyMap
+
+MARGIN_M = 2.0  # metres of path beyond the farthest goal that each field still measures
+_OFFSETS = torch.tensor([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)])  # [9, 2] rows, cols
+
+
+def evaluation_preset(preset: RobotPreset) -> RobotPreset:
+    """``preset`` with the paper's straight-line progress: what an evaluation plays. The reward does not
+    change what is measured, but the geodesic metric plays every pair from its source end, which would
+    change the episodes; evaluations keep the task's."""
+    if preset.reward.progress_metric == "euclidean":
+        return preset
+    return preset.model_copy(update={"reward": preset.reward.model_copy(update={"progress_metric": "euclidean"})})
+
+
+def source_fields(grid: OccupancyMap, sources: np.ndarray, radius: float, bound_m: float) -> tuple[np.ndarray, int]:
+    """Path lengths (metres, float16; inf where farther than ``bound_m``, not free or unreachable) from
+    each source cell (flat indices [P] into ``grid``) through the free space of a disc of ``radius`` to
+    the cells of the window around it: ([P, 2 reach + 1, 2 reach + 1], reach). Cached on the map."""
+    sources = np.ascontiguousarray(sources, dtype=np.int64)
+    key = ("goal_fields", _radius_key(radius), round(float(bound_m), 9), sources.tobytes())
+
+    def build():
+        from flashnav.maps import geodesic_numba  # the first import may JIT-compile
+
+        bound = bound_m / grid.resolution
+        reach = int(math.ceil(bound)) + 1
+        cells = geodesic_numba.window_fields(free_space(grid, radius), sources, reach, bound)
+        return (cells * grid.resolution).astype(np.float16), reach
+
+    return cached(grid, key, build)
+
+
+class GoalFields:
+    """The per-source fields of a set of maps (the environment's frame maps and their samplers, in
+    order), on ``device``: which source a goal sits on, and the path length from positions to it."""
+
+    def __init__(self, grids: Sequence[OccupancyMap], samplers, preset: RobotPreset, device: torch.device):
+        self.device = device
+        self.radius = preset.footprint.circumscribed_radius
+        self.bound = samplers[0].d_max + MARGIN_M
+        fields, side, origin, lookup, res, shape, first = [], [], [], [], [], [], [0]
+        count = 0
+        for grid, sampler in zip(grids, samplers):
+            h, w = grid.shape
+            centres = sampler.centres[torch.unique(sampler.pair_start)].cpu().numpy()
+            cols = np.floor((centres[:, 0] - grid.origin[0]) / grid.resolution).astype(np.int64)
+            rows = np.floor((centres[:, 1] - grid.origin[1]) / grid.resolution).astype(np.int64)
+            table, reach = source_fields(grid, rows * w + cols, self.radius, self.bound)
+            fields.append(torch.from_numpy(table.reshape(-1).copy()))
+            side.append(np.full(len(rows), 2 * reach + 1))
+            origin.append(np.stack([rows - reach, cols - reach], axis=1))
+            cell_to_source = np.full(h * w, -1, dtype=np.int64)
+            cell_to_source[rows * w + cols] = count + np.arange(len(rows))
+            lookup.append(torch.as_tensor(cell_to_source))
+            res.append(grid.resolution)
+            shape.append((h, w, grid.origin[0], grid.origin[1]))
+            count += len(rows)
+            first.append(first[-1] + h * w)
+        sizes = [s * s for s in np.concatenate(side)]
+        self.field = torch.cat(fields).to(device)  # every source's window, flat, float16 metres
+        self.offset = torch.tensor([0, *np.cumsum(sizes)[:-1]], dtype=torch.long, device=device)  # [P]
+        self.side = torch.as_tensor(np.concatenate(side), device=device)  # [P] window side, cells
+        self.window = torch.as_tensor(np.concatenate(origin), device=device)  # [P, 2] row, col of its corner
+        self.lookup = torch.cat(lookup).to(device)  # [sum H W] cell -> source id, -1 elsewhere
+        self.cell_first = torch.tensor(first[:-1], dtype=torch.long, device=device)  # [M]
+        self.res = torch.tensor(res, dtype=torch.float32, device=device)  # [M]
+        self.hw = torch.tensor([(h, w) for h, w, _, _ in shape], dtype=torch.long, device=device)  # [M, 2]
+        self.origin = torch.tensor([(ox, oy) for _, _, ox, oy in shape], dtype=torch.float32, device=device)
+        self.offsets = _OFFSETS.to(device)
+
+    def _maps(self, maps: torch.Tensor | None, n: int) -> torch.Tensor:
+        return torch.zeros(n, dtype=torch.long, device=self.device) if maps is None else maps
+
+    def ids(self, goal: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
+        """[k] long: the source whose cell holds each goal [k, 2] (m, the map's frame), -1 where none does
+        (a goal placed by ``set_state`` off the sources: its slot keeps straight-line progress)."""
+        m = self._maps(maps, goal.shape[0])
+        res, hw = self.res[m], self.hw[m]
+        cell = torch.floor((goal - self.origin[m]) / res[:, None]).long()  # [k, 2] col, row
+        col, row = cell[:, 0], cell[:, 1]
+        inside = (row >= 0) & (row < hw[:, 0]) & (col >= 0) & (col < hw[:, 1])
+        flat = self.cell_first[m] + row.clamp(min=0) * hw[:, 1] + col.clamp(min=0)
+        flat = torch.where(inside, flat, torch.zeros_like(flat))
+        return torch.where(inside, self.lookup[flat], torch.full_like(flat, -1))
+
+    def distance(self, pos: torch.Tensor, ids: torch.Tensor, maps: torch.Tensor | None,
+                 fallback: torch.Tensor) -> torch.Tensor:
+        """[k] float32 metres: the path length from positions [k, 2] (m, the map's frame) to the goal
+        sources ``ids`` [k], at most the field's bound; ``fallback`` [k] where ``ids`` is -1."""
+        m = self._maps(maps, pos.shape[0])
+        res, origin = self.res[m][:, None], self.origin[m]
+        near = torch.round((pos - origin) / res - 0.5).long()  # [k, 2] col, row of the nearest centre
+        rc = torch.stack([near[:, 1], near[:, 0]], dim=1)[:, None, :] + self.offsets  # [k, 9, 2] row, col
+        has = ids >= 0
+        src = ids.clamp(min=0)
+        local = rc - self.window[src][:, None, :]  # [k, 9, 2] in the window
+        side = self.side[src][:, None]
+        inside = ((local >= 0) & (local < side[..., None])).all(dim=2)  # [k, 9]
+        flat = self.offset[src][:, None] + local[..., 0].clamp(min=0) * side + local[..., 1].clamp(min=0)
+        flat = torch.where(inside, flat, torch.zeros_like(flat))
+        value = torch.where(inside, self.field[flat].float(), torch.full_like(flat, math.inf, dtype=torch.float32))
+        centre = origin[:, None, :] + (rc.flip(2).float() + 0.5) * res[:, None, :]  # [k, 9, 2] x, y
+        d = (value + torch.linalg.vector_norm(pos[:, None, :] - centre, dim=2)).amin(dim=1)
+        return torch.where(has, d.clamp(max=self.bound), fallback)
