@@ -68,12 +68,13 @@ def _relax(free, dist, c, d, bound, i0, j0, wh, ww, bufs, sizes):
 
 
 @njit(cache=True)
-def _band_cells(free, src, lo, hi, max_goals, seed, out):
-    """Dijkstra (Dinitz's buckets) from cell ``src`` (flat index into ``free`` [H, W] bool) bounded at ``hi`` cells; picks
-    up to ``max_goals`` cells with ``lo <= distance <= hi`` (all of them if fewer), writes their flat
-    indices to ``out`` and returns how many."""
+def _dijkstra(free, src, reach, bound, lo, band):
+    """Dijkstra (Dinitz's buckets) from cell ``src`` (flat index into ``free`` [H, W] bool) over the part
+    inside the map of the window of ``2 reach + 1`` cells centred on it, bounded at ``bound`` cells.
+    Returns (dist [wh * ww] cells, inf where farther, not free or unreachable; i0, j0, wh, ww: the
+    window part's corner and size; nband): the flat map indices of the settled cells with distance
+    >= ``lo`` are written to ``band``, in the order they settle, and counted by nband."""
     h, w = free.shape
-    reach = int(math.ceil(hi)) + 1
     si, sj = src // w, src % w
     i0, j0 = max(si - reach, 0), max(sj - reach, 0)
     wh, ww = min(si + reach + 1, h) - i0, min(sj + reach + 1, w) - j0
@@ -89,9 +90,8 @@ def _band_cells(free, src, lo, hi, max_goals, seed, out):
     dist[start] = 0.0
     bufs[0] = _append(bufs[0], 0, start)
     sizes[0] = 1
-    band = np.empty(wh * ww, np.int64)
     nband = 0
-    for k in range(int(hi) + 1):
+    for k in range(int(bound) + 1):
         cur = k % 3
         todo = bufs[cur]
         for e in range(sizes[cur]):
@@ -100,12 +100,22 @@ def _band_cells(free, src, lo, hi, max_goals, seed, out):
             if settled[c] or d >= k + 1:
                 continue  # a stale entry: the cell was reached closer since (same or earlier bucket)
             settled[c] = True
-            ci, cj = c // ww, c % ww
             if d >= lo:
-                band[nband] = (ci + i0) * w + (cj + j0)
+                band[nband] = (c // ww + i0) * w + (c % ww + j0)
                 nband += 1
-            _relax(free, dist, c, d, hi, i0, j0, wh, ww, bufs, sizes)
+            _relax(free, dist, c, d, bound, i0, j0, wh, ww, bufs, sizes)
         sizes[cur] = 0
+    return dist, i0, j0, wh, ww, nband
+
+
+@njit(cache=True)
+def _band_cells(free, src, lo, hi, max_goals, seed, out):
+    """Up to ``max_goals`` cells whose path length from cell ``src`` (flat index into ``free`` [H, W]
+    bool) lies in [lo, hi] cells (all of them if fewer), drawn by a seeded shuffle: writes their flat
+    indices to ``out`` and returns how many."""
+    reach = int(math.ceil(hi)) + 1
+    band = np.empty((2 * reach + 1) ** 2, np.int64)
+    nband = _dijkstra(free, src, reach, hi, lo, band)[5]
     # a seeded partial Fisher-Yates shuffle picks the goals
     state = np.uint64(seed) * np.uint64(0x100000001B3) + np.uint64(src)
     take = min(nband, max_goals)
@@ -134,38 +144,16 @@ def band_pairs(free, sources, lo, hi, max_goals, seed):
 def _window_field(free, src, reach, bound, out):
     """The path length in cells from cell ``src`` (flat index into ``free`` [H, W] bool) to every cell of
     the window of ``2 reach + 1`` cells centred on it, written to ``out`` [2 reach + 1, 2 reach + 1]
-    float32: the same bucket Dijkstra as :func:`_band_cells`, bounded at ``bound`` cells; cells farther,
-    not free, unreachable or outside the map stay inf."""
-    h, w = free.shape
-    side = 2 * reach + 1
+    float32 (:func:`_dijkstra`, bounded at ``bound`` cells); cells farther, not free, unreachable or
+    outside the map stay inf."""
+    w = free.shape[1]
     si, sj = src // w, src % w
-    i0, j0 = max(si - reach, 0), max(sj - reach, 0)  # the part of the window inside the map
-    wh, ww = min(si + reach + 1, h) - i0, min(sj + reach + 1, w) - j0
-    dist = np.full(wh * ww, np.inf)
-    settled = np.zeros(wh * ww, np.bool_)
-    bufs = [np.empty(256, np.int64), np.empty(256, np.int64), np.empty(256, np.int64)]
-    sizes = np.zeros(3, np.int64)
-    start = (si - i0) * ww + (sj - j0)
-    dist[start] = 0.0
-    bufs[0] = _append(bufs[0], 0, start)
-    sizes[0] = 1
-    for k in range(int(bound) + 1):
-        cur = k % 3
-        todo = bufs[cur]
-        for e in range(sizes[cur]):
-            c = todo[e]
-            d = dist[c]
-            if settled[c] or d >= k + 1:
-                continue
-            settled[c] = True
-            _relax(free, dist, c, d, bound, i0, j0, wh, ww, bufs, sizes)
-        sizes[cur] = 0
+    dist, i0, j0, wh, ww, _ = _dijkstra(free, src, reach, bound, np.inf, np.empty(0, np.int64))
     out[:, :] = np.inf
     oi, oj = i0 - (si - reach), j0 - (sj - reach)  # where the map part sits in the full window
     for i in range(wh):
         for j in range(ww):
             out[oi + i, oj + j] = dist[i * ww + j]
-    return side
 
 
 @njit(parallel=True, cache=True)
