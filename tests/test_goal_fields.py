@@ -184,3 +184,14 @@ def test_fixed_evaluation_sets_play_the_tasks_episodes_with_the_papers_reward():
     plain = EvalSet(robot("geodesic"), grids, 32, seed=3)
     assert trained.env._goal_fields is None and trained.env.preset.reward == plain.env.preset.reward
     assert torch.equal(trained.pose, plain.pose) and torch.equal(trained.goal, plain.goal)
+
+
+def test_replacing_the_maps_rebuilds_the_fields_for_the_new_maps():
+    env = NavVecEnv(geo_robot(), 32, grid=serpentine(0.05), seed=4)
+    env.reset(seed=4)
+    first = env._goal_fields
+    env.replace_maps(blocked_room(0.05))
+    assert env._goal_fields is not first and (env._goal_source >= 0).all()
+    expect = env._goal_fields.distance(env.pose[:, :2].float(), env._goal_source, None, env.goal_distance)
+    assert torch.allclose(env.progress_distance, expect)
+    assert (env.progress_distance >= env.goal_distance - 0.05).all()  # a path is never shorter than the line
