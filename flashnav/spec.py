@@ -28,7 +28,7 @@ from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
 from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_name, check_robot
-from flashnav.presets import load_robot
+from flashnav.presets import load_robot, with_recipe_setup
 
 #: Prefixes of the keys in ``TrainConfig.overrides``: into the hyperparameters, into the robot preset.
 OVERRIDE_PREFIXES = ("algo.", "robot.")
@@ -67,7 +67,8 @@ class TrainConfig(KnownKeys):
     robot: str = Field("turtlebot2", description=f"preset name ({', '.join(ROBOTS)}) or a preset YAML path")
     algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
     recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
-        "auto", description="hyperparameter recipe: paper (appendix A, GPU), cpu (2 CPU cores), auto by device")
+        "auto", description="hyperparameter recipe: paper (appendix A, GPU), cpu (2 CPU cores), auto by device, "
+                            "generalist (unseen buildings; also sets the maps, evaluation and task: presets/setups.yaml)")
     seed: int = Field(0, description="training seed")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
     map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")
@@ -95,6 +96,11 @@ class TrainConfig(KnownKeys):
     cuda_graph: Literal[CUDA_GRAPH_MODES] = Field(  # type: ignore[valid-type]
         "auto", description="the U updates of a cycle on static batch buffers, captured as one CUDA graph on a "
                             "GPU (on a CPU: the same updates eagerly, capture skipped); auto = on for cuda, off for cpu")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _recipe_setup(cls, data: Any) -> Any:
+        return with_recipe_setup(data)
 
     @field_validator("robot")
     @classmethod
@@ -185,6 +191,7 @@ def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None
     for name, value in (flags or {}).items():
         if value is not None:
             data[name] = value
+    data = with_recipe_setup(data)  # before the assignments, so that maps.count=... finds the setup's maps
     if "maps" in data:  # `family:rooms` as the whole mapping, so maps.count=... overrides find their keys
         data["maps"] = parse_family_maps(data["maps"])
     for item in assignments:

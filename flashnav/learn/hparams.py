@@ -136,7 +136,8 @@ def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
                  overrides: dict[str, Any] | None = None) -> AnyHParams:
     """Validated hyperparameters for ``algorithm`` / ``robot`` / ``recipe`` with dotted-key overrides.
 
-    ``recipe``: ``paper`` (appendix A, GPU) or ``cpu`` (a 2-core CPU recipe). The values are the
+    ``recipe``: ``paper`` (appendix A, GPU), ``cpu`` (a 2-core CPU recipe) or ``generalist`` (based on
+    ``cpu``: a recipe's ``base`` is laid first). The values are the
     layers of ``flashnav/presets/pipeline.yaml`` and ``<algorithm>.yaml`` (order written in
     pipeline.yaml). Override keys name fields of the algorithm's model (``{"batch_size": 512,
     "betas": [0.9, 0.99]}``); an unknown key is an error that suggests the closest names.
@@ -161,10 +162,17 @@ def recipe_values(algorithm: str, robot: str, recipe: str) -> dict[str, Any]:
         have = sorted(k for k in (own.get("paper") or {}) if k != "shared")
         raise ValueError(f"{algorithm}.yaml: no recipe for robot {robot!r}; have {', '.join(have) or 'none'}")
     layers = [pipeline.get("shared"), pipeline.get(robot), own["paper"].get("shared"), own["paper"][robot]]
-    if recipe != "paper":
-        section = own.get(recipe) or {}
+    chain: list[str] = []  # the recipe after the recipes it is based on (``base:``), paper excluded
+    while recipe != "paper" and recipe not in chain:
+        chain.insert(0, recipe)
+        recipe = (own.get(recipe) or {}).get("base", "paper")
+    for name in chain:
+        if name not in own:
+            raise ValueError(f"{algorithm}.yaml has no {name!r} recipe (it has: "
+                             f"{', '.join(k for k in own if isinstance(own[k], dict))})")
+        section = own[name] or {}
         if robot not in section:
-            raise ValueError(f"{algorithm}.yaml: no {recipe!r} recipe for robot {robot!r}")
+            raise ValueError(f"{algorithm}.yaml: no {name!r} recipe for robot {robot!r}")
         layers += [section.get("shared"), section[robot]]
     data: dict[str, Any] = {}
     for layer in layers:

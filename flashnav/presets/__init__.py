@@ -15,7 +15,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from flashnav.config import RobotPreset, deep_merge, load_yaml, set_dotted
-from flashnav.names import ROBOTS, check_robot
+from flashnav.names import RECIPES, ROBOTS, check_robot
 
 
 def preset_path(name: str) -> Path:
@@ -53,3 +53,24 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
     except ValidationError as exc:
         raise ValueError(f"robot preset {source!r}"
                          + (f" with overrides {overrides}" if overrides else "") + f":\n{exc}") from None
+
+
+def with_recipe_setup(data: dict[str, Any]) -> dict[str, Any]:
+    """Raw TrainConfig ``data`` laid over its recipe's training setup (``setups.yaml``; recipes without
+    one: ``data`` as it is). ``data`` wins key by key; its own ``map`` or ``maps`` replace the setup's
+    maps and training evaluation set. A recipe with a setup but none for the run's robot is an error."""
+    recipe = data.get("recipe") if isinstance(data, dict) else None
+    if recipe not in RECIPES:
+        return data
+    setups = load_preset_file("setups").get(recipe)
+    if setups is None:
+        return data
+    robot = data.get("robot", ROBOTS[0])
+    if robot not in setups:
+        raise ValueError(f"recipe {recipe!r} has a training setup for {', '.join(setups)} only "
+                         f"({preset_path('setups')}), not for robot {robot!r}")
+    setup = dict(setups[robot])
+    if data.get("map") is not None or data.get("maps") is not None:
+        setup.pop("maps", None)
+        setup["eval"] = {k: v for k, v in (setup.get("eval") or {}).items() if k != "maps"}
+    return deep_merge(setup, data)

@@ -1,0 +1,59 @@
+"""Recipes that are more than hyperparameters: ``generalist`` is the cpu recipe with its own changes
+(``base:``), and brings its training setup (presets/setups.yaml) that the run's own values override."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from flashnav.learn.hparams import load_hparams
+from flashnav.maps.stream import GeneratedMaps
+from flashnav.presets import load_preset_file
+from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
+
+
+def test_generalist_hyperparameters_are_the_cpu_recipe_with_its_own_changes():
+    cpu = load_hparams("fastdsac", "turtlebot2", "cpu").model_dump()
+    generalist = load_hparams("fastdsac", "turtlebot2", "generalist").model_dump()
+    own = load_preset_file("fastdsac")["generalist"]
+    changed = {k for k in cpu if cpu[k] != generalist[k]}
+    assert changed == set(own["shared"]) | set(own["turtlebot2"])
+    assert all(generalist[k] == v for k, v in own["shared"].items())
+
+
+def test_recipes_without_a_learner_section_or_setup_name_what_is_missing():
+    with pytest.raises(ValueError, match=r"fastsac.yaml has no 'generalist' recipe \(it has: paper, cpu"):
+        load_hparams("fastsac", "turtlebot2", "generalist")
+    with pytest.raises(ValueError, match=r"recipe 'generalist' has a training setup for turtlebot2 only"):
+        TrainConfig(recipe="generalist", robot="go2")
+
+
+def test_the_setup_fills_what_the_run_leaves_open_and_the_run_wins():
+    setup = load_preset_file("setups")["generalist"]["turtlebot2"]
+    config = config_from_cli(None, {"recipe": "generalist", "device": "cpu"},
+                             ["maps.count=4", "eval.episodes=64", "robot.lidar.noise_std=0.02"])
+    assert isinstance(config.maps, GeneratedMaps) and config.maps.family == setup["maps"]["family"]
+    assert config.maps.count == 4 and config.maps.refresh_every == setup["maps"]["refresh_every"]
+    assert config.eval.maps == "validation" and config.eval.episodes == 64
+    assert config.overrides == {**setup["overrides"], "robot.lidar.noise_std": 0.02}
+    assert config.budget.max_env_steps == setup["budget"]["max_env_steps"]
+    # the Python API gets the same setup as the command line
+    assert TrainConfig(recipe="generalist").maps == TrainConfig.model_validate(
+        {"recipe": "generalist", "maps": setup["maps"]}).maps
+    # a map of its own (fine-tuning on one building) replaces the setup's maps and evaluation maps
+    one = config_from_cli(None, {"recipe": "generalist", "map": "building.yaml"}, [])
+    assert one.maps is None and one.map == "building.yaml" and one.eval.maps is None
+    assert one.overrides == setup["overrides"] and one.eval.episodes == setup["eval"]["episodes"]
+    # other recipes are untouched
+    assert TrainConfig(recipe="cpu") == TrainConfig(recipe="cpu", maps=None, overrides={})
+
+
+def test_a_generalist_run_spec_round_trips_through_config_yaml():
+    config = config_from_cli(None, {"recipe": "generalist", "device": "cpu"},
+                             ["maps.count=2", "eval.maps_per_family=1", "eval.episodes=16"])
+    spec = resolve(config)
+    assert spec.recipe == "generalist" and spec.hparams.layer_norm and spec.hparams.obs_norm
+    assert spec.robot.reward.progress_metric == "geodesic" and spec.robot.episode.goal_sampling == "geodesic"
+    back = RunSpec.from_dict(yaml.safe_load(yaml.safe_dump(spec.to_dict())))
+    assert back.config == spec.config.model_copy(update={"cuda_graph": "off"})  # as resolved on a CPU
+    assert back.hparams == spec.hparams and back.robot == spec.robot
