@@ -73,6 +73,8 @@ def load_policy_for(args, device: str = "cpu"):
     ``--robot``, else the robot preset recorded in the policy (a RobotPreset or a name); the device resolved."""
     from flashnav.config import RobotPreset
     from flashnav.export import load_policy
+    from flashnav.presets import load_robot
+    from flashnav.sim.goal_fields import evaluation_preset
     from flashnav.spec import resolve_device
 
     if args.episodes < 1:
@@ -88,7 +90,8 @@ def load_policy_for(args, device: str = "cpu"):
         robot = RobotPreset.model_validate(meta["preset"])
     else:
         robot = meta["robot"]
-    return policy, meta, robot, device
+    # evaluations play the task with the paper's reward, whatever shaping the policy trained with
+    return policy, meta, evaluation_preset(load_robot(robot)), device
 
 
 def _map_label(args, preset) -> str:

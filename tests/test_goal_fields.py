@@ -12,6 +12,7 @@ import torch
 
 from flashnav.maps.fields import free_space
 from flashnav.maps.grid import OccupancyMap
+from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
 from flashnav.sim.goal_fields import MARGIN_M, evaluation_preset, source_fields
 from flashnav.sim.sampling import EpisodeSampler
@@ -195,3 +196,19 @@ def test_replacing_the_maps_rebuilds_the_fields_for_the_new_maps():
     expect = env._goal_fields.distance(env.pose[:, :2].float(), env._goal_source, None, env.goal_distance)
     assert torch.allclose(env.progress_distance, expect)
     assert (env.progress_distance >= env.goal_distance - 0.05).all()  # a path is never shorter than the line
+
+
+def test_flashnav_eval_plays_a_geodesic_progress_policy_on_the_task_with_the_papers_reward(tmp_path):
+    import argparse
+
+    from test_export import random_actor
+
+    from flashnav.export import export_policy
+    from flashnav.policy_cli import load_policy_for
+
+    trained = load_robot("turtlebot2", **{"episode.goal_sampling": "geodesic", "reward.progress_metric": "geodesic"})
+    paths = export_policy(random_actor(trained), trained, tmp_path / "policy", onnx=False)
+    args = argparse.Namespace(policy=str(paths["torchscript"]), robot=None, episodes=4)
+    _, meta, robot, _ = load_policy_for(args)
+    assert meta["preset"]["reward"]["progress_metric"] == "geodesic"  # the export records what it trained with
+    assert robot.reward.progress_metric == "euclidean" and robot.episode.goal_sampling == "geodesic"
