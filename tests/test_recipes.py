@@ -35,6 +35,7 @@ def test_the_setup_fills_what_the_run_leaves_open_and_the_run_wins():
     assert isinstance(config.maps, GeneratedMaps) and config.maps.family == setup["maps"]["family"]
     assert config.maps.count == 4 and config.maps.refresh_every == setup["maps"]["refresh_every"]
     assert config.eval.maps == "validation" and config.eval.episodes == 64
+    assert config.eval.every == setup["eval"]["every"]
     assert config.overrides == {**setup["overrides"], "robot.lidar.noise_std": 0.02}
     assert config.budget.max_env_steps == setup["budget"]["max_env_steps"]
     # the Python API gets the same setup as the command line
@@ -42,8 +43,8 @@ def test_the_setup_fills_what_the_run_leaves_open_and_the_run_wins():
         {"recipe": "generalist", "maps": setup["maps"]}).maps
     # a map of its own (fine-tuning on one building) replaces the setup's maps and evaluation maps
     one = config_from_cli(None, {"recipe": "generalist", "map": "building.yaml"}, [])
-    assert one.maps is None and one.map == "building.yaml" and one.eval.maps is None
-    assert one.overrides == setup["overrides"] and one.eval.episodes == setup["eval"]["episodes"]
+    assert one.maps is None and one.map == "building.yaml" and one.eval == TrainConfig().eval
+    assert one.overrides == setup["overrides"]
     # other recipes are untouched
     assert TrainConfig(recipe="cpu") == TrainConfig(recipe="cpu", maps=None, overrides={})
 

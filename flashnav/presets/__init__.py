@@ -58,7 +58,7 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
 def with_recipe_setup(data: dict[str, Any]) -> dict[str, Any]:
     """Raw TrainConfig ``data`` laid over its recipe's training setup (``setups.yaml``; recipes without
     one: ``data`` as it is). ``data`` wins key by key; its own ``map`` or ``maps`` replace the setup's
-    maps and training evaluation set. A recipe with a setup but none for the run's robot is an error."""
+    maps and its training evaluation. A recipe with a setup but none for the run's robot is an error."""
     recipe = data.get("recipe") if isinstance(data, dict) else None
     if recipe not in RECIPES:
         return data
@@ -72,5 +72,5 @@ def with_recipe_setup(data: dict[str, Any]) -> dict[str, Any]:
     setup = dict(setups[robot])
     if data.get("map") is not None or data.get("maps") is not None:
         setup.pop("maps", None)
-        setup["eval"] = {k: v for k, v in (setup.get("eval") or {}).items() if k != "maps"}
+        setup.pop("eval", None)
     return deep_merge(setup, data)
