@@ -219,7 +219,8 @@ class RobotPreset(Strict):
         if self.reward.progress_metric == "geodesic" and self.episode.goal_sampling != "geodesic":
             raise ValueError("reward.progress_metric=geodesic needs episode.goal_sampling=geodesic (the path "
                              f"lengths come from the geodesic sampler's source cells), got episode.goal_sampling="
-                             f"{self.episode.goal_sampling}")
+                             f"{self.episode.goal_sampling}; with it, set reward.progress_metric=euclidean too "
+                             "(the generalist recipe sets geodesic)")
         return self
 
     @property

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
 from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
@@ -99,8 +99,9 @@ class TrainConfig(KnownKeys):
 
     @model_validator(mode="before")
     @classmethod
-    def _recipe_setup(cls, data: Any) -> Any:
-        return with_recipe_setup(data)
+    def _recipe_setup(cls, data: Any, info: ValidationInfo) -> Any:
+        # a config read back (RunSpec.from_dict) already holds its setup as it was: not today's
+        return data if (info.context or {}).get("resolved") else with_recipe_setup(data)
 
     @field_validator("robot")
     @classmethod
@@ -191,11 +192,15 @@ def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None
     for name, value in (flags or {}).items():
         if value is not None:
             data[name] = value
-    data = with_recipe_setup(data)  # before the assignments, so that maps.count=... finds the setup's maps
+    pairs = [parse_assignment(item) for item in assignments]
+    # the recipe's setup before the assignments, so that maps.count=... finds the setup's maps; a map=
+    # or maps= assignment replaces its maps and evaluation as --map / --maps do
+    data = with_recipe_setup(data, own_maps=any(data.get(k) is not None for k in ("map", "maps"))
+                             or any(key in ("map", "maps") for key, _ in pairs))
     if "maps" in data:  # `family:rooms` as the whole mapping, so maps.count=... overrides find their keys
         data["maps"] = parse_family_maps(data["maps"])
-    for item in assignments:
-        apply_override(data, *parse_assignment(item))
+    for key, value in pairs:
+        apply_override(data, key, value)
     return config_from_data(data, "training config")
 
 
@@ -338,7 +343,8 @@ class RunSpec:
         Configs written before ``goal_distance_max`` was recorded take the preset's map size."""
         data = _mapping(data, source)
         try:
-            config = TrainConfig.model_validate({k: v for k, v in data.items() if k in TrainConfig.model_fields})
+            config = TrainConfig.model_validate({k: v for k, v in data.items() if k in TrainConfig.model_fields},
+                                                context={"resolved": True})
             robot = RobotPreset.model_validate(data["robot_preset"])
             hparams = MODELS[config.algorithm].model_validate(data["hparams"])
         except KeyError as exc:

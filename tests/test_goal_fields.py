@@ -15,7 +15,7 @@ from flashnav.maps.grid import OccupancyMap
 from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
 from flashnav.sim.goal_fields import MARGIN_M, evaluation_preset, source_fields
-from flashnav.sim.sampling import EpisodeSampler
+from flashnav.sim.sampling import GOAL_INSIDE, EpisodeSampler
 from test_sampling import cells, reference_distances, robot, serpentine, walled
 
 GEO = {"reward.progress_metric": "geodesic"}
@@ -212,3 +212,20 @@ def test_flashnav_eval_plays_a_geodesic_progress_policy_on_the_task_with_the_pap
     _, meta, robot, _ = load_policy_for(args)
     assert meta["preset"]["reward"]["progress_metric"] == "geodesic"  # the export records what it trained with
     assert robot.reward.progress_metric == "euclidean" and robot.episode.goal_sampling == "geodesic"
+
+
+def test_goals_near_their_cells_edges_find_their_source_and_walls_earn_no_progress():
+    grid = blocked_room(0.05)
+    env = NavVecEnv(geo_robot(), 1, grid=grid, seed=0)
+    fields = env._goal_fields
+    centres = env.sampler.centres[torch.unique(env.sampler.pair_start)]
+    ids = fields.ids(centres, None)
+    assert (ids >= 0).all() and len(set(ids.tolist())) == len(ids)
+    inside = 0.5 * GOAL_INSIDE  # the farthest from its centre that the sampler puts a goal
+    for corner in ([inside, inside], [-inside, -inside], [inside, -inside], [inside, 0.0]):
+        assert torch.equal(fields.ids(centres + torch.tensor(corner) * 0.05, None), ids)
+    assert (fields.ids(centres + torch.tensor([0.6, 0.0]) * 0.05, None) != ids).any()  # past the edge: not it
+    # inside the wall (x = 4 m) no cell around is free for the disc: the caller's value, not the bound
+    pos = torch.tensor([[4.0, 2.0]])
+    assert float(fields.distance(pos, ids[:1], None, torch.zeros(1))) == pytest.approx(fields.bound)
+    assert float(fields.distance(pos, ids[:1], None, torch.zeros(1), unknown=torch.tensor([1.25]))) == 1.25

@@ -58,3 +58,45 @@ def test_a_generalist_run_spec_round_trips_through_config_yaml():
     back = RunSpec.from_dict(yaml.safe_load(yaml.safe_dump(spec.to_dict())))
     assert back.config == spec.config.model_copy(update={"cuda_graph": "off"})  # as resolved on a CPU
     assert back.hparams == spec.hparams and back.robot == spec.robot
+
+
+def test_map_assignments_replace_the_setups_maps_like_the_flags():
+    by_flag = config_from_cli(None, {"recipe": "generalist", "map": "building.yaml"}, [])
+    assert config_from_cli(None, {"recipe": "generalist"}, ["map=building.yaml"]) == by_flag
+    own = config_from_cli(None, {"recipe": "generalist"}, ["maps=my_maps/", "eval.episodes=64"])
+    assert own.maps == "my_maps/" and own.eval.maps is None and own.eval.every is None and own.eval.episodes == 64
+
+
+def test_a_config_read_back_keeps_the_setup_it_was_written_with(monkeypatch):
+    import flashnav.presets as presets
+
+    spec = resolve(config_from_cli(None, {"recipe": "generalist", "device": "cpu"},
+                                   ["maps.count=2", "eval.maps_per_family=1", "eval.episodes=16"]))
+    data = yaml.safe_load(yaml.safe_dump(spec.to_dict()))
+    real = presets.load_preset_file
+
+    def changed(name):  # a later setups.yaml with one more override must not reach an old run's config
+        out = real(name)
+        if name == "setups":
+            out["generalist"]["turtlebot2"]["overrides"]["robot.lidar.noise_std"] = 0.05
+        return out
+
+    monkeypatch.setattr(presets, "load_preset_file", changed)
+    assert "robot.lidar.noise_std" in TrainConfig(recipe="generalist").overrides  # new runs get it
+    assert RunSpec.from_dict(data).config.overrides == spec.config.overrides
+
+
+def test_recipe_bases_that_go_round_in_a_circle_are_named(monkeypatch):
+    import flashnav.learn.hparams as hp
+
+    real = hp.load_preset_file
+
+    def looped(name):
+        out = real(name)
+        if name == "fastdsac":
+            out["cpu"]["base"] = "generalist"
+        return out
+
+    monkeypatch.setattr(hp, "load_preset_file", looped)
+    with pytest.raises(ValueError, match=r"recipe 'cpu' is based on 'generalist', which is based on it"):
+        load_hparams("fastdsac", "turtlebot2", "generalist")

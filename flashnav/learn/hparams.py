@@ -163,7 +163,10 @@ def recipe_values(algorithm: str, robot: str, recipe: str) -> dict[str, Any]:
         raise ValueError(f"{algorithm}.yaml: no recipe for robot {robot!r}; have {', '.join(have) or 'none'}")
     layers = [pipeline.get("shared"), pipeline.get(robot), own["paper"].get("shared"), own["paper"][robot]]
     chain: list[str] = []  # the recipe after the recipes it is based on (``base:``), paper excluded
-    while recipe != "paper" and recipe not in chain:
+    while recipe != "paper":
+        if recipe in chain:
+            raise ValueError(f"{algorithm}.yaml: recipe {chain[0]!r} is based on {recipe!r}, which is based on "
+                             f"it: the bases {' -> '.join(reversed(chain))} -> {recipe} go round in a circle")
         chain.insert(0, recipe)
         recipe = (own.get(recipe) or {}).get("base", "paper")
     for name in chain:

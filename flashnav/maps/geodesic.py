@@ -8,7 +8,8 @@ seeded set of source cells (uniform over the cells) each keeps up to ``PAIRS / s
 chosen at random, whose distance lies in the band. Each source's search visits about
 pi (hi / resolution)^2 cells, so the number of sources is what ``VISIT_BUDGET`` affords (between
 ``MIN_SOURCES`` and ``MAX_SOURCES``): 256 at 0.05 m cells and a 5 m band, 64 at 0.025 m. A pair serves in both directions (the
-distance is symmetric), so starts are the sources and their goals. Sampling is then an index into
+distance is symmetric), so starts are the sources and their goals (with geodesic progress, goals are
+the sources: :mod:`flashnav.sim.goal_fields`). Sampling is then an index into
 a table on the device; building the table is one bounded Dijkstra per source (numba, parallel over
 sources; :mod:`flashnav.maps.geodesic_numba`), cached on the map like every derived field.
 """

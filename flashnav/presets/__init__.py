@@ -55,10 +55,11 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
                          + (f" with overrides {overrides}" if overrides else "") + f":\n{exc}") from None
 
 
-def with_recipe_setup(data: dict[str, Any]) -> dict[str, Any]:
+def with_recipe_setup(data: dict[str, Any], own_maps: bool | None = None) -> dict[str, Any]:
     """Raw TrainConfig ``data`` laid over its recipe's training setup (``setups.yaml``; recipes without
-    one: ``data`` as it is). ``data`` wins key by key; its own ``map`` or ``maps`` replace the setup's
-    maps and its training evaluation. A recipe with a setup but none for the run's robot is an error."""
+    one: ``data`` as it is). ``data`` wins key by key; when the run has maps of its own (``own_maps``;
+    None: ``data`` has ``map`` or ``maps``) the setup's maps and training evaluation are left out. A
+    recipe with a setup but none for the run's robot is an error."""
     recipe = data.get("recipe") if isinstance(data, dict) else None
     if recipe not in RECIPES:
         return data
@@ -70,7 +71,9 @@ def with_recipe_setup(data: dict[str, Any]) -> dict[str, Any]:
         raise ValueError(f"recipe {recipe!r} has a training setup for {', '.join(setups)} only "
                          f"({preset_path('setups')}), not for robot {robot!r}")
     setup = dict(setups[robot])
-    if data.get("map") is not None or data.get("maps") is not None:
+    if own_maps is None:
+        own_maps = data.get("map") is not None or data.get("maps") is not None
+    if own_maps:
         setup.pop("maps", None)
         setup.pop("eval", None)
     return deep_merge(setup, data)

@@ -348,7 +348,8 @@ class NavVecEnv(VectorEnv):
         if self._goal_fields is None:
             progress = p.reward.progress * (self.goal_distance[sel] - dist)
         else:
-            d = self._goal_fields.distance(pose[:, :2], self._goal_source[sel], maps, dist)
+            d = self._goal_fields.distance(pose[:, :2], self._goal_source[sel], maps, dist,
+                                           unknown=self.progress_distance[sel])
             progress = p.reward.progress * (self.progress_distance[sel] - d)
             self.progress_distance[sel] = d
         if self.agents is not None and p.reward.agent_proximity > 0:  # off by default: the paper's reward

@@ -12,11 +12,14 @@ angle), and so does every evaluation (:func:`evaluation_preset`).
 How: the geodesic sampler's pairs already start from a few source cells per map
 (:mod:`flashnav.maps.geodesic`); with this metric every episode's goal is a source (the pair is played
 from its other end), and each source keeps the path lengths to the window of cells around it
-(``max_goal_distance`` + :data:`MARGIN_M`, the bounded Dijkstra of :mod:`flashnav.maps.geodesic_numba`,
-float16 metres, cached on the map like every derived field). A position's distance is the smallest
+(the top of the geodesic goal band, ``EpisodeSampler.d_max``, + :data:`MARGIN_M`; the bounded Dijkstra of
+:mod:`flashnav.maps.geodesic_numba`, float16 metres, cached on the map like every derived field). A position's distance is the smallest
 ``field[c] + |position - centre(c)|`` over the 3 x 3 cells around it (continuous, and defined beside
 walls where the robot's own cell is not free), capped at the window's bound: beyond it progress is 0.
-Cost: about 8-40 MB per map, and 9 gathers per slot and step.
+The fields use the free space of the footprint's circumscribed disc; where a footprint that is not a
+disc stands with no such cell around it, the step earns no progress (:meth:`GoalFields.distance`).
+Cost: about 8-40 MB of fields per generated map plus 8 bytes per map cell (the cell -> source table),
+and 18 gathers per slot and step.
 """
 
 from __future__ import annotations
@@ -67,6 +70,9 @@ class GoalFields:
     order), on ``device``: which source a goal sits on, and the path length from positions to it."""
 
     def __init__(self, grids: Sequence[OccupancyMap], samplers, preset: RobotPreset, device: torch.device):
+        if any(s.mode != "geodesic" for s in samplers):
+            raise ValueError("geodesic progress needs the geodesic episode sampler (episode.goal_sampling=geodesic), "
+                             f"got goal_sampling {[s.mode for s in samplers]}")
         self.device = device
         self.radius = preset.footprint.circumscribed_radius
         self.bound = samplers[0].d_max + MARGIN_M
@@ -103,26 +109,42 @@ class GoalFields:
     def _maps(self, maps: torch.Tensor | None, n: int) -> torch.Tensor:
         return torch.zeros(n, dtype=torch.long, device=self.device) if maps is None else maps
 
-    def ids(self, goal: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
-        """[k] long: the source whose cell holds each goal [k, 2] (m, the map's frame), -1 where none does
-        (a goal placed by ``set_state`` off the sources: its slot keeps straight-line progress)."""
-        m = self._maps(maps, goal.shape[0])
-        res, hw = self.res[m], self.hw[m]
-        cell = torch.floor((goal - self.origin[m]) / res[:, None]).long()  # [k, 2] col, row
-        col, row = cell[:, 0], cell[:, 1]
-        inside = (row >= 0) & (row < hw[:, 0]) & (col >= 0) & (col < hw[:, 1])
-        flat = self.cell_first[m] + row.clamp(min=0) * hw[:, 1] + col.clamp(min=0)
-        flat = torch.where(inside, flat, torch.zeros_like(flat))
-        return torch.where(inside, self.lookup[flat], torch.full_like(flat, -1))
-
-    def distance(self, pos: torch.Tensor, ids: torch.Tensor, maps: torch.Tensor | None,
-                 fallback: torch.Tensor) -> torch.Tensor:
-        """[k] float32 metres: the path length from positions [k, 2] (m, the map's frame) to the goal
-        sources ``ids`` [k], at most the field's bound; ``fallback`` [k] where ``ids`` is -1."""
-        m = self._maps(maps, pos.shape[0])
+    def _around(self, pos: torch.Tensor, m: torch.Tensor):
+        """The 3 x 3 cells around the cell centre nearest each position [k, 2]: (rc [k, 9, 2] row, col;
+        their centres [k, 9, 2] x, y in metres)."""
         res, origin = self.res[m][:, None], self.origin[m]
         near = torch.round((pos - origin) / res - 0.5).long()  # [k, 2] col, row of the nearest centre
         rc = torch.stack([near[:, 1], near[:, 0]], dim=1)[:, None, :] + self.offsets  # [k, 9, 2] row, col
+        return rc, origin[:, None, :] + (rc.flip(2).float() + 0.5) * res[:, None, :]
+
+    def ids(self, goal: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
+        """[k] long: the source whose cell holds each goal [k, 2] (m, the map's frame), -1 where none does
+        (a goal placed by ``set_state`` off the sources: its slot keeps straight-line progress). The
+        nearest source centre among the 3 x 3 cells around the goal: a goal jittered onto its cell's
+        edge (float32 rounding) still finds its source."""
+        m = self._maps(maps, goal.shape[0])
+        rc, centre = self._around(goal, m)
+        hw = self.hw[m][:, None, :]
+        inside = ((rc >= 0) & (rc < hw)).all(dim=2)  # [k, 9]
+        flat = self.cell_first[m][:, None] + rc[..., 0].clamp(min=0) * hw[..., 1] + rc[..., 1].clamp(min=0)
+        src = torch.where(inside, self.lookup[torch.where(inside, flat, torch.zeros_like(flat))],
+                          torch.full_like(flat, -1))
+        half = 0.5 * self.res[m][:, None] * (1 + 1e-4)  # within its cell (and float rounding)
+        gap = (goal[:, None, :] - centre).abs().amax(dim=2)  # [k, 9] Chebyshev distance to each centre
+        gap = torch.where((src >= 0) & (gap <= half), gap, torch.full_like(gap, math.inf))
+        best = gap.argmin(dim=1, keepdim=True)
+        found = torch.isfinite(gap.gather(1, best)).squeeze(1)
+        return torch.where(found, src.gather(1, best).squeeze(1), torch.full_like(found, -1, dtype=torch.long))
+
+    def distance(self, pos: torch.Tensor, ids: torch.Tensor, maps: torch.Tensor | None,
+                 fallback: torch.Tensor, unknown: torch.Tensor | None = None) -> torch.Tensor:
+        """[k] float32 metres: the path length from positions [k, 2] (m, the map's frame) to the goal
+        sources ``ids`` [k], at most the field's bound; ``fallback`` [k] where ``ids`` is -1; ``unknown``
+        [k] (default: the bound) where no cell around the position is in the free space of the disc
+        the fields were built for (a footprint that is not a disc may stand there): the env passes the
+        previous distance, so such a step earns no progress instead of a jump to the bound."""
+        m = self._maps(maps, pos.shape[0])
+        rc, centre = self._around(pos, m)
         has = ids >= 0
         src = ids.clamp(min=0)
         local = rc - self.window[src][:, None, :]  # [k, 9, 2] in the window
@@ -131,6 +153,7 @@ class GoalFields:
         flat = self.offset[src][:, None] + local[..., 0].clamp(min=0) * side + local[..., 1].clamp(min=0)
         flat = torch.where(inside, flat, torch.zeros_like(flat))
         value = torch.where(inside, self.field[flat].float(), torch.full_like(flat, math.inf, dtype=torch.float32))
-        centre = origin[:, None, :] + (rc.flip(2).float() + 0.5) * res[:, None, :]  # [k, 9, 2] x, y
         d = (value + torch.linalg.vector_norm(pos[:, None, :] - centre, dim=2)).amin(dim=1)
+        if unknown is not None:
+            d = torch.where(torch.isfinite(d), d, unknown)
         return torch.where(has, d.clamp(max=self.bound), fallback)

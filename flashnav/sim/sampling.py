@@ -39,6 +39,7 @@ MIN_COMPONENT_CELLS = 16  # smaller pockets of free space are never used for sta
 #: horizon is for turning (a half turn takes 40 steps at pi/4 rad/s) and slowing down around corners.
 HORIZON_PATH_FRACTION = 0.5
 PROBE_EPISODES = 4096  # euclidean mode: episodes drawn at construction to find fallbacks
+GOAL_INSIDE = 0.998  # geodesic progress: goal jitter as a share of the cell, inside it by 0.1 % a side
 _warned: set[tuple] = set()  # (map, band, radius) already reported: warn once per map and process
 
 
@@ -69,6 +70,8 @@ class EpisodeSampler:
         self.out_of_band = torch.zeros((), dtype=torch.long, device=device)
         # geodesic progress (flashnav.sim.goal_fields) needs every goal on a pair's source cell
         self.goal_at_source = preset.reward.progress_metric == "geodesic"
+        # ... and strictly inside it, so that float32 rounding never puts a goal on a neighbour's edge
+        self.goal_jitter = GOAL_INSIDE if self.goal_at_source else 1.0
         if self.mode == "geodesic":
             from flashnav.maps.geodesic import geodesic_pairs
 
@@ -115,7 +118,7 @@ class EpisodeSampler:
         a, b = self.pair_start[pair], self.pair_goal[pair]
         start_idx, goal_idx = torch.where(swap, b, a), torch.where(swap, a, b)
         start = self.centres[start_idx] + self._jitter(n, gen)
-        goal = self.centres[goal_idx] + self._jitter(n, gen)
+        goal = self.centres[goal_idx] + self._jitter(n, gen) * self.goal_jitter
         yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
         return torch.cat([start, yaw[:, None]], dim=1), goal
 
@@ -203,11 +206,12 @@ class MapSetSampler:
         for m, s in enumerate(samplers):
             if (s.mode, s.d_min, s.d_max, s.device, s.goal_at_source) != (
                     first.mode, first.d_min, first.d_max, first.device, first.goal_at_source):
-                raise ValueError(f"samplers[{m}] has mode {s.mode!r}, band {s.d_min:g}-{s.d_max:g} m on {s.device}; "
-                                 f"samplers[0] has {first.mode!r}, {first.d_min:g}-{first.d_max:g} m on "
-                                 f"{first.device}: one map set samples with one episode preset")
+                raise ValueError(f"samplers[{m}] has mode {s.mode!r}, band {s.d_min:g}-{s.d_max:g} m on {s.device}, "
+                                 f"goals at sources {s.goal_at_source}; samplers[0] has {first.mode!r}, "
+                                 f"{first.d_min:g}-{first.d_max:g} m on {first.device}, goals at sources "
+                                 f"{first.goal_at_source}: one map set samples with one episode preset")
         self.mode, self.d_min, self.d_max, self.device = first.mode, first.d_min, first.d_max, first.device
-        self.goal_at_source = first.goal_at_source
+        self.goal_at_source, self.goal_jitter = first.goal_at_source, first.goal_jitter
         dev = self.device
         # per-map tables concatenated; indices inside them stay local to their map (+ cell_first[m])
         self.centres = _concat(samplers, "centres")  # [sum of cells, 2] metres
@@ -270,7 +274,7 @@ class MapSetSampler:
         start_idx, goal_idx = torch.where(swap, b, a), torch.where(swap, a, b)
         jitter = self._jitter(maps, 2, gen)
         start = self.centres[start_idx] + jitter[:, 0]
-        goal = self.centres[goal_idx] + jitter[:, 1]
+        goal = self.centres[goal_idx] + jitter[:, 1] * self.goal_jitter
         yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
         return torch.cat([start, yaw[:, None]], dim=1), goal
 
