@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 
 from flashnav.evaluate import episode_rates, play_episodes
+from flashnav.guidance import PathGuide
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.validation import spread_episodes
 from flashnav.names import BENCHMARK_SUITES
@@ -105,9 +106,12 @@ def map_labels(grids: list[OccupancyMap]) -> list[str]:
 
 @torch.no_grad()
 def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed: int, *,
-                  goal_distance_scale: float, device: str = "cpu") -> dict:
+                  goal_distance_scale: float, device: str = "cpu", guide: float | None = None) -> dict:
     """Evaluate the deterministic ``policy`` (obs [k, D] -> action [k, 2]) on ``episodes`` fixed episodes
     per map of ``grids`` (see the module docstring).
+
+    ``guide``: path guidance (:mod:`flashnav.guidance`) with this lookahead in metres; None = the task
+    as it is (the policy gets the goal).
 
     Returns a dict: ``maps`` (one entry per map, in order: label, source, size, resolution, diagonal,
     ``beyond_scale`` = diagonal > ``goal_distance_scale``, ``episodes_beyond_scale`` = episodes whose goal
@@ -122,7 +126,7 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
     poses, goals = zip(*(fixed_episodes(env, k, episodes, seed) for k in range(m)))
     map_index = torch.arange(m, device=env.device).repeat_interleave(episodes)
     obs = env.set_state(torch.cat(poses), torch.cat(goals), map_index=map_index if m > 1 else None)
-    e = play_episodes(policy, env, obs)
+    e = play_episodes(policy, env, obs, guide=None if guide is None else PathGuide(env, lookahead=guide))
     rows = []
     for k, (g, label) in enumerate(zip(grids, map_labels(grids))):
         sl = slice(k * episodes, (k + 1) * episodes)
@@ -181,7 +185,9 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     scale = float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))
     grids = resolve_maps(suite_path(args.maps), preset.map)
     start = time.perf_counter()
-    result = evaluate_maps(policy, preset, grids, args.episodes, args.seed, goal_distance_scale=scale, device=device)
+    guide = getattr(args, "guide", None)
+    result = evaluate_maps(policy, preset, grids, args.episodes, args.seed, goal_distance_scale=scale, device=device,
+                           guide=guide)
     seconds = time.perf_counter() - start
     report = {
         "kind": EVAL_MAPS_KIND, "format_version": EVAL_MAPS_FORMAT,
@@ -189,6 +195,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
         "suite": suite_label(args.maps), "maps_arg": str(args.maps), "robot": preset.name,
         "goal_sampling": sampling, "goal_band_m": [preset.episode.min_goal_distance, preset.episode.max_goal_distance],
         "episodes_per_map": args.episodes, "seed": args.seed, "goal_distance_scale": scale,
+        "guide_lookahead_m": guide,
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": machine_name(str(device)), "seconds": seconds, **result,
     }
@@ -212,6 +219,9 @@ def print_report(report: dict) -> None:
                   f"{report['maps_arg']}: {report['episodes_per_map']} episodes per map, seed {report['seed']}, "
                   f"goal sampling {report['goal_sampling']} ({report['goal_band_m'][0]:g}-"
                   f"{report['goal_band_m'][1]:g} m)")
+    if report.get("guide_lookahead_m") is not None:
+        console.print(f"path guidance: the policy steers at the point {report['guide_lookahead_m']:g} m along the "
+                      "shortest path (a global planner on the known map; not the zero-shot task)")
     table = Table(title="flashnav eval --maps")
     table.add_column("map", no_wrap=True)
     for col, justify in ( ("size m", "right"), ("cell m", "right"), ("success", "right"),

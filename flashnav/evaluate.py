@@ -46,9 +46,11 @@ def evaluate_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVe
 
 @torch.no_grad()
 def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv,
-                  obs: torch.Tensor) -> dict[str, torch.Tensor]:
+                  obs: torch.Tensor, guide=None) -> dict[str, torch.Tensor]:
     """:func:`evaluate_episodes` from the episodes already placed in ``env`` (by ``reset`` or
-    ``set_state``; ``obs`` [N, D] their observations): one episode per slot, same returns."""
+    ``set_state``; ``obs`` [N, D] their observations): one episode per slot, same returns. ``guide``:
+    a :class:`flashnav.guidance.PathGuide` whose carrots the policy sees instead of the goals (the
+    recorded goal distances stay the environment's)."""
     start_pose, goal = env.world_pose(), env.world_goal()
     n, dev = env.num_envs, env.device
     col = env.preset.lidar.sectors  # the goal-distance column
@@ -60,7 +62,7 @@ def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv
     max_goal = obs[:, col].clone()
     active = torch.arange(n, device=dev)
     for _ in range(env.preset.episode.horizon):
-        t = env.step_slots(active, policy(obs))
+        t = env.step_slots(active, policy(obs if guide is None else guide.observe(obs, active)))
         max_goal[active] = torch.maximum(max_goal[active], t["obs"][:, col])
         done = t["terminated"] | t["truncated"]
         ended = active[done]

@@ -35,6 +35,10 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--goal-sampling", default=None, choices=GOAL_SAMPLINGS,
                    help="goal band measured as path length (geodesic; the default with --maps) or straight line")
     p.add_argument("--label", default=None, help="with --maps: the policy's name in the JSON and the report")
+    p.add_argument("--guide", type=float, default=None, metavar="LOOKAHEAD_M",
+                   help="with --maps: path guidance, a global planner on the known map (flashnav/guidance.py): "
+                        "the policy steers at the point LOOKAHEAD_M metres along the shortest path instead of "
+                        "at the goal (e.g. 0.5); a deployment mode, not the zero-shot task")
     p.add_argument("--scenario", default=None, metavar="NAME[,NAME]",
                    help="evaluation scenarios with moving agents: static, wander-4, wander-8, crossing, or all "
                         "(success / collision with an agent / with a wall / timeout per scenario)")
@@ -125,6 +129,8 @@ def run_eval(args) -> int:
         return run_eval_maps(args, *load_policy_for(args, args.device))
     if args.goal_sampling is not None:
         raise ValueError("--goal-sampling goes with --maps (for one map: --maps FILE.yaml)")
+    if args.guide is not None:
+        raise ValueError("--guide goes with --maps (for one map: --maps FILE.yaml)")
     if args.scenario is not None:
         return run_scenarios(args)
     policy, meta, env = load_policy_and_env(args, args.device)

@@ -65,46 +65,36 @@ def source_fields(grid: OccupancyMap, sources: np.ndarray, radius: float, bound_
     return cached(grid, key, build)
 
 
-class GoalFields:
-    """The per-source fields of a set of maps (the environment's frame maps and their samplers, in
-    order), on ``device``: which source a goal sits on, and the path length from positions to it."""
+class WindowFields:
+    """Path-length fields of a batch of cells on a set of maps, on ``device``: field ``i`` holds the path
+    lengths from cell ``cells[m][j]`` of map ``m`` (fields numbered map by map) to the window around
+    it, through the free space of a disc of ``radius``, up to ``bound`` metres (:func:`source_fields`,
+    cached on each map). :meth:`distance` reads them at positions; :mod:`flashnav.guidance` walks them."""
 
-    def __init__(self, grids: Sequence[OccupancyMap], samplers, preset: RobotPreset, device: torch.device):
-        if any(s.mode != "geodesic" for s in samplers):
-            raise ValueError("geodesic progress needs the geodesic episode sampler (episode.goal_sampling=geodesic), "
-                             f"got goal_sampling {[s.mode for s in samplers]}")
-        self.device = device
-        self.radius = preset.footprint.circumscribed_radius
-        self.bound = samplers[0].d_max + MARGIN_M
-        fields, side, origin, lookup, res, shape, first = [], [], [], [], [], [], [0]
-        count = 0
-        for grid, sampler in zip(grids, samplers):
+    def __init__(self, grids: Sequence[OccupancyMap], cells: Sequence[np.ndarray], radius: float, bound: float,
+                 device: torch.device | str):
+        self.device, self.radius, self.bound = torch.device(device), float(radius), float(bound)
+        fields, side, corner, res, shape, first = [], [], [], [], [], [0]
+        for grid, flat in zip(grids, cells):
             h, w = grid.shape
-            centres = sampler.centres[torch.unique(sampler.pair_start)].cpu().numpy()
-            cols = np.floor((centres[:, 0] - grid.origin[0]) / grid.resolution).astype(np.int64)
-            rows = np.floor((centres[:, 1] - grid.origin[1]) / grid.resolution).astype(np.int64)
-            table, reach = source_fields(grid, rows * w + cols, self.radius, self.bound)
+            flat = np.asarray(flat, dtype=np.int64)
+            table, reach = source_fields(grid, flat, self.radius, self.bound)
             fields.append(torch.from_numpy(table.reshape(-1).copy()))
-            side.append(np.full(len(rows), 2 * reach + 1))
-            origin.append(np.stack([rows - reach, cols - reach], axis=1))
-            cell_to_source = np.full(h * w, -1, dtype=np.int64)
-            cell_to_source[rows * w + cols] = count + np.arange(len(rows))
-            lookup.append(torch.as_tensor(cell_to_source))
+            side.append(np.full(len(flat), 2 * reach + 1))
+            corner.append(np.stack([flat // w - reach, flat % w - reach], axis=1))
             res.append(grid.resolution)
             shape.append((h, w, grid.origin[0], grid.origin[1]))
-            count += len(rows)
             first.append(first[-1] + h * w)
         sizes = [s * s for s in np.concatenate(side)]
-        self.field = torch.cat(fields).to(device)  # every source's window, flat, float16 metres
-        self.offset = torch.tensor([0, *np.cumsum(sizes)[:-1]], dtype=torch.long, device=device)  # [P]
-        self.side = torch.as_tensor(np.concatenate(side), device=device)  # [P] window side, cells
-        self.window = torch.as_tensor(np.concatenate(origin), device=device)  # [P, 2] row, col of its corner
-        self.lookup = torch.cat(lookup).to(device)  # [sum H W] cell -> source id, -1 elsewhere
-        self.cell_first = torch.tensor(first[:-1], dtype=torch.long, device=device)  # [M]
-        self.res = torch.tensor(res, dtype=torch.float32, device=device)  # [M]
-        self.hw = torch.tensor([(h, w) for h, w, _, _ in shape], dtype=torch.long, device=device)  # [M, 2]
-        self.origin = torch.tensor([(ox, oy) for _, _, ox, oy in shape], dtype=torch.float32, device=device)
-        self.offsets = _OFFSETS.to(device)
+        self.field = torch.cat(fields).to(self.device)  # every window, flat, float16 metres
+        self.offset = torch.tensor([0, *np.cumsum(sizes)[:-1]], dtype=torch.long, device=self.device)  # [P]
+        self.side = torch.as_tensor(np.concatenate(side), device=self.device)  # [P] window side, cells
+        self.window = torch.as_tensor(np.concatenate(corner), device=self.device)  # [P, 2] its corner (row, col)
+        self.cell_first = torch.tensor(first[:-1], dtype=torch.long, device=self.device)  # [M]
+        self.res = torch.tensor(res, dtype=torch.float32, device=self.device)  # [M]
+        self.hw = torch.tensor([(h, w) for h, w, _, _ in shape], dtype=torch.long, device=self.device)  # [M, 2]
+        self.origin = torch.tensor([(ox, oy) for _, _, ox, oy in shape], dtype=torch.float32, device=self.device)
+        self.offsets = _OFFSETS.to(self.device)
 
     def _maps(self, maps: torch.Tensor | None, n: int) -> torch.Tensor:
         return torch.zeros(n, dtype=torch.long, device=self.device) if maps is None else maps
@@ -115,13 +105,73 @@ class GoalFields:
         res, origin = self.res[m][:, None], self.origin[m]
         near = torch.round((pos - origin) / res - 0.5).long()  # [k, 2] col, row of the nearest centre
         rc = torch.stack([near[:, 1], near[:, 0]], dim=1)[:, None, :] + self.offsets  # [k, 9, 2] row, col
-        return rc, origin[:, None, :] + (rc.flip(2).float() + 0.5) * res[:, None, :]
+        return rc, self.centres(rc, m)
+
+    def centres(self, rc: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+        """Cell centres [k, n, 2] (x, y m) of cells rc [k, n, 2] (row, col) of maps m [k]."""
+        return self.origin[m][:, None, :] + (rc.flip(2).float() + 0.5) * self.res[m][:, None, None]
+
+    def values(self, rc: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        """[k, n] float32 metres: field ``ids`` [k] at cells rc [k, n, 2] (row, col), inf outside its window."""
+        local = rc - self.window[ids][:, None, :]
+        side = self.side[ids][:, None]
+        inside = ((local >= 0) & (local < side[..., None])).all(dim=2)
+        flat = self.offset[ids][:, None] + local[..., 0].clamp(min=0) * side + local[..., 1].clamp(min=0)
+        flat = torch.where(inside, flat, torch.zeros_like(flat))
+        return torch.where(inside, self.field[flat].float(), torch.full_like(flat, math.inf, dtype=torch.float32))
+
+    def nearest(self, pos: torch.Tensor, ids: torch.Tensor, maps: torch.Tensor | None):
+        """(d [k] metres, rc [k, 2]): the smallest ``field[c] + |position - centre(c)|`` over the 3 x 3 cells
+        c around each position [k, 2] (continuous, and defined beside walls where the position's own cell
+        is not free; inf where none is reachable) and the cell that gives it."""
+        m = self._maps(maps, pos.shape[0])
+        rc, centre = self._around(pos, m)
+        total = self.values(rc, ids) + torch.linalg.vector_norm(pos[:, None, :] - centre, dim=2)
+        d, best = total.min(dim=1)
+        return d, rc[torch.arange(rc.shape[0], device=rc.device), best]
+
+    def distance(self, pos: torch.Tensor, ids: torch.Tensor, maps: torch.Tensor | None,
+                 fallback: torch.Tensor, unknown: torch.Tensor | None = None) -> torch.Tensor:
+        """[k] float32 metres: the path length from positions [k, 2] (m, the map's frame) to the cells of
+        fields ``ids`` [k], at most the bound; ``fallback`` [k] where ``ids`` is -1; ``unknown`` [k]
+        (default: the bound) where no cell around the position is in the free space of the disc the
+        fields were built for (a footprint that is not a disc may stand there): the env passes the
+        previous distance, so such a step earns no progress instead of a jump to the bound."""
+        has = ids >= 0
+        d, _ = self.nearest(pos, ids.clamp(min=0), maps)
+        if unknown is not None:
+            d = torch.where(torch.isfinite(d), d, unknown)
+        return torch.where(has, d.clamp(max=self.bound), fallback)
+
+
+class GoalFields(WindowFields):
+    """The per-source fields of a set of maps (the environment's frame maps and their samplers, in
+    order), on ``device``: which source a goal sits on (:meth:`ids`), and the path length from
+    positions to it (:meth:`distance`)."""
+
+    def __init__(self, grids: Sequence[OccupancyMap], samplers, preset: RobotPreset, device: torch.device):
+        if any(s.mode != "geodesic" for s in samplers):
+            raise ValueError("geodesic progress needs the geodesic episode sampler (episode.goal_sampling=geodesic), "
+                             f"got goal_sampling {[s.mode for s in samplers]}")
+        cells, lookup, count = [], [], 0
+        for grid, sampler in zip(grids, samplers):
+            h, w = grid.shape
+            centres = sampler.centres[torch.unique(sampler.pair_start)].cpu().numpy()
+            cols = np.floor((centres[:, 0] - grid.origin[0]) / grid.resolution).astype(np.int64)
+            rows = np.floor((centres[:, 1] - grid.origin[1]) / grid.resolution).astype(np.int64)
+            cells.append(rows * w + cols)
+            cell_to_source = np.full(h * w, -1, dtype=np.int64)
+            cell_to_source[rows * w + cols] = count + np.arange(len(rows))
+            lookup.append(torch.as_tensor(cell_to_source))
+            count += len(rows)
+        super().__init__(grids, cells, preset.footprint.circumscribed_radius, samplers[0].d_max + MARGIN_M, device)
+        self.lookup = torch.cat(lookup).to(self.device)  # [sum H W] cell -> source id, -1 elsewhere
 
     def ids(self, goal: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
         """[k] long: the source whose cell holds each goal [k, 2] (m, the map's frame), -1 where none does
         (a goal placed by ``set_state`` off the sources: its slot keeps straight-line progress). The
-        nearest source centre among the 3 x 3 cells around the goal: a goal jittered onto its cell's
-        edge (float32 rounding) still finds its source."""
+        nearest source centre among the 3 x 3 cells around the goal, so float32 rounding at a cell's
+        edge cannot lose it (the sampler keeps these goals inside their cells: GOAL_INSIDE)."""
         m = self._maps(maps, goal.shape[0])
         rc, centre = self._around(goal, m)
         hw = self.hw[m][:, None, :]
@@ -135,25 +185,3 @@ class GoalFields:
         best = gap.argmin(dim=1, keepdim=True)
         found = torch.isfinite(gap.gather(1, best)).squeeze(1)
         return torch.where(found, src.gather(1, best).squeeze(1), torch.full_like(found, -1, dtype=torch.long))
-
-    def distance(self, pos: torch.Tensor, ids: torch.Tensor, maps: torch.Tensor | None,
-                 fallback: torch.Tensor, unknown: torch.Tensor | None = None) -> torch.Tensor:
-        """[k] float32 metres: the path length from positions [k, 2] (m, the map's frame) to the goal
-        sources ``ids`` [k], at most the field's bound; ``fallback`` [k] where ``ids`` is -1; ``unknown``
-        [k] (default: the bound) where no cell around the position is in the free space of the disc
-        the fields were built for (a footprint that is not a disc may stand there): the env passes the
-        previous distance, so such a step earns no progress instead of a jump to the bound."""
-        m = self._maps(maps, pos.shape[0])
-        rc, centre = self._around(pos, m)
-        has = ids >= 0
-        src = ids.clamp(min=0)
-        local = rc - self.window[src][:, None, :]  # [k, 9, 2] in the window
-        side = self.side[src][:, None]
-        inside = ((local >= 0) & (local < side[..., None])).all(dim=2)  # [k, 9]
-        flat = self.offset[src][:, None] + local[..., 0].clamp(min=0) * side + local[..., 1].clamp(min=0)
-        flat = torch.where(inside, flat, torch.zeros_like(flat))
-        value = torch.where(inside, self.field[flat].float(), torch.full_like(flat, math.inf, dtype=torch.float32))
-        d = (value + torch.linalg.vector_norm(pos[:, None, :] - centre, dim=2)).amin(dim=1)
-        if unknown is not None:
-            d = torch.where(torch.isfinite(d), d, unknown)
-        return torch.where(has, d.clamp(max=self.bound), fallback)

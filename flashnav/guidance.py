@@ -1,0 +1,97 @@
+"""Path guidance: a global planner in front of the policy on a map it knows (``flashnav eval --guide M``).
+
+A robot in a building it has a map of does not aim its local controller at a goal behind walls: a global
+planner hands it a point a little way along the shortest path (the "carrot" of pure-pursuit controllers
+such as Nav2's regulated pure pursuit), and the LiDAR policy steers there around what it sees. The
+paper's task is the unguided one (the policy gets the goal); guidance is a deployment mode, measured
+and reported as its own column, never mixed with the zero-shot numbers.
+
+:class:`PathGuide` does this for the episodes placed in an environment: one bounded Dijkstra per
+episode from its goal cell through the free space of the robot's circumscribed disc (the fields of
+:class:`flashnav.sim.goal_fields.WindowFields`, out to the goal band's top + ``margin`` metres of path),
+and at every step, for each slot, the point ``lookahead`` metres of path along steepest descent from
+the robot (cell by cell, 8-connected). The policy sees that point in the observation's goal columns
+(distance and angle, as the environment computes them for a goal); success, collisions and the reward
+are still the environment's, about the real goal. Where the robot is beyond the field (farther than
+the bound, or no free cell around it) the policy gets the real goal.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from flashnav.sim.goal_fields import WindowFields
+from flashnav.sim.motion import wrap_angle
+
+LOOKAHEAD_M = 1.5  # the default carrot distance along the path, metres
+MARGIN_M = 3.0  # path beyond the goal band's top that each episode's field still covers, metres
+
+
+class PathGuide:
+    """Carrots along the shortest paths to the goals of the episodes now in ``env`` (call after
+    ``set_state`` or ``reset``, before stepping); :meth:`observe` puts them in observations."""
+
+    def __init__(self, env, lookahead: float = LOOKAHEAD_M, margin: float = MARGIN_M):
+        if not (math.isfinite(lookahead) and lookahead > 0):
+            raise ValueError(f"path guidance lookahead must be > 0 metres, got {lookahead}")
+        self.env, self.lookahead = env, float(lookahead)
+        maps = env.map_index.cpu().numpy()
+        goal = env.goal.detach().cpu().double().numpy()  # the simulator frame, as the frame maps
+        cells, order = [], []
+        for m, grid in enumerate(env.frame_maps):
+            slots = np.flatnonzero(maps == m)
+            h, w = grid.shape
+            col = np.clip(np.floor((goal[slots, 0] - grid.origin[0]) / grid.resolution), 0, w - 1).astype(np.int64)
+            row = np.clip(np.floor((goal[slots, 1] - grid.origin[1]) / grid.resolution), 0, h - 1).astype(np.int64)
+            cells.append(row * w + col)
+            order.append(slots)
+        bound = max(s.d_max for s in env.samplers) + margin if env.sampler.mode == "geodesic" else (
+            env.preset.episode.max_goal_distance + margin)
+        self.fields = WindowFields(env.frame_maps, cells, env.preset.footprint.circumscribed_radius, bound,
+                                   env.device)
+        field_of_slot = np.empty(env.num_envs, dtype=np.int64)
+        field_of_slot[np.concatenate(order)] = np.arange(env.num_envs)
+        self.field_of_slot = torch.as_tensor(field_of_slot, device=env.device)
+        self.max_moves = int(math.ceil(self.lookahead / float(self.fields.res.min()))) + 1
+        diagonal = (self.fields.offsets != 0).all(dim=1)
+        self.step_cells = torch.where(diagonal, math.sqrt(2.0), 1.0)  # [9] step length, cells (0 for "stay")
+        self.step_cells[(self.fields.offsets == 0).all(dim=1)] = 0.0
+
+    def carrot(self, idx: torch.Tensor) -> torch.Tensor:
+        """[k, 2] metres (simulator frame): the point ``lookahead`` metres of path from slots ``idx`` [k]
+        towards their goals, or the goal itself where the path is shorter or unknown."""
+        env, f = self.env, self.fields
+        ids, m = self.field_of_slot[idx], env.map_index[idx]
+        pos, goal = env.pose[idx, :2].float(), env.goal[idx].float()
+        d, cell = f.nearest(pos, ids, m)
+        value = torch.where(torch.isfinite(d), f.values(cell[:, None, :], ids)[:, 0], torch.full_like(d, math.inf))
+        travelled = torch.zeros_like(d)
+        step_m = self.step_cells[None, :] * f.res[m][:, None]  # [k, 9]
+        for _ in range(self.max_moves):
+            around = cell[:, None, :] + f.offsets  # [k, 9, 2]
+            lowest, j = f.values(around, ids).min(dim=1)
+            move = torch.isfinite(value) & (lowest < value) & (travelled < self.lookahead)
+            if not bool(move.any()):
+                break
+            pick = around[torch.arange(len(j), device=j.device), j]
+            cell = torch.where(move[:, None], pick, cell)
+            travelled = travelled + torch.where(move, step_m.gather(1, j[:, None])[:, 0], torch.zeros_like(d))
+            value = torch.where(move, lowest, value)
+        point = f.centres(cell[:, None, :], m)[:, 0]
+        at_goal = ~torch.isfinite(d) | (d <= self.lookahead) | (value <= 0)  # unknown, or the goal is the carrot
+        return torch.where(at_goal[:, None], goal, point)
+
+    def observe(self, obs: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        """Observations [k, D] of slots ``idx`` [k] with their goal columns (distance, angle) pointing at
+        their carrots instead of their goals."""
+        env = self.env
+        col = env.preset.lidar.sectors
+        pose = env.pose[idx]
+        delta = (self.carrot(idx).double() - pose[:, :2].double())
+        out = obs.clone()
+        out[:, col] = torch.linalg.vector_norm(delta, dim=1).to(obs.dtype)
+        out[:, col + 1] = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2].double()).to(obs.dtype)
+        return out
