@@ -6,6 +6,9 @@
 * threads: the torch CPU threads the learner used (an int on a CPU run; None on a GPU), a tuning
   knob that is recorded beside the machine, never inside its name.
 
+* device: the name a run asks for (``auto``, ``cpu``, ``cuda``, ``cuda:N``), checked and resolved against
+  what this machine has (:func:`resolve_device`; the spec and ``flashnav eval`` call it).
+
 Runs written before the split spelled both in one string, ``AMD EPYC 7B13 (2 threads)``;
 :func:`split_device_name` reads either spelling. torch is imported lazily (GPU names and thread
 counts only), so readers such as the report stay light.
@@ -92,3 +95,30 @@ def split_device_name(name: str | None) -> tuple[str | None, int | None]:
 
 
 __all__ = ["cpu_model", "cpu_cores", "machine_name", "learner_threads", "split_device_name"]
+
+
+# ---- which device a run asks for ------------------------------------------------------------------
+
+_DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
+
+
+def check_device_name(device: str) -> None:
+    """A ValueError naming ``device`` unless it is auto, cpu, cuda or cuda:N."""
+    if not _DEVICE.fullmatch(str(device)):
+        raise ValueError(f"device {device!r} is not one of auto, cpu, cuda, cuda:N")
+
+
+def resolve_device(device: str) -> str:
+    """``auto`` -> ``cuda`` when a GPU is visible, else ``cpu``; a CUDA device must exist."""
+    import torch
+
+    check_device_name(device)
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise ValueError(f"device {device!r} requested but CUDA is not available on this machine")
+        index = int(device.split(":")[1]) if ":" in device else 0
+        if index >= torch.cuda.device_count():
+            raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return device

@@ -79,7 +79,7 @@ def load_policy_for(args, device: str = "cpu"):
     from flashnav.export import load_policy
     from flashnav.presets import load_robot
     from flashnav.sim.goal_fields import evaluation_preset
-    from flashnav.spec import resolve_device
+    from flashnav.machine import resolve_device
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")

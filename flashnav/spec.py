@@ -24,6 +24,7 @@ from pydantic import Field, ValidationError, ValidationInfo, field_validator, mo
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
 from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
+from flashnav.machine import check_device_name, resolve_device
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
@@ -205,31 +206,6 @@ def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None
 
 
 # ---- resolving -------------------------------------------------------------------------------------
-
-
-_DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
-
-
-def check_device_name(device: str) -> None:
-    """A ValueError naming ``device`` unless it is auto, cpu, cuda or cuda:N."""
-    if not _DEVICE.fullmatch(str(device)):
-        raise ValueError(f"device {device!r} is not one of auto, cpu, cuda, cuda:N")
-
-
-def resolve_device(device: str) -> str:
-    """``auto`` -> ``cuda`` when a GPU is visible, else ``cpu``; a CUDA device must exist."""
-    import torch
-
-    check_device_name(device)
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if device.startswith("cuda"):
-        if not torch.cuda.is_available():
-            raise ValueError(f"device {device!r} requested but CUDA is not available on this machine")
-        index = int(device.split(":")[1]) if ":" in device else 0
-        if index >= torch.cuda.device_count():
-            raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
-    return device
 
 
 def resolve_cuda_graph(mode: str, device: str) -> bool:
