@@ -64,7 +64,7 @@ def test_every_geodesic_goal_sits_on_a_source_and_keeps_the_band():
     grid = serpentine(0.05)
     env = NavVecEnv(geo_robot(), 256, grid=grid, seed=3)
     env.reset(seed=3)
-    assert (env._goal_source >= 0).all()
+    assert (env.shaping.source >= 0).all()
     # the straight-line sampler's pairs played from their source end: still in the band by path length
     sampler = env.sampler
     free = grid.free_space(sampler.radius + grid.resolution * math.sqrt(0.5))
@@ -73,7 +73,7 @@ def test_every_geodesic_goal_sits_on_a_source_and_keeps_the_band():
     assert d.min() >= 1.0 - 1e-9 and d.max() <= 5.0 + 1e-9
     # and the field's distance at the start is that path length (through the disc's free space, which
     # is wider than the start cells' space, so never longer), up to the start's jitter in its cell
-    start = env.progress_distance
+    start = env.shaping.distance
     assert (start <= torch.as_tensor(d, dtype=torch.float32) + grid.resolution).all()
     assert (start >= torch.as_tensor(d, dtype=torch.float32) - 0.1 * torch.as_tensor(d) - grid.resolution).all()
     assert (start >= env.goal_distance - grid.resolution).all()  # the goal too is jittered in its cell
@@ -83,8 +83,8 @@ def test_multimap_slots_get_their_own_maps_sources():
     grids = [serpentine(0.05), blocked_room(0.05)]
     env = NavVecEnv(geo_robot(), 128, grid=grids, seed=1)
     env.reset(seed=1)
-    fields = env._goal_fields
-    src = env._goal_source
+    fields = env.shaping.fields
+    src = env.shaping.source
     assert (src >= 0).all()
     first_of_second = int((fields.lookup[: grids[0].shape[0] * grids[0].shape[1]] >= 0).sum())
     on_second = env.map_index == 1
@@ -95,7 +95,7 @@ def test_multimap_slots_get_their_own_maps_sources():
 def test_a_wall_between_robot_and_goal_counts_the_way_round():
     grid = blocked_room(0.05)
     env = NavVecEnv(geo_robot(), 1, grid=grid, seed=0)
-    fields = env._goal_fields
+    fields = env.shaping.fields
     # a goal source left of the wall and low down; the point across the wall at its height
     centres = env.sampler.centres[torch.unique(env.sampler.pair_start)]
     low_left = (centres[:, 0] > 2.5) & (centres[:, 0] < 3.6) & (centres[:, 1] > 1.0) & (centres[:, 1] < 3.0)
@@ -120,7 +120,7 @@ def test_a_wall_between_robot_and_goal_counts_the_way_round():
     for preset in (geo_robot(), robot("geodesic")):
         e = NavVecEnv(preset, 1, grid=grid, seed=0)
         e.set_state(pose, goal[None].double())
-        assert e._goal_fields is None or int(e._goal_source[0]) == int(source)
+        assert e.shaping.fields is None or int(e.shaping.source[0]) == int(source)
         _, reward, term, _, _ = e.step(action)
         assert not bool(term)
         rewards.append(float(reward))
@@ -134,7 +134,7 @@ def test_progress_rewards_telescope_to_the_path_length_gained():
     grid = blocked_room(0.05)
     env = NavVecEnv(geo_robot(), 64, grid=grid, seed=5)
     env.reset(seed=5)
-    d0 = env.progress_distance.clone()
+    d0 = env.shaping.distance.clone()
     total = torch.zeros(64)
     alive = torch.ones(64, dtype=torch.bool)
     gen = torch.Generator().manual_seed(0)
@@ -143,14 +143,14 @@ def test_progress_rewards_telescope_to_the_path_length_gained():
         _, reward, term, trunc, info = env.step(actions)
         ended = term | trunc
         total += torch.where(alive & ~ended, reward, torch.zeros(64))
-        d_last = torch.where(alive & ~ended, env.progress_distance, torch.zeros(64))
+        d_last = torch.where(alive & ~ended, env.shaping.distance, torch.zeros(64))
         alive &= ~ended
         if alive.any():
-            d_alive = env.progress_distance
+            d_alive = env.shaping.distance
     assert alive.sum() > 10
     c = env.preset.reward.progress
     assert torch.allclose(total[alive], c * (d0[alive] - d_alive[alive]), atol=1e-3)
-    assert (env.progress_distance <= MARGIN_M + env.sampler.d_max + 1e-5).all()
+    assert (env.shaping.distance <= MARGIN_M + env.sampler.d_max + 1e-5).all()
     del d_last
 
 
@@ -169,7 +169,7 @@ def test_geodesic_progress_needs_geodesic_sampling_and_evaluations_play_the_task
 
 def test_the_default_reward_is_the_papers_straight_line():
     env = NavVecEnv(robot("geodesic"), 32, grid=serpentine(0.05), seed=2)
-    assert env._goal_fields is None
+    assert env.shaping.fields is None
     env.reset(seed=2)
     before = env.goal_distance.clone()
     _, reward, term, _, _ = env.step(torch.zeros(32, 2))
@@ -183,19 +183,19 @@ def test_fixed_evaluation_sets_play_the_tasks_episodes_with_the_papers_reward():
     grids = [serpentine(0.05), blocked_room(0.05)]
     trained = EvalSet(geo_robot(), grids, 32, seed=3)
     plain = EvalSet(robot("geodesic"), grids, 32, seed=3)
-    assert trained.env._goal_fields is None and trained.env.preset.reward == plain.env.preset.reward
+    assert trained.env.shaping.fields is None and trained.env.preset.reward == plain.env.preset.reward
     assert torch.equal(trained.pose, plain.pose) and torch.equal(trained.goal, plain.goal)
 
 
 def test_replacing_the_maps_rebuilds_the_fields_for_the_new_maps():
     env = NavVecEnv(geo_robot(), 32, grid=serpentine(0.05), seed=4)
     env.reset(seed=4)
-    first = env._goal_fields
+    first = env.shaping.fields
     env.replace_maps(blocked_room(0.05))
-    assert env._goal_fields is not first and (env._goal_source >= 0).all()
-    expect = env._goal_fields.distance(env.pose[:, :2].float(), env._goal_source, None, env.goal_distance)
-    assert torch.allclose(env.progress_distance, expect)
-    assert (env.progress_distance >= env.goal_distance - 0.05).all()  # a path is never shorter than the line
+    assert env.shaping.fields is not first and (env.shaping.source >= 0).all()
+    expect = env.shaping.fields.distance(env.pose[:, :2].float(), env.shaping.source, None, env.goal_distance)
+    assert torch.allclose(env.shaping.distance, expect)
+    assert (env.shaping.distance >= env.goal_distance - 0.05).all()  # a path is never shorter than the line
 
 
 def test_flashnav_eval_plays_a_geodesic_progress_policy_on_the_task_with_the_papers_reward(tmp_path):
@@ -217,7 +217,7 @@ def test_flashnav_eval_plays_a_geodesic_progress_policy_on_the_task_with_the_pap
 def test_goals_near_their_cells_edges_find_their_source_and_walls_earn_no_progress():
     grid = blocked_room(0.05)
     env = NavVecEnv(geo_robot(), 1, grid=grid, seed=0)
-    fields = env._goal_fields
+    fields = env.shaping.fields
     centres = env.sampler.centres[torch.unique(env.sampler.pair_start)]
     ids = fields.ids(centres, None)
     assert (ids >= 0).all() and len(set(ids.tolist())) == len(ids)

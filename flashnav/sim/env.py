@@ -19,10 +19,10 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     then, only with ``observation.scan_history`` k > 0, the k previous pooled scans, newest first
     (:mod:`flashnav.sim.history`; a new episode starts with its first scan repeated); obs_dim += k S
 
-Rewards: goal reached (distance < goal_threshold) -> +goal, terminated; else collision -> collision,
-terminated (the goal is checked first, as the paper lists it); else progress * (d_old - d_new), d the
-straight-line goal distance (``reward.progress_metric: geodesic``: the path length, :mod:`flashnav.sim.goal_fields`).
-Reaching the horizon without a terminal event is a truncation. Finished slots are reset in the same
+Rewards and flags (:mod:`flashnav.sim.reward`): goal reached (distance < goal_threshold) -> +goal,
+terminated; else collision -> collision, terminated (the goal is checked first, as the paper lists it);
+else progress * (d_old - d_new), d the straight-line goal distance (``reward.progress_metric: geodesic``:
+the path length). Reaching the horizon without a terminal event is a truncation. Finished slots are reset in the same
 step (Gymnasium's SAME_STEP autoreset): ``info["final_obs"]`` holds the observation *before* the
 reset for every slot (equal to ``obs`` where nothing finished) and ``info["_final_obs"]`` marks the
 slots that finished, so ``info["final_obs"]`` is always the correct next observation for replay.
@@ -56,7 +56,6 @@ from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
-from flashnav.sim.goal_fields import GoalFields
 from flashnav.sim.history import ScanHistory
 from flashnav.sim.inputs import as_batch, check_finite
 from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
@@ -64,6 +63,7 @@ from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_s
 from flashnav.sim.motion import action_to_velocity, integrate
 from flashnav.sim.observation import beam_angles, observation_bounds, observe  # noqa: F401 (beam_angles: re-exported)
 from flashnav.sim.raycast import make_raycaster
+from flashnav.sim.reward import Shaping, outcome
 from flashnav.sim.sampling import EpisodeSampler, MapSetSampler
 
 
@@ -104,8 +104,6 @@ class NavVecEnv(VectorEnv):
         self.velocity = torch.zeros(n, 2, **f32)  # executed (v m/s, w rad/s)
         self.steps = torch.zeros(n, dtype=torch.int32, device=self.device)
         self.goal_distance = torch.zeros(n, **f32)
-        self.progress_distance = torch.zeros(n, **f32)  # d of the progress term (geodesic progress only)
-        self._goal_source = torch.full((n,), -1, dtype=torch.long, device=self.device)
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
@@ -133,9 +131,8 @@ class NavVecEnv(VectorEnv):
         self._collides = make_collision_checker(preset.footprint, geometry, self.device)
         self.samplers = [EpisodeSampler(g, preset, self.device) for g in self.frame_maps]
         self.sampler = self.samplers[0]
-        # reward.progress_metric geodesic: path lengths to each goal source (None: the paper's straight line)
-        self._goal_fields = (GoalFields(self.frame_maps, self.samplers, preset, self.device)
-                             if preset.reward.progress_metric == "geodesic" else None)
+        # the shaping term's distance (reward.progress_metric geodesic: path lengths to each goal source)
+        self.shaping = Shaping(preset, self.frame_maps, self.samplers, self.num_envs, self.device)
         self._map_sampler = MapSetSampler(self.samplers) if len(self.maps) > 1 else None
         self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
         self.goal_distance_max = max(g.diagonal_m for g in self.maps)
@@ -209,10 +206,7 @@ class NavVecEnv(VectorEnv):
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
         self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
-        if self._goal_fields is not None:
-            maps = self._maps_of(idx)
-            self._goal_source[idx] = source = self._goal_fields.ids(goal, maps)
-            self.progress_distance[idx] = self._goal_fields.distance(pose[:, :2], source, maps, self.goal_distance[idx])
+        self.shaping.start(idx, pose[:, :2], goal, self.goal_distance[idx], self._maps_of(idx))
         if self.agents is not None:  # the slots' agents start with their episodes, on the slots' maps
             self.agents.reset(idx, pose, goal, self._gen, self._maps_of(idx))
         obs = self._observe(self._scan(pose, idx), pose, goal, zeros)
@@ -339,34 +333,21 @@ class NavVecEnv(VectorEnv):
             self.agents.step(sel, pose, steps, self._gen, maps)
         ranges = self._scan(pose, sel)
         dist = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
-        success = dist < p.episode.goal_threshold
-        static = self._collides(pose, maps) & ~success  # the goal is checked first
-        agent = torch.zeros_like(static) if self.agents is None else self.agents.collides(pose, sel) & ~success
-        collision = static | agent
-        terminated = success | collision
-        truncated = (steps >= p.episode.horizon) & ~terminated
-        if self._goal_fields is None:
-            progress = p.reward.progress * (self.goal_distance[sel] - dist)
-        else:
-            d = self._goal_fields.distance(pose[:, :2], self._goal_source[sel], maps, dist,
-                                           unknown=self.progress_distance[sel])
-            progress = p.reward.progress * (self.progress_distance[sel] - d)
-            self.progress_distance[sel] = d
+        static = self._collides(pose, maps)
+        agent = torch.zeros_like(static) if self.agents is None else self.agents.collides(pose, sel)
+        shaping = self.shaping.step(sel, pose[:, :2], self.goal_distance[sel], dist, maps)
         if self.agents is not None and p.reward.agent_proximity > 0:  # off by default: the paper's reward
             near = (p.reward.agent_proximity_distance - self.agents.gap(pose, sel)).clamp(min=0.0)
-            progress = progress - p.reward.agent_proximity * near
-        reward = torch.where(success, p.reward.goal, torch.where(collision, p.reward.collision, progress))
-        episode_return = self.episode_return[sel] + reward
+            shaping = shaping - p.reward.agent_proximity * near
+        out = outcome(p, dist, static, agent, steps, shaping)
+        episode_return = self.episode_return[sel] + out["reward"]
         obs = self._observe(ranges, pose, goal, velocity)
         if self.history is not None:  # the frames before this step, then this scan joins them
             obs = self.history.push(sel, obs)
 
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs
-        return {"obs": obs, "reward": reward, "terminated": terminated, "truncated": truncated,
-                "success": success, "collision": collision, "collision_static": static,
-                "collision_agent": agent, "episode_steps": steps,
-                "episode_return": episode_return}
+        return {"obs": obs, **out, "episode_steps": steps, "episode_return": episode_return}
 
     def close_extras(self, **kwargs) -> None:  # nothing to release: no processes, no files
         pass

@@ -1,0 +1,70 @@
+"""What a step ends in and what it pays (paper section 2.2), for the slots of one transition.
+
+In the paper's order: the goal is reached when the goal distance is below ``episode.goal_threshold``
+(+goal, terminated); otherwise a footprint that touches a wall or the map's edge (``collision_static``)
+or a moving agent (``collision_agent``) ends the episode with the collision reward; otherwise the step
+earns the shaping term ``progress x (d_old - d_new)``. Reaching the horizon without a terminal event is a
+truncation. ``d`` is the straight-line goal distance (the paper's), or with ``reward.progress_metric:
+geodesic`` the path length to the goal through the robot's free space (:class:`Shaping`,
+:mod:`flashnav.sim.goal_fields`). With agents and ``reward.agent_proximity > 0`` (off by default) the
+shaping term also pays ``agent_proximity`` per metre by which the robot is nearer an agent than
+``agent_proximity_distance``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from flashnav.config import RobotPreset
+from flashnav.maps.grid import OccupancyMap
+from flashnav.sim.goal_fields import GoalFields
+
+
+class Shaping:
+    """The ``d`` of the shaping term per slot. With the paper's straight line it keeps no state of its
+    own (the environment's ``goal_distance`` is ``d``); with geodesic progress, each slot's goal source
+    (``source`` [N]) and path length (``distance`` [N], metres) in its map's :class:`GoalFields`."""
+
+    def __init__(self, preset: RobotPreset, frame_maps: Sequence[OccupancyMap], samplers, num_envs: int,
+                 device: torch.device):
+        self.weight = preset.reward.progress
+        self.fields = (GoalFields(frame_maps, samplers, preset, device)
+                       if preset.reward.progress_metric == "geodesic" else None)
+        self.distance = torch.zeros(num_envs, device=device)  # geodesic progress only
+        self.source = torch.full((num_envs,), -1, dtype=torch.long, device=device)
+
+    def start(self, idx: torch.Tensor, xy: torch.Tensor, goal: torch.Tensor, straight: torch.Tensor,
+              maps: torch.Tensor | None) -> None:
+        """New episodes in slots ``idx`` [k]: the robots at ``xy`` [k, 2], goals [k, 2], straight-line
+        distances [k], on ``maps`` [k] (None with one map)."""
+        if self.fields is not None:
+            self.source[idx] = source = self.fields.ids(goal, maps)
+            self.distance[idx] = self.fields.distance(xy, source, maps, straight)
+
+    def step(self, sel, xy: torch.Tensor, straight_old: torch.Tensor, straight: torch.Tensor,
+             maps: torch.Tensor | None) -> torch.Tensor:
+        """The shaping term [k] of slots ``sel`` moving to ``xy`` [k, 2] (straight-line distance from
+        ``straight_old`` to ``straight``); geodesic progress updates its distances."""
+        if self.fields is None:
+            return self.weight * (straight_old - straight)
+        d = self.fields.distance(xy, self.source[sel], maps, straight, unknown=self.distance[sel])
+        gain = self.weight * (self.distance[sel] - d)
+        self.distance[sel] = d
+        return gain
+
+
+def outcome(preset: RobotPreset, dist: torch.Tensor, static: torch.Tensor, agent: torch.Tensor,
+            steps: torch.Tensor, shaping: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Flags and reward [k] of one step: ``dist`` the goal distance after it, ``static`` / ``agent`` the
+    footprint's raw hits, ``steps`` the episode's step count after it, ``shaping`` the step's shaping
+    term. The goal is checked first: a step that reaches it is no collision."""
+    success = dist < preset.episode.goal_threshold
+    static, agent = static & ~success, agent & ~success
+    collision = static | agent
+    terminated = success | collision
+    truncated = (steps >= preset.episode.horizon) & ~terminated
+    reward = torch.where(success, preset.reward.goal, torch.where(collision, preset.reward.collision, shaping))
+    return {"reward": reward, "terminated": terminated, "truncated": truncated, "success": success,
+            "collision": collision, "collision_static": static, "collision_agent": agent}
