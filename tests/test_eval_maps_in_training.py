@@ -21,6 +21,7 @@ from flashnav.maps.validation import (benchmark_dir, spread_episodes, validation
 from flashnav.names import HELDOUT_SEEDS_FROM, MAP_FAMILIES, VALIDATION_SEEDS
 from flashnav.sim.env import NavVecEnv
 from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
+from test_train import tiny_config
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"algo.num_envs": 16, "algo.learning_start": 32, "algo.updates_per_step": 1, "algo.batch_size": 32,
@@ -28,10 +29,7 @@ TINY = {"algo.num_envs": 16, "algo.learning_start": 32, "algo.updates_per_step":
 
 
 def tiny(**kw) -> TrainConfig:
-    base = dict(device="cpu", recipe="cpu", overrides=dict(TINY),
-                budget={"max_env_steps": 16 * 6, "stop_at_success": None}, eval={"episodes": 8})
-    base.update(kw)
-    return TrainConfig.model_validate(base)
+    return tiny_config(TINY, 16 * 6, 8, **kw)
 
 
 @pytest.fixture(scope="module")

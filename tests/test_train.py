@@ -17,11 +17,17 @@ TINY = {"algo.num_envs": 32, "algo.learning_start": 64, "algo.updates_per_step":
         "algo.eval_every": 2}
 
 
-def tiny(**kw) -> TrainConfig:
-    base = dict(device="cpu", recipe="cpu", overrides=dict(TINY),
-                budget={"max_env_steps": 32 * 8, "stop_at_success": None}, eval={"episodes": 16})
+def tiny_config(small: dict, env_steps: int, episodes: int, **kw) -> TrainConfig:
+    """A CPU run of ``env_steps`` with the overrides ``small`` and ``episodes`` per evaluation, no early stop;
+    ``kw`` replaces any of these fields (shared with other test modules)."""
+    base = dict(device="cpu", recipe="cpu", overrides=dict(small),
+                budget={"max_env_steps": env_steps, "stop_at_success": None}, eval={"episodes": episodes})
     base.update(kw)
     return TrainConfig.model_validate(base)
+
+
+def tiny(**kw) -> TrainConfig:
+    return tiny_config(TINY, 32 * 8, 16, **kw)
 
 
 @pytest.fixture(scope="module")
