@@ -108,6 +108,29 @@ def episode_rates(success, collision, returns, steps) -> dict[str, float]:
     }
 
 
+class TrainingEpisodes:
+    """Outcomes of the *training* episodes (the collection policy's, exploration included) that end
+    between two evaluations: the rolling count some reference codes log instead of evaluating
+    (docs/learners.md, S1). Counted on the env's device, without a host sync per step; :meth:`take` reads
+    and clears the window."""
+
+    def __init__(self, device: torch.device | str):
+        self._ended = torch.zeros((), dtype=torch.long, device=device)
+        self._succeeded = torch.zeros((), dtype=torch.long, device=device)
+
+    def add(self, done: torch.Tensor, success: torch.Tensor) -> None:
+        """One vector step: ``done`` [N] bool (terminated or truncated), ``success`` [N] bool."""
+        self._ended += done.sum()
+        self._succeeded += (done & success).sum()
+
+    def take(self) -> dict[str, float | int | None]:
+        """``train_episodes`` ended since the last call and their ``train_success_rate`` (None if none)."""
+        ended, succeeded = int(self._ended), int(self._succeeded)
+        self._ended.zero_()
+        self._succeeded.zero_()
+        return {"train_episodes": ended, "train_success_rate": succeeded / ended if ended else None}
+
+
 class ThresholdTracker:
     """First training time and env step at which the success rate reached each threshold.
 

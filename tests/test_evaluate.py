@@ -87,3 +87,19 @@ def test_step_slots_does_not_reset_a_finished_slot():
     assert t["terminated"].tolist() == [True] and t["success"].tolist() == [True]
     assert env.steps[0].item() == 1 and env.pose[0, 0].item() > 5.0  # where it ended, not a new episode
     assert env.steps[1].item() == 0 and env.pose[1].tolist() == [5.0, 5.0, 0.0]
+
+
+def test_training_episodes_counts_the_window_and_clears_it():
+    from flashnav.evaluate import TrainingEpisodes
+
+    count = TrainingEpisodes("cpu")
+    assert count.take() == {"train_episodes": 0, "train_success_rate": None}
+    gen = torch.Generator().manual_seed(5)
+    done = torch.rand(20, 64, generator=gen) < 0.2
+    success = torch.rand(20, 64, generator=gen) < 0.5  # success where nothing ended must not count
+    for d, s in zip(done, success):
+        count.add(d, s)
+    window = count.take()
+    assert window["train_episodes"] == int(done.sum())
+    assert window["train_success_rate"] == pytest.approx(int((done & success).sum()) / int(done.sum()))
+    assert count.take()["train_episodes"] == 0

@@ -134,6 +134,22 @@ def test_interrupted_train_command_still_writes_its_artefacts(tmp_path, monkeypa
         assert (out / name).stat().st_size > 0, name
 
 
+def test_training_episode_success_is_recorded_beside_the_evaluation():
+    """Each evaluation carries the training episodes that ended since the previous one; their thresholds
+    are the first crossings of that column (metrics.first_crossing, the reference)."""
+    from flashnav.metrics import THRESHOLDS, first_crossing
+
+    result = train(tiny(budget={"max_env_steps": 32 * 40, "stop_at_success": None}))
+    counted = [p for p in result.curve if p["train_success_rate"] is not None]
+    assert sum(p["train_episodes"] for p in result.curve) > 0 and counted
+    assert all(0.0 <= p["train_success_rate"] <= 1.0 for p in counted)
+    assert all(p["train_success_rate"] is None for p in result.curve if p["train_episodes"] == 0)
+    for t in THRESHOLDS:
+        want = first_crossing([p["train_success_rate"] for p in counted], [p["env_steps"] for p in counted], t)
+        assert result.training_episodes_to_threshold["env_steps"][t] == want
+    assert "training_episodes_to_threshold" in result.to_dict()
+
+
 def test_bad_config_is_named():
     with pytest.raises(ValueError, match="algo."):
         TrainConfig(overrides={"batch_size": 3})

@@ -30,7 +30,7 @@ from typing import Any, Callable
 import torch
 
 from flashnav.eval_maps import EvalSet
-from flashnav.evaluate import ThresholdTracker, evaluate
+from flashnav.evaluate import ThresholdTracker, TrainingEpisodes, evaluate
 from flashnav.finetune import load_learner
 from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
@@ -59,6 +59,9 @@ class TrainResult:
     stop_reason: str
     best_success_rate: float = 0.0
     threads: int | None = None  # the learner's torch CPU threads (None on a GPU); device_name is the machine
+    # the same thresholds read from the training episodes' success between evaluations (curve's
+    # train_success_rate): the rolling count of some references, not the evaluation (docs/learners.md S1)
+    training_episodes_to_threshold: dict[str, dict[float, Any]] = field(default_factory=dict)
     learner: Learner | None = field(default=None, repr=False)
     best_policy: torch.nn.Module | None = field(default=None, repr=False)
 
@@ -74,6 +77,8 @@ class TrainResult:
             "curve": self.curve,
             "time_to_threshold": {str(k): v for k, v in self.time_to_threshold.items()},
             "env_steps_to_threshold": {str(k): v for k, v in self.env_steps_to_threshold.items()},
+            "training_episodes_to_threshold": {what: {str(k): v for k, v in d.items()}
+                                               for what, d in self.training_episodes_to_threshold.items()},
             "cycle": self.cycle,
             "train_seconds": self.train_seconds,
             "env_steps": self.env_steps,
@@ -148,7 +153,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
     overlap = config.overlap
     collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
     learning_cycles = _Timer(dev)  # cycles with updates: the paper's cycle (warm-up excluded)
-    tracker = ThresholdTracker()
+    tracker, train_tracker = ThresholdTracker(), ThresholdTracker()
+    episodes = TrainingEpisodes(dev)
     curve: list[dict[str, float]] = []
     obs_box = [env.reset(seed=config.seed)[0]]
 
@@ -173,6 +179,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
             next_obs, reward, terminated, truncated, info = env.step(action)
             replay.add(obs, action, reward, terminated, info["final_obs"])
             learner.on_episode_end(terminated | truncated)
+            episodes.add(terminated | truncated, info["success"])
             obs_box[0] = next_obs
 
     def sample():
@@ -224,9 +231,11 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
             out_of_time = cycle_t.total >= config.budget.max_train_seconds
             if cycle % eval_every and cycle != cycles and not out_of_time:
                 continue  # every run ends with an evaluation, whichever budget ends it
-            last_eval = _evaluate(learner, play_eval, env_steps, cycle_t.total, len(curve))
+            last_eval = {**_evaluate(learner, play_eval, env_steps, cycle_t.total, len(curve)), **episodes.take()}
             curve.append(last_eval)
             tracker.update(last_eval["success_rate"], cycle_t.total, env_steps)
+            if last_eval["train_success_rate"] is not None:
+                train_tracker.update(last_eval["train_success_rate"], cycle_t.total, env_steps)
             if best_policy is None or last_eval["success_rate"] > best_rate:
                 best_rate, best_policy = last_eval["success_rate"], copy.deepcopy(learner.policy)
             if on_eval is not None and on_eval(dict(last_eval)):
@@ -261,6 +270,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
         curve=curve,
         time_to_threshold=dict(tracker.seconds),
         env_steps_to_threshold=dict(tracker.env_steps),
+        training_episodes_to_threshold={"env_steps": dict(train_tracker.env_steps),
+                                        "seconds": dict(train_tracker.seconds)},
         cycle=cycle_stats,
         train_seconds=cycle_t.total,
         env_steps=env_steps,

@@ -59,6 +59,13 @@ class TrainProgress:
         if self.eval_lines:
             self._live.console.print(f"{prefix}eval {m['eval_index']:3d} {m['env_steps']:>9,} steps "
                                      f"{m['train_seconds']:6.1f} s  success {m['success_rate']:6.1%} "
-                                     f"collision {m['collision_rate']:5.1%} return {m['mean_return']:6.2f}",
-                                     soft_wrap=True)
+                                     f"collision {m['collision_rate']:5.1%} return {m['mean_return']:6.2f}"
+                                     f"{_training_episodes(m)}", soft_wrap=True)
         self._live.update(self._render())
+
+
+def _training_episodes(m: dict) -> str:
+    """`` | train eps 97.6% of 85``: the training episodes that ended since the last evaluation, if counted."""
+    if m.get("train_success_rate") is None:
+        return ""
+    return f"  | train eps {m['train_success_rate']:6.1%} of {m['train_episodes']}"
