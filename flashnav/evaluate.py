@@ -109,14 +109,22 @@ def episode_rates(success, collision, returns, steps) -> dict[str, float]:
 
 
 class TrainingEpisodes:
-    """Outcomes of the *training* episodes (the collection policy's, exploration included) that end
-    between two evaluations: the rolling count some reference codes log instead of evaluating
-    (docs/learners.md, S1). Counted on the env's device, without a host sync per step; :meth:`take` reads
-    and clears the window."""
+    """The success of the most recent *training* episodes (the collection policy's, exploration included):
+    the rolling count some reference codes log instead of evaluating (docs/learners.md, S1). Episodes are
+    counted on the env's device without a host sync per step, in windows that :meth:`take` closes (one per
+    evaluation); a reading pools the newest whole windows until they hold at least ``pool`` episodes.
 
-    def __init__(self, device: torch.device | str):
+    It cannot see what never ends during training: an environment slot lives ``total_env_steps /
+    num_envs`` steps in a whole run (196 in the paper's TurtleBot2 recipe, under its 200-step horizon),
+    so no training episode there ever times out."""
+
+    def __init__(self, device: torch.device | str, pool: int = 100):
+        if pool < 1:
+            raise ValueError(f"pool must be >= 1 training episodes, got {pool}")
+        self.pool = pool
         self._ended = torch.zeros((), dtype=torch.long, device=device)
         self._succeeded = torch.zeros((), dtype=torch.long, device=device)
+        self._windows: list[tuple[int, int]] = []  # (ended, succeeded), oldest first
 
     def add(self, done: torch.Tensor, success: torch.Tensor) -> None:
         """One vector step: ``done`` [N] bool (terminated or truncated), ``success`` [N] bool."""
@@ -124,11 +132,16 @@ class TrainingEpisodes:
         self._succeeded += (done & success).sum()
 
     def take(self) -> dict[str, float | int | None]:
-        """``train_episodes`` ended since the last call and their ``train_success_rate`` (None if none)."""
-        ended, succeeded = int(self._ended), int(self._succeeded)
+        """Close the window: ``train_episodes`` pooled (the newest whole windows holding >= ``pool``
+        episodes, or all so far) and their ``train_success_rate`` (None while fewer than ``pool`` ended)."""
+        self._windows.append((int(self._ended), int(self._succeeded)))
         self._ended.zero_()
         self._succeeded.zero_()
-        return {"train_episodes": ended, "train_success_rate": succeeded / ended if ended else None}
+        while len(self._windows) > 1 and sum(e for e, _ in self._windows[1:]) >= self.pool:
+            self._windows.pop(0)
+        ended = sum(e for e, _ in self._windows)
+        succeeded = sum(k for _, k in self._windows)
+        return {"train_episodes": ended, "train_success_rate": succeeded / ended if ended >= self.pool else None}
 
 
 class ThresholdTracker:

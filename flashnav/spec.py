@@ -54,6 +54,8 @@ class EvalSettings(KnownKeys):
                           "YAML files, or 'validation' (generated, seeds from 800000; flashnav/maps/validation.py), "
                           "episodes spread over them in blocks; the benchmark suites (heldout, real) are refused")
     maps_per_family: int = Field(4, gt=0, description="with maps: validation, the suite's maps per family")
+    training_episodes: int = Field(100, gt=0, description="the training-episode success beside each evaluation pools "
+                                   "at least this many of the newest training episodes (a reading, never a stop)")
 
     @field_validator("maps")
     @classmethod

@@ -89,17 +89,28 @@ def test_step_slots_does_not_reset_a_finished_slot():
     assert env.steps[1].item() == 0 and env.pose[1].tolist() == [5.0, 5.0, 0.0]
 
 
-def test_training_episodes_counts_the_window_and_clears_it():
+def test_training_episodes_pools_the_newest_windows_against_a_reference():
+    """Random windows of random steps: each reading equals a plain-Python pool of the newest whole windows
+    holding >= pool episodes; success where nothing ended never counts; None until pool episodes ended."""
     from flashnav.evaluate import TrainingEpisodes
 
-    count = TrainingEpisodes("cpu")
-    assert count.take() == {"train_episodes": 0, "train_success_rate": None}
+    with pytest.raises(ValueError, match="pool"):
+        TrainingEpisodes("cpu", 0)
     gen = torch.Generator().manual_seed(5)
-    done = torch.rand(20, 64, generator=gen) < 0.2
-    success = torch.rand(20, 64, generator=gen) < 0.5  # success where nothing ended must not count
-    for d, s in zip(done, success):
-        count.add(d, s)
-    window = count.take()
-    assert window["train_episodes"] == int(done.sum())
-    assert window["train_success_rate"] == pytest.approx(int((done & success).sum()) / int(done.sum()))
-    assert count.take()["train_episodes"] == 0
+    count, windows = TrainingEpisodes("cpu", pool=30), []
+    for _ in range(25):
+        steps = int(torch.randint(0, 6, (), generator=gen))
+        done = torch.rand(steps, 16, generator=gen) < 0.15
+        success = torch.rand(steps, 16, generator=gen) < 0.7
+        for d, s in zip(done, success):
+            count.add(d, s)
+        windows.append((int(done.sum()), int((done & success).sum())))
+        got = count.take()
+        pooled, k = 0, len(windows)
+        while k > 0 and pooled < 30:  # the reference: newest windows first until >= 30 episodes
+            k -= 1
+            pooled += windows[k][0]
+        won = sum(w[1] for w in windows[k:])
+        assert got["train_episodes"] == pooled
+        assert got["train_success_rate"] == (pytest.approx(won / pooled) if pooled >= 30 else None)
+    assert any(w[0] == 0 for w in windows) and sum(w[0] for w in windows) > 60  # the draw covered both cases

@@ -135,15 +135,16 @@ def test_interrupted_train_command_still_writes_its_artefacts(tmp_path, monkeypa
 
 
 def test_training_episode_success_is_recorded_beside_the_evaluation():
-    """Each evaluation carries the training episodes that ended since the previous one; their thresholds
-    are the first crossings of that column (metrics.first_crossing, the reference)."""
+    """Each evaluation carries the newest training episodes' success (>= eval.training_episodes of them
+    pooled; 6 here); the thresholds are the first crossings of that column (metrics.first_crossing, the reference)."""
     from flashnav.metrics import THRESHOLDS, first_crossing
 
-    result = train(tiny(budget={"max_env_steps": 32 * 40, "stop_at_success": None}))
+    result = train(tiny(budget={"max_env_steps": 32 * 40, "stop_at_success": None},
+                        eval={"episodes": 16, "training_episodes": 6}))
     counted = [p for p in result.curve if p["train_success_rate"] is not None]
-    assert sum(p["train_episodes"] for p in result.curve) > 0 and counted
+    assert counted and all(p["train_episodes"] >= 6 for p in counted)
     assert all(0.0 <= p["train_success_rate"] <= 1.0 for p in counted)
-    assert all(p["train_success_rate"] is None for p in result.curve if p["train_episodes"] == 0)
+    assert all(p["train_success_rate"] is None for p in result.curve if p["train_episodes"] < 6)
     for t in THRESHOLDS:
         want = first_crossing([p["train_success_rate"] for p in counted], [p["env_steps"] for p in counted], t)
         assert result.training_episodes_to_threshold["env_steps"][t] == want

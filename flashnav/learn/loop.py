@@ -154,7 +154,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
     collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
     learning_cycles = _Timer(dev)  # cycles with updates: the paper's cycle (warm-up excluded)
     tracker, train_tracker = ThresholdTracker(), ThresholdTracker()
-    episodes = TrainingEpisodes(dev)
+    episodes = TrainingEpisodes(dev, config.eval.training_episodes)
     curve: list[dict[str, float]] = []
     obs_box = [env.reset(seed=config.seed)[0]]
 

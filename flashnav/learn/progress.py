@@ -65,7 +65,7 @@ class TrainProgress:
 
 
 def _training_episodes(m: dict) -> str:
-    """`` | train eps 97.6% of 85``: the training episodes that ended since the last evaluation, if counted."""
+    """`` | train eps 97.6% of 112``: the newest training episodes' success, once enough have ended."""
     if m.get("train_success_rate") is None:
         return ""
     return f"  | train eps {m['train_success_rate']:6.1%} of {m['train_episodes']}"
