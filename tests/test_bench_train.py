@@ -38,6 +38,16 @@ def test_summarise_counts_seeds_within_the_paper_budget():
     assert s["0.9"]["within_budget"] == 2
 
 
+def test_summarise_reads_100_percent_on_the_training_episodes_too():
+    runs = [{**_run(5.0, 6.0, None, 1000), "training_episodes_to_threshold": {"env_steps": {"1.0": 90_000}}},
+            {**_run(5.0, 6.0, None, 1000), "training_episodes_to_threshold": {"env_steps": {"1.0": 210_000}}},
+            _run(None, None, None)]  # an older run without the reading
+    s = summarise(runs, budget=200_704)
+    assert s["training_episodes"] == {"reached": 2, "best_env_steps": 90_000.0, "mean_env_steps": 150_000.0,
+                                      "within_budget": 1}
+    assert s["1.0"]["reached"] == 0  # the evaluation's own count is untouched
+
+
 def test_summarise_lists_the_learner_thread_counts():
     runs = [{**_run(10.0, None, None), "threads": 2}, {**_run(None, None, None), "threads": 1},
             {**_run(None, None, None), "threads": 2}]

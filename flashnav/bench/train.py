@@ -50,6 +50,12 @@ def summarise(runs: list[dict], budget: int | None = None) -> dict:
         steps = over_seeds(step_values, interval=False)
         out[str(t)] = {"reached": secs.k, "best_s": secs.best, "mean_s": secs.mean, "best_env_steps": steps.best,
                        "mean_env_steps": steps.mean, "within_budget": within_budget(step_values, budget)}
+    # 100 % read on the training episodes (metrics.json training_episodes_to_threshold; older JSON: none)
+    train_values = [r.get("training_episodes_to_threshold", {}).get("env_steps", {}).get(str(THRESHOLDS[-1]))
+                    for r in runs]
+    train = over_seeds(train_values, interval=False)
+    out["training_episodes"] = {"reached": train.k, "best_env_steps": train.best, "mean_env_steps": train.mean,
+                                "within_budget": within_budget(train_values, budget)}
     for k in ("collector_ms", "learner_ms", "effective_ms"):
         out[k] = statistics.fmean(r["cycle"][k] for r in runs)
     out["threads"] = sorted({r["threads"] for r in runs if r.get("threads") is not None})  # [] on a GPU
@@ -158,8 +164,8 @@ def _print(console: Console, groups, seeds: int, when: str) -> None:
     t = Table(title=f"flashnav bench train ({when}): environment steps, then seconds of training, to success "
                     f"thresholds; {seeds} seeds")
     for col in ("robot", "algo", "recipe", "device", "threads", "env steps to 90% best/mean (k/S)",
-                "to 95%", "to 100%", "100% in paper budget", "seconds to 90/95/100% mean",
-                "collector/learner/cycle ms"):
+                "to 95%", "to 100%", "100% in paper budget", "100% on training episodes (k/S)",
+                "seconds to 90/95/100% mean", "collector/learner/cycle ms"):
         t.add_column(col, justify="right")
     for robot, algo, recipe, device, s in groups:
         cells = []
@@ -171,6 +177,9 @@ def _print(console: Console, groups, seeds: int, when: str) -> None:
         in_budget = "-" if budget is None else f"{last['within_budget']}/{s['runs']} (<= {budget:,})"
         seconds = " / ".join("-" if s[str(th)]["mean_s"] is None else f"{s[str(th)]['mean_s']:.1f}" for th in THRESHOLDS)
         threads = ", ".join(str(n) for n in s.get("threads", [])) or "-"
-        t.add_row(robot, algo, recipe, device, threads, *cells, in_budget, seconds,
+        tr = s.get("training_episodes", {})
+        on_train = ("-" if not tr.get("reached") else
+                    f"{tr['best_env_steps']:,.0f} / {tr['mean_env_steps']:,.0f} ({tr['reached']}/{s['runs']})")
+        t.add_row(robot, algo, recipe, device, threads, *cells, in_budget, on_train, seconds,
                   f"{s['collector_ms']:.1f} / {s['learner_ms']:.1f} / {s['effective_ms']:.1f}")
     console.print(t)
