@@ -7,7 +7,7 @@
 in a temporary project-like directory (a copy of sweeps/quickstart.yaml, no environment pointing
 elsewhere), so the sweep's default store (<project>/runs/mlflow.db) must be the one `flashnav report`
 finds by default, and nothing lands in the repository's runs/. The budget is the smallest that still
-gives every seed several evaluations (3 s of training, an evaluation every 10 cycles). About a minute
+gives every seed several evaluations (30 cycles of training, an evaluation every 10). About a minute
 on 2 cores. The screenshot is left in the test's tmp dir (report_e2e_screenshot.png).
 """
 from __future__ import annotations
@@ -26,7 +26,10 @@ ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
 CHROMIUM = Path("/usr/bin/chromium")
 WIDTH, HEIGHT = 1400, 2000
-TINY = ["--set", "budget.max_train_seconds=3", "--set", "base.eval.episodes=16", "--set", "base.eval.every=10"]
+# A budget in env steps (30 cycles of the cpu recipe's 128 envs: evaluations at cycles 10, 20, 30), so the count
+# of evaluations does not depend on how loaded the machine is (a 3-s budget gave one evaluation under load).
+TINY = ["--set", "budget.max_env_steps=3840", "--set", "budget.max_train_seconds=120", "--set", "base.eval.episodes=16",
+        "--set", "base.eval.every=10"]
 REPORT_FILES = ["report.md", "threshold_table.tex", "paper_table2.tex", "tables.tex", "threshold_table.csv",
                 "comparison.csv", "index.html", "figures/curves_return.png", "figures/curves_success.png",
                 "figures/success_vs_time.png", "figures/cycle_breakdown.png"]
