@@ -94,9 +94,6 @@ def split_device_name(name: str | None) -> tuple[str | None, int | None]:
     return match["machine"], int(match["threads"])
 
 
-__all__ = ["cpu_model", "cpu_cores", "machine_name", "learner_threads", "split_device_name"]
-
-
 # ---- which device a run asks for ------------------------------------------------------------------
 
 _DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
@@ -122,3 +119,7 @@ def resolve_device(device: str) -> str:
         if index >= torch.cuda.device_count():
             raise ValueError(f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     return device
+
+
+__all__ = ["cpu_model", "cpu_cores", "machine_name", "learner_threads", "split_device_name", "check_device_name",
+           "resolve_device"]

@@ -14,7 +14,6 @@ and read it back with :meth:`RunSpec.from_dict`.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal

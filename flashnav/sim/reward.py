@@ -24,16 +24,18 @@ from flashnav.sim.goal_fields import GoalFields
 
 class Shaping:
     """The ``d`` of the shaping term per slot. With the paper's straight line it keeps no state of its
-    own (the environment's ``goal_distance`` is ``d``); with geodesic progress, each slot's goal source
-    (``source`` [N]) and path length (``distance`` [N], metres) in its map's :class:`GoalFields`."""
+    own (the environment's ``goal_distance`` is ``d``; ``fields``, ``source`` and ``distance`` are None); with
+    geodesic progress, each slot's goal source (``source`` [N]) and path length (``distance`` [N], metres) in
+    its map's :class:`GoalFields`."""
 
     def __init__(self, preset: RobotPreset, frame_maps: Sequence[OccupancyMap], samplers, num_envs: int,
                  device: torch.device):
         self.weight = preset.reward.progress
-        self.fields = (GoalFields(frame_maps, samplers, preset, device)
-                       if preset.reward.progress_metric == "geodesic" else None)
-        self.distance = torch.zeros(num_envs, device=device)  # geodesic progress only
-        self.source = torch.full((num_envs,), -1, dtype=torch.long, device=device)
+        self.fields = self.distance = self.source = None
+        if preset.reward.progress_metric == "geodesic":
+            self.fields = GoalFields(frame_maps, samplers, preset, device)
+            self.distance = torch.zeros(num_envs, device=device)
+            self.source = torch.full((num_envs,), -1, dtype=torch.long, device=device)
 
     def start(self, idx: torch.Tensor, xy: torch.Tensor, goal: torch.Tensor, straight: torch.Tensor,
               maps: torch.Tensor | None) -> None:
