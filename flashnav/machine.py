@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import platform
 import re
+from contextlib import contextmanager
 from functools import lru_cache
 
 _OLD_SPELLING = re.compile(r"^(?P<machine>.*?)\s*\((?P<threads>\d+) threads?\)$")
@@ -70,14 +71,39 @@ def learner_threads(device: str = "cpu") -> int | None:
 
 def single_threaded_numba() -> None:
     """Numba kernels called from this thread use this thread only (``numba.set_num_threads`` is
-    thread-local): for a worker thread (the collector, the map stream) beside others that own the
-    cores. Nothing where numba is absent or its threading layer refuses."""
+    thread-local): for a worker thread (the map stream) beside others that own the cores. Nothing
+    where numba is absent or its threading layer refuses."""
     try:
         import numba
 
         numba.set_num_threads(1)
     except (ImportError, ValueError):
         pass
+
+
+@contextmanager
+def numba_threads(n: int | None = None):
+    """Inside the block, numba kernels called from this thread use ``n`` threads (None: all numba may
+    use, ``NUMBA_NUM_THREADS``); after it, the thread's count before. The count is thread-local, so a
+    block in one thread leaves the others' alone: the collector steps on one thread while the learner
+    owns the other core, and an evaluation (the learner and collector idle) uses every core. The
+    kernels' results do not depend on the count (each environment is one independent loop iteration).
+    Nothing where numba is absent; an ``n`` outside [1, NUMBA_NUM_THREADS] is a ValueError."""
+    try:
+        import numba
+    except ImportError:
+        yield
+        return
+    most = int(numba.config.NUMBA_NUM_THREADS)
+    n = most if n is None else int(n)
+    if not 1 <= n <= most:
+        raise ValueError(f"numba threads must be in [1, {most}] (NUMBA_NUM_THREADS), got {n}")
+    before = numba.get_num_threads()
+    numba.set_num_threads(n)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
 
 
 def split_device_name(name: str | None) -> tuple[str | None, int | None]:
@@ -122,4 +148,4 @@ def resolve_device(device: str) -> str:
 
 
 __all__ = ["cpu_model", "cpu_cores", "machine_name", "learner_threads", "split_device_name", "check_device_name",
-           "resolve_device"]
+           "resolve_device", "single_threaded_numba", "numba_threads"]

@@ -52,3 +52,68 @@ def test_single_threaded_numba_holds_for_the_calling_thread_only():
     t.start()
     t.join()
     assert seen == [1] and numba.get_num_threads() == before
+
+
+def test_numba_threads_sets_and_restores_for_the_calling_thread():
+    import threading
+
+    import numba
+
+    from flashnav.machine import numba_threads
+
+    most = int(numba.config.NUMBA_NUM_THREADS)
+    before = numba.get_num_threads()
+    with numba_threads(1):
+        assert numba.get_num_threads() == 1
+        with numba_threads():
+            assert numba.get_num_threads() == most
+        assert numba.get_num_threads() == 1
+    assert numba.get_num_threads() == before
+    with pytest.raises(RuntimeError), numba_threads(1):  # restored on the way out of a failure too
+        raise RuntimeError("boom")
+    assert numba.get_num_threads() == before
+    for bad in (0, most + 1):
+        with pytest.raises(ValueError, match=rf"numba threads must be in \[1, {most}\].*got {bad}"):
+            with numba_threads(bad):
+                pass
+    seen = []
+
+    def worker():
+        with numba_threads(1):
+            seen.append(numba.get_num_threads())
+
+    with numba_threads():
+        t = threading.Thread(target=worker)
+        t.start()
+        t.join()
+        assert seen == [1] and numba.get_num_threads() == most  # the other thread's block left ours alone
+
+
+def test_training_evaluates_on_every_numba_thread_and_collects_on_one(monkeypatch):
+    """The warm-up collects on the main thread (no learner yet) and must not leave it single-threaded:
+    the evaluations, on the main thread, scan with every numba thread; the collector with one."""
+    import numba
+
+    from flashnav.learn import loop
+    from flashnav.sim.env import NavVecEnv
+    from test_train import TINY, tiny_config
+
+    during_eval, during_collect = [], []
+    evaluate, step = loop.evaluate, NavVecEnv.step
+
+    def counting_evaluate(*args, **kwargs):
+        during_eval.append(numba.get_num_threads())
+        return evaluate(*args, **kwargs)
+
+    def counting_step(self, *args, **kwargs):
+        during_collect.append(numba.get_num_threads())
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(loop, "evaluate", counting_evaluate)
+    monkeypatch.setattr(NavVecEnv, "step", counting_step)
+    before = numba.get_num_threads()
+    loop.train(tiny_config(TINY, 32 * 8, 8))
+    most = int(numba.config.NUMBA_NUM_THREADS)
+    assert during_eval and set(during_eval) == {most}
+    assert len(during_collect) == 8 and set(during_collect) == {1}
+    assert numba.get_num_threads() == before

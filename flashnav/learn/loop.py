@@ -36,7 +36,7 @@ from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
-from flashnav.machine import learner_threads, machine_name, single_threaded_numba
+from flashnav.machine import learner_threads, machine_name, numba_threads
 from flashnav.maps.stream import GeneratedMaps, MapStream, generation_radius
 from flashnav.metrics import reaches
 from flashnav.sim.env import NavVecEnv
@@ -164,10 +164,11 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
     collector_stream = torch.cuda.Stream(dev) if overlap and dev.type == "cuda" else None
 
     def collect() -> None:
-        if overlap and dev.type == "cpu":
-            single_threaded_numba()  # the learner owns the other core
         if collector_stream is not None:
             with torch.cuda.stream(collector_stream):
+                _collect()
+        elif overlap and dev.type == "cpu":
+            with numba_threads(1):  # the learner owns the other core (also the warm-up's main thread: restored)
                 _collect()
         else:
             _collect()
@@ -331,7 +332,8 @@ def _evaluate(learner: Learner, play_eval: Callable[[torch.nn.Module], dict[str,
     policy = learner.policy
     was_training = policy.training
     policy.eval()
-    result = play_eval(policy)
+    with numba_threads():  # the learner and collector wait: the scans may use every core
+        result = play_eval(policy)
     policy.train(was_training)
     return {"env_steps": env_steps, "train_seconds": train_seconds, "eval_index": index, **result}
 
