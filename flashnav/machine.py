@@ -69,24 +69,12 @@ def learner_threads(device: str = "cpu") -> int | None:
     return int(torch.get_num_threads())
 
 
-def single_threaded_numba() -> None:
-    """Numba kernels called from this thread use this thread only (``numba.set_num_threads`` is
-    thread-local): for a worker thread (the map stream) beside others that own the cores. Nothing
-    where numba is absent or its threading layer refuses."""
-    try:
-        import numba
-
-        numba.set_num_threads(1)
-    except (ImportError, ValueError):
-        pass
-
-
 @contextmanager
 def numba_threads(n: int | None = None):
     """Inside the block, numba kernels called from this thread use ``n`` threads (None: all numba may
     use, ``NUMBA_NUM_THREADS``); after it, the thread's count before. The count is thread-local, so a
-    block in one thread leaves the others' alone: the collector steps on one thread while the learner
-    owns the other core, and an evaluation (the learner and collector idle) uses every core. The
+    block in one thread leaves the others' alone: the collector and the map stream's worker step on one
+    thread while the learner owns the other core, and an evaluation (the learner and collector idle) uses every core. The
     kernels' results do not depend on the count (each environment is one independent loop iteration).
     Nothing where numba is absent; an ``n`` outside [1, NUMBA_NUM_THREADS] is a ValueError."""
     try:
@@ -148,4 +136,4 @@ def resolve_device(device: str) -> str:
 
 
 __all__ = ["cpu_model", "cpu_cores", "machine_name", "learner_threads", "split_device_name", "check_device_name",
-           "resolve_device", "single_threaded_numba", "numba_threads"]
+           "resolve_device", "numba_threads"]

@@ -35,25 +35,6 @@ def test_cpu_machine_name_has_cores_not_threads():
     assert learner_threads("cuda:0") is None
 
 
-def test_single_threaded_numba_holds_for_the_calling_thread_only():
-    import threading
-
-    import numba
-
-    from flashnav.machine import single_threaded_numba
-
-    before, seen = numba.get_num_threads(), []
-
-    def worker():
-        single_threaded_numba()
-        seen.append(numba.get_num_threads())
-
-    t = threading.Thread(target=worker)
-    t.start()
-    t.join()
-    assert seen == [1] and numba.get_num_threads() == before
-
-
 def test_numba_threads_sets_and_restores_for_the_calling_thread():
     import threading
 

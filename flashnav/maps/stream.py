@@ -24,7 +24,7 @@ from pydantic import Field, field_validator
 
 from flashnav.config import KnownKeys
 from flashnav.maps.families import RESERVED_SEED_START, SIZE_RANGE, check_training_seed, generate_family
-from flashnav.machine import single_threaded_numba
+from flashnav.machine import numba_threads
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import MAP_FAMILIES, parse_names
 
@@ -120,8 +120,12 @@ class MapStream:
         return cycle > 1 and (cycle - 1) % self.maps.refresh_every == 0
 
     def _build(self, index: int) -> tuple[OccupancyMap, ...]:
-        if self._pool is not None:
-            single_threaded_numba()  # the collector and learner own the cores
+        if self._pool is None:
+            return self._generate(index)
+        with numba_threads(1):  # the collector and learner own the cores
+            return self._generate(index)
+
+    def _generate(self, index: int) -> tuple[OccupancyMap, ...]:
         grids = generate_set(self.maps, index, self.robot_radius)
         if self.warm is not None:
             self.warm(grids)
