@@ -36,7 +36,7 @@ def batch(spec: RunSpec, seed: int, b: int = 16) -> Transition:
         return torch.cat([lidar, rest], 1)
 
     return Transition(obs(), torch.rand(b, 2, generator=gen) * 2 - 1, torch.randn(b, generator=gen),
-                      (torch.rand(b, generator=gen) < 0.2).float(), obs())
+                      (torch.rand(b, generator=gen) >= 0.2).float(), obs())   # bootstrap
 
 
 def trained_checkpoint(tmp_path, algorithm="fastdsac", updates=5, **overrides):

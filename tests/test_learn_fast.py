@@ -78,3 +78,21 @@ def test_learner_reaches_80_percent_on_a_tiny_open_map(algorithm, open_map):
           f"success untrained {untrained} then {rates}")
     assert untrained < 0.2
     assert max(rates) >= 0.8, rates
+
+
+def test_n_step_returns_learn_through_the_loop(open_map):
+    """``algo.n_step=3`` end to end: the loop stores episode ends, the replay sums three rewards, and
+    FastDSAC still learns the tiny task within its one-step budget (the sums are checked against a
+    reference in tests/test_replay.py; here, that the training path uses them and learns)."""
+    overrides, max_env_steps = LEARNERS["fastdsac"]
+    config = TrainConfig(
+        algorithm="fastdsac", map=open_map, device="cpu", recipe="cpu", seed=0,
+        overrides={"robot.episode.min_goal_distance": 0.5, "robot.episode.max_goal_distance": 1.5,
+                   "robot.episode.horizon": 100, **SMALL, "algo.n_step": 3},
+        budget={"max_env_steps": max_env_steps, "stop_at_success": 0.8, "max_train_seconds": 1e9},
+        eval={"episodes": 64})
+    assert resolve(config).hparams.n_step == 3
+    result = train(config)
+    rates = [c["success_rate"] for c in result.curve]
+    print(f"fastdsac n_step 3: {result.env_steps} env steps, success {rates}")
+    assert max(rates) >= 0.8, rates

@@ -33,7 +33,7 @@ def random_batch(seed=0, b=B, terminated=None):
     gen = torch.Generator().manual_seed(seed)
     term = (torch.rand(b, generator=gen) < 0.2).float() if terminated is None else torch.full((b,), float(terminated))
     return Transition(random_obs(b, gen), torch.rand(b, A, generator=gen) * 2 - 1, 3 * torch.randn(b, generator=gen),
-                      term, random_obs(b, gen))
+                      1.0 - term, random_obs(b, gen))
 
 
 def learner(algorithm, seed=0, **overrides):
@@ -263,7 +263,9 @@ def test_state_dict_groups_the_algorithm_state_and_names_what_is_missing():
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 def test_checkpoint_of_the_flat_layout_loads_and_continues_identically(algorithm):
     """A checkpoint written by the code before ``state.algo`` (tests/fixtures/legacy_learners/make.py):
-    the loaded learner acts and updates exactly as the old learner did next."""
+    the loaded learner acts and updates as the old learner did next. To float rounding, not bit for bit:
+    the fixture was written on one CPU and torch's kernels round differently on another (AVX-512 or
+    not); a state loaded into the wrong place differs by orders of magnitude more."""
     payload = load_checkpoint(LEGACY / f"{algorithm}.pt")
     saved, probe = payload["learner"], payload["extra"]["probe"]
     assert "algo" not in saved and {"atoms", "log_alpha"} & set(saved)  # the old, flat layout indeed
@@ -271,11 +273,12 @@ def test_checkpoint_of_the_flat_layout_loads_and_continues_identically(algorithm
     lrn = make_learner(algorithm, hp, LAYOUT, A, 4, "cpu", seed=99)
     lrn.load_state_dict(saved)
     assert lrn.num_updates == 3
-    assert torch.equal(lrn.act(probe["obs"]), probe["action"])
-    metrics = lrn.update(Transition(*probe["batch"]))
+    torch.testing.assert_close(lrn.act(probe["obs"]), probe["action"], rtol=1e-5, atol=1e-6)
+    obs, action, reward, terminated, next_obs = probe["batch"]   # stored when the 4th field was `terminated`
+    metrics = lrn.update(Transition(obs, action, reward, 1.0 - terminated, next_obs))
     assert set(metrics) == set(probe["metrics"])
     for key, value in probe["metrics"].items():
-        assert torch.equal(metrics[key], value), key
+        torch.testing.assert_close(metrics[key], value, rtol=1e-4, atol=1e-6, msg=key)
 
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)

@@ -1,5 +1,7 @@
 """Replay buffer: layout, wrap-around, sampling validity and reproducibility."""
 
+import re
+
 import pytest
 import torch
 
@@ -55,7 +57,7 @@ def test_wrap_around_overwrites_oldest_and_keeps_fields_aligned():
     # fields of one sampled row belong to the same transition
     torch.testing.assert_close(batch.obs[..., 0], batch.reward)
     torch.testing.assert_close(batch.next_obs[..., 0], batch.reward + 0.5)
-    torch.testing.assert_close(batch.terminated, (batch.reward % 100 == 1).float())
+    torch.testing.assert_close(batch.bootstrap, (batch.reward % 100 != 1).float())
 
 
 def test_sample_shapes_and_at():
@@ -64,7 +66,7 @@ def test_sample_shapes_and_at():
     batch = replay.sample(batch_size=7, n_batches=4)
     assert isinstance(batch, Transition)
     assert batch.obs.shape == (4, 7, D) and batch.action.shape == (4, 7, A)
-    assert batch.reward.shape == (4, 7) and batch.terminated.shape == (4, 7) and batch.next_obs.shape == (4, 7, D)
+    assert batch.reward.shape == (4, 7) and batch.bootstrap.shape == (4, 7) and batch.next_obs.shape == (4, 7, D)
     one = batch.at(2)
     assert one.obs.shape == (7, D) and torch.equal(one.reward, batch.reward[2])
     assert all(x.dtype == torch.float32 for x in batch)
@@ -120,3 +122,95 @@ def test_sample_out_names_the_field_that_does_not_fit():
     strided = Transition(*good[:4], torch.zeros(2, 4, D * 2)[..., ::2])
     with pytest.raises(ValueError, match="next_obs must be a contiguous"):
         replay.sample(4, 2, out=strided)
+
+
+# --- n-step returns -------------------------------------------------------------------------------
+
+def _episodes(steps: int, n: int, seed: int):
+    """Random per-env streams: rewards, terminated and truncated flags (episodes of a few steps)."""
+    g = torch.Generator().manual_seed(seed)
+    reward = torch.randn(steps, n, generator=g)
+    terminated = torch.rand(steps, n, generator=g) < 0.15
+    truncated = ~terminated & (torch.rand(steps, n, generator=g) < 0.1)
+    obs = torch.randn(steps, n, D, generator=g)
+    next_obs = torch.randn(steps, n, D, generator=g)
+    return obs, reward, terminated, truncated, next_obs
+
+
+def _reference(stream, step: int, env: int, newest: int, n_step: int, gamma: float):
+    """The n-step transition of (step, env), written out the obvious way over the time-ordered stream."""
+    obs, reward, terminated, truncated, next_obs = stream
+    total, last = 0.0, step
+    for k in range(n_step):
+        s = step + k
+        if s > newest:
+            break
+        total += gamma ** k * float(reward[s, env])
+        last = s
+        if terminated[s, env] or truncated[s, env]:
+            break
+    m = last - step + 1
+    bootstrap = gamma ** (m - 1) * (0.0 if terminated[last, env] else 1.0)
+    return obs[step, env], total, bootstrap, next_obs[last, env]
+
+
+@pytest.mark.parametrize("steps, capacity", [(9, 60), (23, 30)])   # before and after the buffer wraps
+@pytest.mark.parametrize("n_step", [2, 3, 5])
+def test_n_step_returns_equal_a_reference(steps, capacity, n_step):
+    n, gamma = 3, 0.9
+    stream = _episodes(steps, n, seed=steps + n_step)
+    obs, reward, terminated, truncated, next_obs = stream
+    replay = Replay(n, D, A, capacity=capacity, seed=3, n_step=n_step, gamma=gamma)
+    for t in range(steps):
+        replay.add(obs[t], torch.zeros(n, A), reward[t], terminated[t], next_obs[t], terminated[t] | truncated[t])
+    batch = replay.sample(400, 2)
+    oldest = steps - replay.rows_per_env if steps > replay.rows_per_env else 0
+    seen = set()
+    for u in range(2):
+        for i in range(400):
+            # find the sampled (step, env) from its observation (random normals: unique)
+            hit = (obs[oldest:] == batch.obs[u, i]).all(-1).nonzero()
+            assert hit.shape[0] == 1, "every sample is one stored row"
+            step, env = int(hit[0, 0]) + oldest, int(hit[0, 1])
+            seen.add((step, env))
+            want_obs, want_r, want_b, want_next = _reference(stream, step, env, steps - 1, n_step, gamma)
+            assert abs(float(batch.reward[u, i]) - want_r) < 1e-5
+            assert abs(float(batch.bootstrap[u, i]) - want_b) < 1e-6
+            assert torch.equal(batch.next_obs[u, i], want_next)
+    assert len(seen) > 0.8 * (steps - oldest) * n   # the draws cover the buffer (incl. its newest rows)
+
+
+def test_n_step_sample_into_static_buffers_matches():
+    stream = _episodes(12, N, seed=5)
+    a, b = (Replay(N, D, A, capacity=30, seed=4, n_step=3, gamma=0.97) for _ in range(2))
+    for replay in (a, b):
+        for t in range(12):
+            replay.add(stream[0][t], torch.zeros(N, A), stream[1][t], stream[2][t], stream[4][t],
+                       stream[2][t] | stream[3][t])
+    out = Transition(*(torch.full_like(x, -1.0) for x in a.sample(7, 3)))
+    a.generator.manual_seed(9)
+    b.generator.manual_seed(9)
+    want, got = a.sample(7, 3), b.sample(7, 3, out=out)
+    assert got is out
+    for name, w, g in zip(Transition._fields, want, got):
+        assert torch.equal(w, g), name
+
+
+def test_one_step_is_the_stored_transition_and_n_step_needs_its_inputs():
+    stream = _episodes(6, N, seed=1)
+    one = Replay(N, D, A, capacity=30, seed=2)
+    for t in range(6):
+        one.add(stream[0][t], torch.zeros(N, A), stream[1][t], stream[2][t], stream[4][t])
+    batch = one.sample(50)
+    flat_obs = stream[0].reshape(-1, D)
+    for i in range(50):
+        row = int((flat_obs == batch.obs[0, i]).all(-1).nonzero()[0, 0])
+        assert float(batch.reward[0, i]) == float(stream[1].reshape(-1)[row])
+        assert float(batch.bootstrap[0, i]) == 1.0 - float(stream[2].reshape(-1)[row])
+    with pytest.raises(ValueError, match="n_step must be an integer >= 1"):
+        Replay(N, D, A, 12, n_step=0)
+    with pytest.raises(ValueError, match="needs the discount gamma"):
+        Replay(N, D, A, 12, n_step=3)
+    three = Replay(N, D, A, 12, n_step=3, gamma=0.99)
+    with pytest.raises(ValueError, match=re.escape("ended=terminated | truncated")):
+        three.add(stream[0][0], torch.zeros(N, A), stream[1][0], stream[2][0], stream[4][0])

@@ -97,7 +97,7 @@ def random_batches(obs_dim: int, batch_size: int, device, seed: int, n: int) -> 
     for _ in range(n):
         obs = torch.rand(batch_size, obs_dim, generator=gen) * 3.0 + 0.3
         fields = (obs, torch.rand(batch_size, 2, generator=gen) * 2 - 1, torch.randn(batch_size, generator=gen),
-                  (torch.rand(batch_size, generator=gen) < 0.05).float(), obs + 0.01)
+                  (torch.rand(batch_size, generator=gen) >= 0.05).float(), obs + 0.01)  # bootstrap
         batches.append(Transition(*(t.to(device) for t in fields)))
     return batches
 

@@ -26,7 +26,7 @@ def project(probs: torch.Tensor, reward: torch.Tensor, bootstrap: torch.Tensor, 
     """Project the distribution of ``r + b * gamma * Z`` back onto the support.
 
     ``probs [..., B, K]`` next-state probabilities (leading dims broadcast, e.g. twin critics
-    ``[2, B, K]``); ``reward [B]``; ``bootstrap [B]`` (1 = not terminated, 0 = terminated);
+    ``[2, B, K]``); ``reward [B]``; ``bootstrap [B]`` (1 = not terminated, 0 = terminated; an n-step return's gamma^(n-1) (1 - terminated));
     ``atoms [K]`` evenly spaced. Returns ``[..., B, K]``; each row sums to the row's input mass.
 
     Shifted atoms are clamped to ``[v_min, v_max]`` (returns beyond the support pile up at its ends),

@@ -92,7 +92,7 @@ def static_batches(updates: int, batch_size: int, obs_dim: int, action_dim: int,
     return Transition(obs=torch.zeros(updates, batch_size, obs_dim, **f32),
                       action=torch.zeros(updates, batch_size, action_dim, **f32),
                       reward=torch.zeros(updates, batch_size, **f32),
-                      terminated=torch.zeros(updates, batch_size, **f32),
+                      bootstrap=torch.zeros(updates, batch_size, **f32),
                       next_obs=torch.zeros(updates, batch_size, obs_dim, **f32))
 
 

@@ -91,7 +91,7 @@ def compute_target(state: LearnerState, batch: Transition) -> tuple[torch.Tensor
     ``q'_k = mu'_k + clamp(zeta, -3, 3) sigma'_k``, ``k* = argmin_k mu'_k`` (CDQ) or the mean of both.
     """
     hp = state.hp
-    bootstrap = 1.0 - batch.terminated
+    bootstrap = batch.bootstrap
     next_action, next_log_prob = sample(state.actor, batch.next_obs, hp, state.update_gen)
     next_mu, next_std = gaussian_head(state.critic_target(batch.next_obs, next_action))    # [2, B]
     zeta = torch.randn(next_mu.shape, generator=state.update_gen, device=next_mu.device)

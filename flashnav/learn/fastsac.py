@@ -69,7 +69,7 @@ def compute_target(state: LearnerState, batch: Transition) -> tuple[torch.Tensor
     shifts the support with ``r + b gamma z``, and each target critic's distribution is projected.
     """
     hp = state.hp
-    bootstrap = 1.0 - batch.terminated
+    bootstrap = batch.bootstrap
     next_action, next_log_prob = sample(state.actor, batch.next_obs, hp, state.update_gen)
     soft_reward = batch.reward - hp.gamma * bootstrap * state.algo.temperature.alpha * next_log_prob
     next_probs = F.softmax(state.critic_target(batch.next_obs, next_action), dim=-1)

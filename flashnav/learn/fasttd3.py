@@ -58,11 +58,11 @@ def compute_target(state: LearnerState, batch: Transition) -> tuple[torch.Tensor
     """Target distribution ``[B, K]`` and its expected value ``[B]``.
 
     Smoothed target action from the *current* actor, ``a' = clamp(tanh(mu(s')) + clip(sigma eps), -1, 1)``;
-    both target critics' next-state distributions are projected through ``r + (1 - terminated) gamma z``;
+    both target critics' next-state distributions are projected through ``r + bootstrap gamma z``;
     per sample, the one with the smaller expected value is the target of both critics (clipped double Q).
     """
     hp = state.hp
-    bootstrap = 1.0 - batch.terminated
+    bootstrap = batch.bootstrap
     noise = torch.randn(batch.action.shape, generator=state.update_gen, device=batch.action.device)
     noise = (noise * hp.target_noise).clamp(-hp.noise_clip, hp.noise_clip)
     next_action = (torch.tanh(state.actor(batch.next_obs)) + noise).clamp(-1.0, 1.0)

@@ -40,6 +40,7 @@ class LearnerHParams(Strict):
     layer_norm: bool = Field(False, description="LayerNorm before each hidden activation (actor and critics)")
     policy_averaging: float = Field(0.0, ge=0, le=1, description="Polyak rate, after every actor step, of the evaluated and exported policy's weights towards the trained actor (0 = the trained actor itself)")
     obs_norm: bool = Field(False, description="running mean/std normalisation of the IPAPRec features, updated from replay batches")
+    n_step: int = Field(1, ge=1, description="rewards summed per sampled transition before bootstrapping (n-step returns; 1 = one-step, the references' num_steps default; docs/learners.md S12)")
     actor_out_init_std: float = Field(0.01, ge=0, description="std of the normal draw of the actor's output-layer weights (bias 0); 0 = the hidden layers' PyTorch-default uniform draw, as the FastDSAC reference (docs/learners.md D1)")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")

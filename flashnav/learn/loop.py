@@ -145,7 +145,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
     learner = run_learner(spec, dev)
     cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     maps = _map_stream(spec, cycles)
-    replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed)
+    replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed,
+                    n_step=hp.n_step, gamma=hp.gamma)
     updates = (CycleUpdates(learner, preset.obs_dim, 2, hp.batch_size, hp.updates_per_step, capture=dev.type == "cuda")
                if spec.cuda_graph else None)
 
@@ -178,9 +179,10 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
             obs = obs_box[0]
             action = learner.act(obs)
             next_obs, reward, terminated, truncated, info = env.step(action)
-            replay.add(obs, action, reward, terminated, info["final_obs"])
-            learner.on_episode_end(terminated | truncated)
-            episodes.add(terminated | truncated, info["success"])
+            ended = terminated | truncated
+            replay.add(obs, action, reward, terminated, info["final_obs"], ended)
+            learner.on_episode_end(ended)
+            episodes.add(ended, info["success"])
             obs_box[0] = next_obs
 
     def sample():

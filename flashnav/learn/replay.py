@@ -5,6 +5,11 @@ one contiguous slab ``[N, ...]`` at the write position, so storage viewed flat i
 with row ``t * N + e`` = env ``e`` at slot ``t``. Rows ``[0, size)`` are valid (all rows once the
 buffer has wrapped); sampling draws rows uniformly with replacement. Bookkeeping (write position,
 size) is plain host integers advanced by ``add``: reading ``size`` never synchronises with the device.
+
+n-step returns (``n_step > 1``): a sampled row ``t`` of env ``e`` sums the discounted rewards of rows
+``t, t+1, ...`` of the same env until its episode ends (terminated or truncated), ``n_step`` rewards
+are summed or the newest stored row is reached, and bootstraps from the last summed row's next
+observation; ``n_step = 1`` is the one-step transition, gathered exactly as stored.
 """
 
 from __future__ import annotations
@@ -18,15 +23,19 @@ import torch
 class Transition(NamedTuple):
     """A batch of transitions. From ``sample``: ``[U, B, ...]``; one update's batch: ``[B, ...]``.
 
-    ``obs [.., D]`` raw units; ``action [.., A]`` executed, in [-1, 1]; ``reward [..]``;
-    ``terminated [..]`` float32 0/1 (1 = no bootstrap); ``next_obs [.., D]`` (the final observation
-    where the env reset in that step).
+    ``obs [.., D]`` raw units; ``action [.., A]`` executed, in [-1, 1]; ``reward [..]`` (with n-step
+    returns, the discounted sum ``r_t + gamma r_t+1 + ... + gamma^(m-1) r_t+m-1`` of the m rewards
+    summed); ``bootstrap [..]`` float32, the weight of ``gamma * V(next_obs)`` in the target: ``1 -
+    terminated`` for a one-step transition (0 = the episode terminated, nothing to bootstrap),
+    ``gamma^(m-1) (1 - terminated)`` for an m-step one, so that every learner's ``gamma * bootstrap`` is
+    the return's discount; ``next_obs [.., D]`` (the final observation where the env reset in that
+    step; with n-step returns, that of the last summed step).
     """
 
     obs: torch.Tensor
     action: torch.Tensor
     reward: torch.Tensor
-    terminated: torch.Tensor
+    bootstrap: torch.Tensor
     next_obs: torch.Tensor
 
     def at(self, i: int) -> "Transition":
@@ -38,13 +47,19 @@ class Replay:
     """Circular buffer of ``capacity`` transitions (rounded up to a multiple of ``num_envs``).
 
     ``obs_dim`` D, ``action_dim`` A; tensors live on ``device``; ``seed`` drives a private
-    ``torch.Generator`` so sampling is reproducible and independent of the global RNG.
+    ``torch.Generator`` so sampling is reproducible and independent of the global RNG. ``n_step`` > 1
+    samples n-step returns discounted by ``gamma`` (module docstring); ``add`` then needs ``ended``.
     """
 
     def __init__(self, num_envs: int, obs_dim: int, action_dim: int, capacity: int,
-                 device: torch.device | str = "cpu", seed: int = 0):
+                 device: torch.device | str = "cpu", seed: int = 0, n_step: int = 1, gamma: float | None = None):
         if num_envs <= 0 or capacity <= 0:
             raise ValueError(f"Replay needs num_envs > 0 and capacity > 0, got {num_envs}, {capacity}")
+        if not isinstance(n_step, int) or n_step < 1:
+            raise ValueError(f"Replay n_step must be an integer >= 1, got {n_step!r}")
+        if n_step > 1 and (gamma is None or not 0 < gamma <= 1):
+            raise ValueError(f"Replay with n_step={n_step} needs the discount gamma in (0, 1], got {gamma!r}")
+        self.n_step, self.gamma = n_step, gamma
         self.num_envs = num_envs
         self.rows_per_env = math.ceil(capacity / num_envs)
         self.device = torch.device(device)
@@ -55,6 +70,8 @@ class Replay:
         self.reward = torch.zeros(t, n, **f32)
         self.terminated = torch.zeros(t, n, **f32)
         self.next_obs = torch.zeros(t, n, obs_dim, **f32)
+        # episode ended in that step (terminated or truncated): where an n-step return stops summing
+        self.ended = torch.zeros(t, n, dtype=torch.bool, device=self.device) if n_step > 1 else None
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(seed)
         self._pos = 0          # next slot to write
@@ -71,16 +88,22 @@ class Replay:
         return self._filled * self.num_envs
 
     def add(self, obs: torch.Tensor, action: torch.Tensor, reward: torch.Tensor,
-            terminated: torch.Tensor, next_obs: torch.Tensor) -> None:
+            terminated: torch.Tensor, next_obs: torch.Tensor, ended: torch.Tensor | None = None) -> None:
         """Store one vector step: ``obs [N, D]``, ``action [N, A]`` (clamped here to [-1, 1], the
         action the env executed), ``reward [N]``, ``terminated [N]`` bool or 0/1, ``next_obs [N, D]``
-        already merged with the final observation where the env reset."""
+        already merged with the final observation where the env reset; ``ended [N]`` bool (terminated
+        or truncated), needed with n-step returns, ignored without."""
         if obs.shape != self.obs.shape[1:] or next_obs.shape != self.obs.shape[1:]:
             raise ValueError(f"obs/next_obs must be {tuple(self.obs.shape[1:])}, got "
                              f"{tuple(obs.shape)} and {tuple(next_obs.shape)}")
         if action.shape != self.action.shape[1:]:
             raise ValueError(f"action must be {tuple(self.action.shape[1:])}, got {tuple(action.shape)}")
+        if self.ended is not None and ended is None:
+            raise ValueError(f"Replay with n_step={self.n_step} needs add(..., ended=terminated | truncated): "
+                             "an n-step return must stop where an episode ended")
         t = self._pos
+        if self.ended is not None:
+            self.ended[t].copy_(ended.reshape(self.num_envs))
         self.obs[t].copy_(obs)
         torch.clamp(action, -1.0, 1.0, out=self.action[t])
         self.reward[t].copy_(reward.reshape(self.num_envs))
@@ -91,7 +114,8 @@ class Replay:
 
     def sample(self, batch_size: int, n_batches: int = 1, out: Transition | None = None) -> Transition:
         """``n_batches`` (U) batches of ``batch_size`` (B) transitions at once: ``Transition`` of
-        ``[U, B, ...]`` tensors, rows drawn uniformly with replacement from the stored ones.
+        ``[U, B, ...]`` tensors, rows drawn uniformly with replacement from the stored ones (n-step
+        returns: each from its row on, module docstring).
 
         ``out``: static ``[U, B, ...]`` tensors (float32, on this buffer's device) to gather into
         and return, e.g. the batch buffers a CUDA graph reads (:mod:`flashnav.learn.cuda_graph`);
@@ -102,12 +126,42 @@ class Replay:
             self._check_out(out, batch_size, n_batches)
         rows = torch.randint(self.size, (n_batches, batch_size), generator=self.generator, device=self.device)
         flat = lambda x: x.view(self.capacity, *x.shape[2:])  # noqa: E731 - [T, N, ...] -> [T*N, ...]
+        if self.n_step > 1:
+            fields = self._n_step_fields(rows.view(-1))
+            if out is None:
+                return Transition(*(x.view(n_batches, batch_size, *x.shape[1:]) for x in fields))
+            for src, dst in zip(fields, out):
+                dst.view(-1, *dst.shape[2:]).copy_(src)
+            return out
         stored = (self.obs, self.action, self.reward, self.terminated, self.next_obs)
         if out is None:
-            return Transition(*(flat(x)[rows] for x in stored))
+            batch = Transition(*(flat(x)[rows] for x in stored))
+            return batch._replace(bootstrap=1.0 - batch.bootstrap)
         for src, dst in zip(stored, out):
             torch.index_select(flat(src), 0, rows.view(-1), out=dst.view(-1, *dst.shape[2:]))
+        torch.sub(1.0, out.bootstrap, out=out.bootstrap)
         return out
+
+    def _n_step_fields(self, rows: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``(obs, action, reward, bootstrap, next_obs)`` of the n-step transitions from flat ``rows``."""
+        n, rows_per_env = self.num_envs, self.rows_per_env
+        slot, env = rows // n, rows % n
+        newest = (self._pos - 1) % rows_per_env
+        ahead = (newest - slot) % rows_per_env        # stored rows of this env after this one
+        flat = lambda x: x.view(self.capacity, *x.shape[2:])  # noqa: E731
+        reward = flat(self.reward)[rows].clone()
+        last = rows.clone()
+        summing = ~flat(self.ended)[rows]              # the episode goes on after the first step
+        weight = torch.ones_like(reward)              # gamma^(m-1) of the last summed reward
+        for k in range(1, self.n_step):
+            take = summing & (ahead >= k)
+            row_k = ((slot + k) % rows_per_env) * n + env
+            weight = torch.where(take, weight * self.gamma, weight)
+            reward = torch.where(take, reward + weight * flat(self.reward)[row_k], reward)
+            last = torch.where(take, row_k, last)
+            summing = take & ~flat(self.ended)[row_k]
+        bootstrap = weight * (1.0 - flat(self.terminated)[last])
+        return flat(self.obs)[rows], flat(self.action)[rows], reward, bootstrap, flat(self.next_obs)[last]
 
     def _check_out(self, out: Transition, batch_size: int, n_batches: int) -> None:
         """A ValueError naming the first field of ``out`` that cannot take a ``[U, B, ...]`` sample."""
