@@ -52,6 +52,17 @@ def open_map(tmp_path_factory) -> str:
     return str(save_ros_map(OccupancyMap(occupied, 0.05, name="open4"), tmp_path_factory.mktemp("maps") / "open4.yaml"))
 
 
+def tiny_task(algorithm: str, map_path: str, algo_overrides: dict, max_env_steps: int) -> TrainConfig:
+    """The tiny task: the open map, goals 0.5-1.5 m, a 100-step horizon, SMALL plus ``algo.*`` overrides,
+    stopping at 80 % or ``max_env_steps``."""
+    return TrainConfig(
+        algorithm=algorithm, map=map_path, device="cpu", recipe="cpu", seed=0,
+        overrides={"robot.episode.min_goal_distance": 0.5, "robot.episode.max_goal_distance": 1.5,
+                   "robot.episode.horizon": 100, **SMALL, **{f"algo.{k}": v for k, v in algo_overrides.items()}},
+        budget={"max_env_steps": max_env_steps, "stop_at_success": 0.8, "max_train_seconds": 1e9},
+        eval={"episodes": 64})
+
+
 def untrained_success(config: TrainConfig) -> float:
     """Success rate of the policy ``train(config)`` starts from, on its fixed evaluation episodes."""
     spec = resolve(config)  # the same resolution train() does
@@ -64,12 +75,7 @@ def untrained_success(config: TrainConfig) -> float:
 @pytest.mark.parametrize("algorithm", sorted(LEARNERS))
 def test_learner_reaches_80_percent_on_a_tiny_open_map(algorithm, open_map):
     overrides, max_env_steps = LEARNERS[algorithm]
-    config = TrainConfig(
-        algorithm=algorithm, map=open_map, device="cpu", recipe="cpu", seed=0,
-        overrides={"robot.episode.min_goal_distance": 0.5, "robot.episode.max_goal_distance": 1.5,
-                   "robot.episode.horizon": 100, **SMALL, **{f"algo.{k}": v for k, v in overrides.items()}},
-        budget={"max_env_steps": max_env_steps, "stop_at_success": 0.8, "max_train_seconds": 1e9},
-        eval={"episodes": 64})
+    config = tiny_task(algorithm, open_map, overrides, max_env_steps)
     untrained = untrained_success(config)
     start = time.perf_counter()
     result = train(config)
@@ -88,12 +94,7 @@ def test_fastdsac_one_step_returns_learn_too(open_map):
     (43,520 env steps on seed 0, AMD EPYC, 2026-11-25; the n-step sums are checked against a reference in
     tests/test_replay.py)."""
     overrides, max_env_steps = LEARNERS["fastdsac"]
-    config = TrainConfig(
-        algorithm="fastdsac", map=open_map, device="cpu", recipe="cpu", seed=0,
-        overrides={"robot.episode.min_goal_distance": 0.5, "robot.episode.max_goal_distance": 1.5,
-                   "robot.episode.horizon": 100, **SMALL, "algo.n_step": 1},
-        budget={"max_env_steps": max_env_steps, "stop_at_success": 0.8, "max_train_seconds": 1e9},
-        eval={"episodes": 64})
+    config = tiny_task("fastdsac", open_map, {**overrides, "n_step": 1}, max_env_steps)
     assert resolve(config).hparams.n_step == 1
     result = train(config)
     rates = [c["success_rate"] for c in result.curve]
