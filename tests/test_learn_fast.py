@@ -87,7 +87,6 @@ def test_learner_reaches_80_percent_on_a_tiny_open_map(algorithm, open_map):
     assert max(rates) >= 0.8, rates
 
 
-
 def test_fastdsac_one_step_returns_learn_too(open_map):
     """The cpu recipe's FastDSAC sums 3-step returns (``n_step: 3``, what the test above trains); the
     paper recipe's one-step targets (``algo.n_step=1``) must learn the tiny task within the same budget

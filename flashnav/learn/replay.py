@@ -125,7 +125,6 @@ class Replay:
         if out is not None:
             self._check_out(out, batch_size, n_batches)
         rows = torch.randint(self.size, (n_batches, batch_size), generator=self.generator, device=self.device)
-        flat = lambda x: x.view(self.capacity, *x.shape[2:])  # noqa: E731 - [T, N, ...] -> [T*N, ...]
         if self.n_step > 1:
             fields = self._n_step_fields(rows.view(-1))
             if out is None:
@@ -134,6 +133,7 @@ class Replay:
                 dst.view(-1, *dst.shape[2:]).copy_(src)
             return out
         stored = (self.obs, self.action, self.reward, self.terminated, self.next_obs)
+        flat = self._flat
         if out is None:
             batch = Transition(*(flat(x)[rows] for x in stored))
             return batch._replace(bootstrap=1.0 - batch.bootstrap)
@@ -142,13 +142,17 @@ class Replay:
         torch.sub(1.0, out.bootstrap, out=out.bootstrap)
         return out
 
+    def _flat(self, x: torch.Tensor) -> torch.Tensor:
+        """A stored ``[T, N, ...]`` tensor viewed as ``[T * N, ...]`` rows (no copy)."""
+        return x.view(self.capacity, *x.shape[2:])
+
     def _n_step_fields(self, rows: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """``(obs, action, reward, bootstrap, next_obs)`` of the n-step transitions from flat ``rows``."""
         n, rows_per_env = self.num_envs, self.rows_per_env
         slot, env = rows // n, rows % n
         newest = (self._pos - 1) % rows_per_env
         ahead = (newest - slot) % rows_per_env        # stored rows of this env after this one
-        flat = lambda x: x.view(self.capacity, *x.shape[2:])  # noqa: E731
+        flat = self._flat
         reward = flat(self.reward)[rows].clone()
         last = rows.clone()
         summing = ~flat(self.ended)[rows]              # the episode goes on after the first step
