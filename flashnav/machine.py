@@ -38,6 +38,38 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown CPU"
 
 
+@lru_cache(maxsize=1)
+def cpu_has_bf16(cpuinfo: str = "/proc/cpuinfo") -> bool:
+    """Whether this CPU multiplies in bf16 natively (``cpuinfo``'s flags avx512_bf16 or amx_bf16).
+    Without them torch emulates bf16 products: ``precision: bf16`` updates ran 2.6-2.9x slower on an
+    Intel Xeon without them and 1.2x faster on an AMD EPYC with AVX-512 BF16 (docs/benchmarks.md)."""
+    try:
+        with open(cpuinfo, encoding="utf-8") as f:
+            for line in f:
+                if line.lower().startswith("flags"):
+                    return bool({"avx512_bf16", "amx_bf16"} & set(line.split(":", 1)[1].split()))
+    except OSError:
+        pass
+    return False
+
+
+def native_bf16(device: str = "cpu") -> bool:
+    """Whether ``device`` multiplies bf16 natively: a GPU that supports bf16, a CPU with AVX-512 BF16 / AMX."""
+    if _is_gpu(device):
+        import torch
+
+        return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
+    return cpu_has_bf16()
+
+
+def resolve_precision(precision: str, device: str = "cpu") -> str:
+    """``algo.precision`` on a resolved ``device``: ``auto`` -> ``bf16`` where :func:`native_bf16`, else
+    ``float32``; ``float32`` and ``bf16`` are kept as asked."""
+    if precision == "auto":
+        return "bf16" if native_bf16(device) else "float32"
+    return precision
+
+
 def cpu_cores() -> int:
     """Logical CPUs this process may run on (its affinity mask: a container's share, not the host's)."""
     try:
@@ -135,5 +167,5 @@ def resolve_device(device: str) -> str:
     return device
 
 
-__all__ = ["cpu_model", "cpu_cores", "machine_name", "learner_threads", "split_device_name", "check_device_name",
+__all__ = ["cpu_model", "cpu_has_bf16", "native_bf16", "resolve_precision", "cpu_cores", "machine_name", "learner_threads", "split_device_name", "check_device_name",
            "resolve_device", "numba_threads"]

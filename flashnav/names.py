@@ -42,6 +42,9 @@ VALIDATION_SEEDS = (800_000, 899_999)
 #: ``TrainConfig.cuda_graph``: a cycle's updates on static buffers captured as a CUDA graph (``on``;
 #: eager with capture skipped on a CPU), the plain eager loop (``off``), or ``auto`` (on for cuda only).
 CUDA_GRAPH_MODES = ("auto", "on", "off")
+#: ``algo.precision``: the arithmetic of the learner's updates (flashnav/learn/precision.py); ``auto`` is
+#: bf16 where the device multiplies bf16 natively, else float32, resolved when a run is set up.
+PRECISIONS = ("float32", "bf16", "auto")
 #: Behaviours of the moving agents (:mod:`flashnav.sim.agents`): ``waypoints`` walks between random
 #: free points, ``bounce`` keeps a constant velocity and turns away from walls, ``crossing`` appears
 #: at a chosen moment and walks across the robot's route (evaluation scenarios).

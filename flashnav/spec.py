@@ -23,7 +23,7 @@ from pydantic import Field, ValidationError, ValidationInfo, field_validator, mo
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
 from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
-from flashnav.machine import check_device_name, resolve_device
+from flashnav.machine import check_device_name, resolve_device, resolve_precision
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
@@ -360,6 +360,8 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     recipe = resolve_recipe(config.recipe, device)
     robot = load_robot(config.robot, **config.robot_overrides())
     hparams = load_hparams(config.algorithm, robot.name, recipe, config.algo_overrides())
+    if hparams.precision == "auto":  # what this device runs, recorded as such in the run's config
+        hparams = hparams.model_copy(update={"precision": resolve_precision(hparams.precision, device)})
     cuda_graph = resolve_cuda_graph(config.cuda_graph, device)
     init = checkpoint = None
     if config.init_from is not None:  # before the maps: a mismatch is refused without loading any

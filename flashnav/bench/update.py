@@ -7,7 +7,8 @@ applied to the actor, the twin critic and its target (the networks; noise draws,
 optimiser stay eager). Every way starts from the same seed and the same batches; each reports its
 warm-up seconds (compilation, which a training clock would pay) apart from the timed updates, and its
 speed as a ratio to eager. ``bf16-autocast`` keeps the networks eager and runs the whole update under
-``torch.autocast(dtype=torch.bfloat16)`` (matrix products in bf16: AVX-512 BF16 / AMX on this CPU
+``torch.autocast(dtype=torch.bfloat16)`` as ``flashnav train`` does with ``algo.precision=bf16``
+(:mod:`flashnav.learn.precision`; matrix products in bf16: AVX-512 BF16 / AMX on this CPU
 family, tensor cores on GPUs). ``cuda-graph`` runs the updates a cycle at a time (U =
 ``updates_per_step``) through :class:`flashnav.learn.cuda_graph.CycleUpdates`, what ``flashnav train``
 runs with ``cuda_graph=on``: on a GPU one captured graph replay per cycle (the capture is in the
@@ -112,6 +113,7 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
 
     from flashnav.learn.learners import make_learner
     from flashnav.learn.networks import ObsLayout
+    from flashnav.learn.precision import update_precision
 
     hp, device = spec.hparams, spec.device
     layout = ObsLayout.from_robot(spec.robot, spec.goal_distance_max)
@@ -121,11 +123,11 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
     if way in GRAPH_WAYS:
         return _time_cycles(learner, layout.obs_dim, batches, hp, device, seconds=seconds, warmup=warmup)
 
+    arithmetic = update_precision("bf16" if way in AUTOCAST_WAYS else "float32", device)  # what training runs
+
     def update(batch):
-        if way in AUTOCAST_WAYS:
-            with torch.autocast(torch.device(device).type, dtype=torch.bfloat16):
-                return learner.update(batch)
-        return learner.update(batch)
+        with arithmetic():
+            return learner.update(batch)
 
     def all_batches():
         for batch in batches:

@@ -13,7 +13,7 @@ from typing import Any, Literal
 from pydantic import Field, ValidationError, model_validator
 
 from flashnav.config import Strict, set_dotted
-from flashnav.names import ALGORITHMS, RECIPES, check_name
+from flashnav.names import ALGORITHMS, PRECISIONS, RECIPES, check_name
 from flashnav.presets import load_preset_file
 
 
@@ -41,6 +41,8 @@ class LearnerHParams(Strict):
     policy_averaging: float = Field(0.0, ge=0, le=1, description="Polyak rate, after every actor step, of the evaluated and exported policy's weights towards the trained actor (0 = the trained actor itself)")
     obs_norm: bool = Field(False, description="running mean/std normalisation of the IPAPRec features, updated from replay batches")
     n_step: int = Field(1, ge=1, description="rewards summed per sampled transition before bootstrapping (n-step returns; 1 = one-step, the references' num_steps default; docs/learners.md S12)")
+    precision: Literal[PRECISIONS] = Field(  # type: ignore[valid-type]
+        "float32", description="the learner updates' arithmetic: float32; bf16 = each update under torch.autocast(bfloat16) (matrix products in bf16, weights, state and targets float32), which pays only where the hardware multiplies bf16 natively (AVX-512 BF16 / AMX CPUs, GPUs); auto = bf16 there, float32 elsewhere, resolved and recorded when a run is set up (docs/learners.md S9)")
     actor_out_init_std: float = Field(0.01, ge=0, description="std of the normal draw of the actor's output-layer weights (bias 0); 0 = the hidden layers' PyTorch-default uniform draw, as the FastDSAC reference (docs/learners.md D1)")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")

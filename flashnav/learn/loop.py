@@ -36,6 +36,7 @@ from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
+from flashnav.learn.precision import update_precision
 from flashnav.machine import learner_threads, machine_name, numba_threads
 from flashnav.maps.stream import GeneratedMaps, MapStream, generation_radius
 from flashnav.metrics import reaches
@@ -190,8 +191,10 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
             return updates.sample(replay)
         return replay.sample(hp.batch_size, hp.updates_per_step)
 
+    precision = update_precision(hp.precision, dev)
+
     def learn(batches) -> None:
-        with learn_t:
+        with learn_t, precision():
             if updates is not None:
                 updates.run()  # the same updates on updates.batches (= batches), one graph replay on a GPU
                 return
