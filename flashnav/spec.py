@@ -92,9 +92,12 @@ class TrainConfig(KnownKeys):
                     "(e.g. robot.lidar.noise_std)")
     budget: Budget = Field(default_factory=Budget)
     eval: EvalSettings = Field(default_factory=EvalSettings)
-    threads: int | None = Field(None, gt=0, description="learner torch CPU threads (None = 1 beside the collector "
-                                                        "thread on a CPU, else torch's default)")
-    overlap: bool = Field(True, description="overlap collection and learning (False = the plain sequential loop)")
+    threads: int | None = Field(None, gt=0, description="learner torch CPU threads (None = 1 beside an overlapped "
+                                                        "collector thread on a CPU, else torch's count at train())")
+    overlap: bool | Literal["auto"] = Field(
+        "auto", description="overlap collection and learning (the collector in a second thread); False = the plain "
+                            "sequential loop, the learner on every CPU core the process has; auto = on for cuda, "
+                            "off for cpu (resolve_overlap)")
     cuda_graph: Literal[CUDA_GRAPH_MODES] = Field(  # type: ignore[valid-type]
         "auto", description="the U updates of a cycle on static batch buffers, captured as one CUDA graph on a "
                             "GPU (on a CPU: the same updates eagerly, capture skipped); auto = on for cuda, off for cpu")
@@ -221,6 +224,20 @@ def resolve_cuda_graph(mode: str, device: str) -> bool:
     return mode == "on"
 
 
+def resolve_overlap(mode: bool | str, device: str) -> bool:
+    """``TrainConfig.overlap`` on a resolved ``device``: whether the collector steps in a second thread
+    beside the learner. ``auto`` -> on for cuda (the collector's kernels on a stream of their own), off
+    for cpu: both schedules do the same work in the same order, and on a CPU the learner's matrix
+    products on every core beat one core each for learner and collector, because collection is a
+    small part of the cycle (on a 2-core AMD EPYC without AVX-512, the `cpu` recipe's cycle 119 against
+    134 ms: docs/benchmarks.md "Overlap or all cores")."""
+    if isinstance(mode, bool):
+        return mode
+    if mode != "auto":
+        raise ValueError(f"overlap: {mode!r} is not one of true, false, auto")
+    return str(device).startswith("cuda")
+
+
 def resolve_recipe(recipe: str, device: str) -> str:
     """``auto`` -> ``paper`` on a GPU, ``cpu`` otherwise."""
     if recipe != "auto":
@@ -244,6 +261,7 @@ class RunSpec:
     grid: OccupancyMap | None = field(default=None, repr=False, compare=False)  # the loaded map (the first of many)
     grids: tuple[OccupancyMap, ...] | None = field(default=None, repr=False, compare=False)  # every loaded map
     cuda_graph: bool = False      # static-buffer updates, CUDA-graph captured on cuda (resolve_cuda_graph)
+    overlap: bool = False         # collector thread beside the learner (resolve_overlap)
     init: InitSource | None = None  # fine-tuning: the checkpoint the learner starts from (config.init_from)
     eval_maps: dict[str, Any] | None = None  # config.eval.maps resolved: {"files": [...]} or the validation suite's
                                              # {"suite", "families", "seeds", "maps_per_family"}; None = training maps
@@ -293,18 +311,19 @@ class RunSpec:
     @property
     def threads(self) -> int | None:
         """Learner threads: the config's; on a CPU with overlap, 1 (the collector thread has the other
-        core); else None (torch's default)."""
-        return self.config.threads or (1 if self.config.overlap and self.device == "cpu" else None)
+        core); else None (torch's, which ``train()`` holds at the count it had when called)."""
+        return self.config.threads or (1 if self.overlap and self.device == "cpu" else None)
 
     @property
     def robot_name(self) -> str:
         return self.robot.name
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data (YAML/JSON): the TrainConfig's fields with device, recipe and cuda_graph resolved,
+        """Plain data (YAML/JSON): the TrainConfig's fields with device, recipe, cuda_graph and overlap resolved,
         plus ``hparams``, ``robot_preset`` and ``goal_distance_max``."""
         data = self.config.model_dump(mode="json")
         data.update(device=self.device, recipe=self.recipe, cuda_graph="on" if self.cuda_graph else "off",
+                    overlap=self.overlap,
                     hparams=self.hparams.model_dump(mode="json"),
                     robot_preset=self.robot.model_dump(mode="json"), goal_distance_max=self.goal_distance_max)
         if self.init is not None:
@@ -332,7 +351,8 @@ class RunSpec:
         device = str(data.get("device", config.device))
         init = InitSource.from_dict(data["init_source"]) if data.get("init_source") else None
         return cls(config, robot, hparams, device, str(data.get("recipe", config.recipe)), float(goal),
-                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device), init=init,
+                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device),
+                   overlap=resolve_overlap(config.overlap, device), init=init,
                    eval_maps=data.get("eval_maps") if config.eval.maps is not None else None)
 
 
@@ -363,6 +383,7 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     if hparams.precision == "auto":  # what this device runs, recorded as such in the run's config
         hparams = hparams.model_copy(update={"precision": resolve_precision(hparams.precision, device)})
     cuda_graph = resolve_cuda_graph(config.cuda_graph, device)
+    overlap = resolve_overlap(config.overlap, device)
     init = checkpoint = None
     if config.init_from is not None:  # before the maps: a mismatch is refused without loading any
         init, checkpoint = load_init_source(config.init_from, RunSpec.from_dict)
@@ -385,5 +406,5 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
         # the network keeps the scale it was trained with, whatever the new maps' size
         scale = checkpoint.goal_distance_max
         check_goal_scale(scale, robot, config.init_from)
-    return RunSpec(config, robot, hparams, device, recipe, scale, grid, grids, cuda_graph=cuda_graph, init=init,
-                   eval_maps=eval_maps, eval_grids=eval_grids)
+    return RunSpec(config, robot, hparams, device, recipe, scale, grid, grids, cuda_graph=cuda_graph,
+                   overlap=overlap, init=init, eval_maps=eval_maps, eval_grids=eval_grids)

@@ -17,7 +17,7 @@ from flashnav.learn.hparams import MODELS, load_hparams
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.ros import save_ros_map
 from flashnav.presets import load_robot
-from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
+from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve, resolve_overlap
 
 FIXTURES = Path(__file__).parent / "fixtures"
 
@@ -111,7 +111,7 @@ def test_resolve_fills_every_default_and_applies_overrides():
     assert spec.device == "cpu" and spec.recipe == "cpu"  # auto -> cpu without a GPU
     assert spec.hparams.batch_size == 64 and spec.robot.lidar.noise_std == 0.02
     assert spec.max_env_steps == spec.hparams.total_env_steps and spec.eval_every == spec.hparams.eval_every
-    assert spec.threads == 1  # the collector thread has the other core
+    assert spec.overlap is False and spec.threads is None  # sequential on a CPU: the learner keeps every core
     assert spec.goal_distance_max == pytest.approx(math.hypot(10.0, 10.0))
     assert spec.grid is not None and spec.grid.diagonal_m == spec.goal_distance_max
 
@@ -141,11 +141,15 @@ def test_run_spec_round_trips_through_plain_data():
     spec = resolve(TrainConfig(device="auto", seed=4, overrides={"algo.batch_size": 64}))
     data = yaml.safe_load(yaml.safe_dump(spec.to_dict()))  # what config.yaml holds
     back = RunSpec.from_dict(data)
-    # config.yaml records the device, recipe and cuda_graph as resolved, so reading it back re-runs the same run
-    resolved = {"device": spec.device, "recipe": spec.recipe, "cuda_graph": "on" if spec.cuda_graph else "off"}
+    # config.yaml records the device, recipe, cuda_graph and overlap as resolved, so reading it back re-runs
+    # the same run
+    resolved = {"device": spec.device, "recipe": spec.recipe, "cuda_graph": "on" if spec.cuda_graph else "off",
+                "overlap": spec.overlap}
+    assert spec.config.overlap == "auto" and data["overlap"] is spec.overlap
     assert back.config == spec.config.model_copy(update=resolved)
-    assert (back.robot, back.hparams, back.device, back.recipe, back.goal_distance_max, back.cuda_graph) == (
-        spec.robot, spec.hparams, spec.device, spec.recipe, spec.goal_distance_max, spec.cuda_graph)
+    assert (back.robot, back.hparams, back.device, back.recipe, back.goal_distance_max, back.cuda_graph,
+            back.overlap) == (spec.robot, spec.hparams, spec.device, spec.recipe, spec.goal_distance_max,
+                              spec.cuda_graph, spec.overlap)
     assert resolve(back.config) == back  # the loaded map is not part of the comparison
     assert back.hparams.batch_size == 64 and back.seed == 4
     with pytest.raises(ValueError, match="robot_preset"):
@@ -160,6 +164,25 @@ def test_a_config_written_before_the_newer_options_reads_back_with_them_off():
     spec = RunSpec.from_dict(data)
     assert (spec.hparams.layer_norm, spec.hparams.obs_norm, spec.hparams.policy_averaging) == (False, False, 0.0)
     assert spec.cuda_graph is False and spec.config.maps is None
+    assert data["overlap"] is True and spec.overlap is True  # it ran overlapped (the default then): kept
+
+
+@pytest.mark.parametrize("mode, device, expected", [("auto", "cpu", False), ("auto", "cuda", True),
+                                                    ("auto", "cuda:1", True), (True, "cpu", True),
+                                                    (False, "cuda", False)])
+def test_overlap_resolves_by_device_and_keeps_an_explicit_choice(mode, device, expected):
+    assert resolve_overlap(mode, device) is expected
+
+
+def test_overlap_decides_the_learner_threads_on_a_cpu():
+    # overlapped: one core for the learner, the other for the collector thread; sequential: torch's own count
+    assert resolve(TrainConfig(device="cpu", overlap=True)).threads == 1
+    assert resolve(TrainConfig(device="cpu")).threads is None and resolve(TrainConfig(device="cpu")).overlap is False
+    assert resolve(TrainConfig(device="cpu", threads=3)).threads == 3
+    with pytest.raises(ValueError, match="overlap"):
+        TrainConfig(overlap="sometimes")
+    with pytest.raises(ValueError, match="overlap"):
+        resolve_overlap("sometimes", "cpu")
 
 
 # ---- names defined once -------------------------------------------------------------------------------

@@ -57,7 +57,7 @@ def test_clock_excludes_evaluation_and_callback():
 
 
 def test_same_seed_same_result():
-    def run(seed, overlap=True):
+    def run(seed, overlap="auto"):
         r = train(tiny(seed=seed, overlap=overlap))
         params = torch.cat([p.detach().flatten() for p in r.learner.policy.parameters()])
         return [(c["success_rate"], c["mean_return"]) for c in r.curve], params
@@ -65,9 +65,9 @@ def test_same_seed_same_result():
     a, b, c = run(3), run(3), run(4)
     assert a[0] == b[0] and torch.equal(a[1], b[1])
     assert not torch.equal(a[1], c[1])
-    seq = run(3, overlap=False)
+    overlapped = run(3, overlap=True)  # auto on a CPU is the sequential loop
     # the same work in the same order; matmuls in another thread may round differently (~1e-8)
-    assert seq[0] == a[0] and torch.allclose(seq[1], a[1], atol=1e-6, rtol=0)
+    assert overlapped[0] == a[0] and torch.allclose(overlapped[1], a[1], atol=1e-6, rtol=0)
 
 
 def test_callback_stops_and_thresholds_are_recorded():
@@ -174,8 +174,10 @@ def test_fastdsac_learns_to_navigate_a_small_map(easy_map):
     assert max(rates) >= 0.8, rates
 
 
-def test_overlapped_cpu_learner_runs_on_one_thread_from_the_first_run():
-    """The learner owns one core and the collector the other, also in a fresh process's first run,
+@pytest.mark.parametrize("overlap, learner_threads", [(True, 1), ("auto", 2)])
+def test_cpu_learner_threads_hold_from_the_first_run(overlap, learner_threads):
+    """Overlapped, the learner owns one core and the collector the other; sequential (auto on a CPU),
+    the learner keeps the count it was called with (2 here); also in a fresh process's first run,
     where the first numba parallel kernel starts its OpenMP pool and resets torch's thread count."""
     import subprocess
     import sys
@@ -183,13 +185,15 @@ def test_overlapped_cpu_learner_runs_on_one_thread_from_the_first_run():
     code = ("import torch, json; from flashnav import train; from flashnav.spec import TrainConfig\n"
             "seen = []\n"
             f"cfg = TrainConfig.model_validate(dict(device='cpu', recipe='cpu', overrides={TINY!r},\n"
-            "    budget={'max_env_steps': 256, 'stop_at_success': None}, eval={'episodes': 8}))\n"
+            f"    overlap={overlap!r}, budget={{'max_env_steps': 256, 'stop_at_success': None}},\n"
+            "    eval={'episodes': 8}))\n"
             "r = train(cfg, on_progress=lambda m: seen.append(torch.get_num_threads()))\n"
             "print(json.dumps({'during': sorted(set(seen)), 'name': r.device_name, 'threads': r.threads,\n"
-            "                  'after': torch.get_num_threads()}))\n")
+            "                  'overlap': r.cycle['overlap'], 'after': torch.get_num_threads()}))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                          env={**__import__("os").environ, "OMP_NUM_THREADS": "2"})
     assert out.returncode == 0, out.stderr
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["during"] == [1] and got["threads"] == 1 and got["name"].endswith(" cores)"), got
+    assert got["during"] == [learner_threads] and got["threads"] == learner_threads, got
+    assert got["name"].endswith(" cores)") and got["overlap"] == (1.0 if overlap is True else 0.0), got
     assert got["after"] == 2, got  # restored for the caller

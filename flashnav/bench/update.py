@@ -49,8 +49,9 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--ways", default="eager,default", help=f"comma-separated, from {', '.join(WAYS)}")
     p.add_argument("--seconds", type=float, default=10.0, help="timed seconds per way (after warm-up)")
     p.add_argument("--warmup", type=int, default=24, help="untimed updates per way (compilation happens here)")
-    p.add_argument("--threads", type=int, default=1,
-                   help="torch threads on a CPU (1: the learner's share of a 2-core overlapped run)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="torch threads on a CPU (default: torch's count, every core, as the learner of a sequential "
+                        "CPU run has; 1: the learner's share of an overlapped run, overlap=true)")
     p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     p.add_argument("overrides", nargs="*", metavar="key=value",
                    help="hyperparameter overrides, e.g. batch_size=256 (an algo. prefix is accepted)")
@@ -193,15 +194,15 @@ def run_bench_update(args) -> int:
     from flashnav.machine import machine_name
 
     ways = parse_ways(args.ways)
-    if args.seconds <= 0 or args.warmup < 1 or args.threads < 1:
+    if args.seconds <= 0 or args.warmup < 1 or (args.threads is not None and args.threads < 1):
         raise ValueError("--seconds must be > 0, --warmup >= 1 and --threads >= 1")
     spec = run_spec(args.algo, args.robot, args.recipe, args.device, args.overrides)
     device, recipe = spec.device, spec.recipe
-    if device == "cpu":
+    if device == "cpu" and args.threads is not None:
         torch.set_num_threads(args.threads)
     console = Console()
     machine, when = machine_name(device), dt.datetime.now().strftime("%Y-%m-%d %H:%M")
-    threads = args.threads if device == "cpu" else None  # the learner's torch threads, set above
+    threads = torch.get_num_threads() if device == "cpu" else None  # the learner's torch threads
     on = f"{machine}, {threads} torch threads" if threads else machine
     console.print(f"[bold]flashnav bench update[/] {when} on {on}: {args.robot} / {args.algo} / "
                   f"recipe {recipe}, >= {args.seconds:g} s per way after {args.warmup} warm-up updates")

@@ -42,7 +42,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, help="training seed (default 0)")
     p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
     p.add_argument("--config", help="a TrainConfig YAML; flags and overrides apply on top")
-    p.add_argument("--sequential", action="store_true", help="the plain sequential loop (no collector/learner overlap)")
+    p.add_argument("--sequential", action="store_true",
+                   help="the plain sequential loop, no collector thread (the default on a CPU; overlap=true asks for "
+                        "the thread there)")
     p.add_argument("overrides", nargs="*", metavar="key=value",
                    help="e.g. algo.batch_size=512 budget.max_train_seconds=60 eval.episodes=256 robot.lidar.noise_std=0.01")
     p.set_defaults(func=run_train)

@@ -1,11 +1,13 @@
 """The training loop: collect -> store -> U updates, evaluated on a fixed set of episodes.
 
 One *cycle* is one vector step of collection (act, env.step, store) plus the U gradient updates of
-that step. With ``overlap`` (the default) the collector runs in a second thread with its own actor
-weight copy (synced every ``env_steps_per_sync`` cycles) while the learner updates on batches sampled
-before the collector's step, so the cycle takes as long as the slower side (the paper's
-producer-consumer pipeline; on a CPU each side gets one core). ``overlap=False`` is the plain
-sequential loop.
+that step. With ``spec.overlap`` (``TrainConfig.overlap``; auto = on for cuda) the collector runs in a
+second thread with its own actor weight copy (synced every ``env_steps_per_sync`` cycles) while the
+learner updates on batches sampled before the collector's step, so the cycle takes as long as the
+slower side (the paper's producer-consumer pipeline; on a CPU each side gets one core). Without it
+(auto on a CPU) the same work runs in the same order in one thread, collector then learner, each on
+every core the process has: on a CPU the collector is a small part of the cycle, and the learner's
+matrix products gain more from the second core than the overlap saves (docs/benchmarks.md).
 
 With ``spec.cuda_graph`` (``TrainConfig.cuda_graph``; auto = off until measured on a GPU) the replay gathers each
 cycle's batches into static buffers and the U updates run through
@@ -125,12 +127,12 @@ def train(config: TrainConfig | RunSpec | None = None, *, on_eval: Callable[[dic
     spec = config if isinstance(config, RunSpec) else resolve(config)
     threads_before = torch.get_num_threads()
     try:
-        return _train(spec, on_eval, on_progress, interruptible)
+        return _train(spec, on_eval, on_progress, interruptible, threads_before)
     finally:
         torch.set_num_threads(threads_before)
 
 
-def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> TrainResult:
+def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, threads: int | None = None) -> TrainResult:
     config, preset, hp = spec.config, spec.robot, spec.hparams
     dev = torch.device(spec.device)
     torch.manual_seed(config.seed)
@@ -138,11 +140,12 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
     env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster,
                     map_weights=config.map_weights)
     play_eval = _eval_set(spec, grid, dev)
-    if spec.threads:
+    if dev.type == "cpu" and (spec.threads or threads):
         # After the environments exist: the first numba parallel kernel of a process starts its
         # OpenMP pool, which resets the thread count torch shares with it (the first run of every
         # process used to learn on 2 threads, competing with the collector for the same cores).
-        torch.set_num_threads(spec.threads)
+        # Without a count of the spec's, the learner keeps the count train() was called with.
+        torch.set_num_threads(spec.threads or threads)
     learner = run_learner(spec, dev)
     cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     maps = _map_stream(spec, cycles)
@@ -152,7 +155,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False) -> 
                if spec.cuda_graph else None)
 
     eval_every = spec.eval_every
-    overlap = config.overlap
+    overlap = spec.overlap
     collect_t, learn_t, cycle_t = _Timer(dev), _Timer(dev), _Timer(dev)
     learning_cycles = _Timer(dev)  # cycles with updates: the paper's cycle (warm-up excluded)
     tracker, train_tracker = ThresholdTracker(), ThresholdTracker()
