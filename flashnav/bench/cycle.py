@@ -22,7 +22,8 @@ import statistics
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.names import ALGORITHMS, RECIPE_CHOICES, ROBOTS
+from flashnav.bench import parse_names
+from flashnav.bench.train import add_run_choices
 
 #: ``--schedules`` values -> ``TrainConfig.overlap``.
 SCHEDULES = {"overlap": True, "sequential": False}
@@ -30,10 +31,7 @@ SCHEDULES = {"overlap": True, "sequential": False}
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("cycle", help="ms per training cycle: collector thread beside the learner vs sequential")
-    p.add_argument("--robots", default="turtlebot2", help=f"comma-separated presets ({', '.join(ROBOTS)} or YAML paths)")
-    p.add_argument("--algos", default="fastdsac", help=f"comma-separated learners ({', '.join(ALGORITHMS)})")
-    p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
-    p.add_argument("--device", default="auto")
+    add_run_choices(p)
     p.add_argument("--schedules", default="overlap,sequential",
                    help=f"comma-separated, from {', '.join(SCHEDULES)}; the first is the ratio's baseline")
     p.add_argument("--cycles", type=int, default=60, help="learning cycles per run (after the warm-up)")
@@ -44,10 +42,7 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
 
 
 def parse_schedules(text: str) -> list[str]:
-    names = [s.strip() for s in text.split(",") if s.strip()]
-    bad = [s for s in names if s not in SCHEDULES]
-    if bad or not names:
-        raise ValueError(f"--schedules: unknown {', '.join(bad) or '(empty)'}; use some of {', '.join(SCHEDULES)}")
+    names = parse_names(text, tuple(SCHEDULES), "--schedules")
     if len(set(names)) != len(names):
         raise ValueError(f"--schedules: {text!r} names a schedule twice")
     return names

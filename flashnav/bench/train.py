@@ -20,10 +20,7 @@ from flashnav.names import ALGORITHMS, RECIPE_CHOICES, ROBOTS
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("train", help="time-to-90/95/100%% success over several seeds")
-    p.add_argument("--robots", default="turtlebot2", help=f"comma-separated presets ({', '.join(ROBOTS)} or YAML paths)")
-    p.add_argument("--algos", default="fastdsac", help=f"comma-separated learners ({', '.join(ALGORITHMS)})")
-    p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
-    p.add_argument("--device", default="auto")
+    add_run_choices(p)
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..S-1")
     p.add_argument("--budget-seconds", type=float, default=600.0, help="training-clock budget per run")
     p.add_argument("--json", metavar="FILE", help="write every run's metrics")
@@ -38,6 +35,14 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     q.add_argument("--x", choices=("env-steps", "seconds"), default="env-steps",
                    help="horizontal axis: environment steps (default; machine-independent) or training seconds")
     q.set_defaults(func=run_bench_plot)
+
+
+def add_run_choices(p: argparse.ArgumentParser) -> None:
+    """The flags that choose what a training bench runs: --robots, --algos, --recipe, --device."""
+    p.add_argument("--robots", default="turtlebot2", help=f"comma-separated presets ({', '.join(ROBOTS)} or YAML paths)")
+    p.add_argument("--algos", default="fastdsac", help=f"comma-separated learners ({', '.join(ALGORITHMS)})")
+    p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
+    p.add_argument("--device", default="auto")
 
 
 def summarise(runs: list[dict], budget: int | None = None) -> dict:

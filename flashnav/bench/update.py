@@ -59,11 +59,9 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
 
 
 def parse_ways(text: str) -> list[str]:
-    ways = [w.strip() for w in text.split(",") if w.strip()]
-    bad = [w for w in ways if w not in WAYS]
-    if bad or not ways:
-        raise ValueError(f"--ways: unknown {', '.join(bad) or '(empty)'}; use some of {', '.join(WAYS)}")
-    return ways
+    from flashnav.bench import parse_names
+
+    return parse_names(text, WAYS, "--ways")
 
 
 def run_spec(algo: str, robot: str, recipe: str, device: str, overrides: list[str] | tuple[str, ...] = ()):
