@@ -70,9 +70,11 @@ def test_numba_threads_sets_and_restores_for_the_calling_thread():
         assert seen == [1] and numba.get_num_threads() == most  # the other thread's block left ours alone
 
 
-def test_training_evaluates_on_every_numba_thread_and_collects_on_one(monkeypatch):
-    """The warm-up collects on the main thread (no learner yet) and must not leave it single-threaded:
-    the evaluations, on the main thread, scan with every numba thread; the collector with one."""
+@pytest.mark.parametrize("overlap", [True, "auto"])
+def test_training_evaluates_on_every_numba_thread_and_collects_on_one_beside_the_learner(monkeypatch, overlap):
+    """Overlapped, the warm-up collects on the main thread (no learner yet) and must not leave it
+    single-threaded: the evaluations, on the main thread, scan with every numba thread; the collector
+    with one (the learner has the other core). Sequential (auto on a CPU), the collector has every thread."""
     import numba
 
     from flashnav.learn import loop
@@ -93,8 +95,8 @@ def test_training_evaluates_on_every_numba_thread_and_collects_on_one(monkeypatc
     monkeypatch.setattr(loop, "evaluate", counting_evaluate)
     monkeypatch.setattr(NavVecEnv, "step", counting_step)
     before = numba.get_num_threads()
-    loop.train(tiny_config(TINY, 32 * 8, 8))
+    loop.train(tiny_config(TINY, 32 * 8, 8, overlap=overlap))
     most = int(numba.config.NUMBA_NUM_THREADS)
     assert during_eval and set(during_eval) == {most}
-    assert len(during_collect) == 8 and set(during_collect) == {1}
+    assert len(during_collect) == 8 and set(during_collect) == {1 if overlap is True else most}
     assert numba.get_num_threads() == before
