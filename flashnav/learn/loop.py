@@ -140,12 +140,13 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     env = NavVecEnv(preset, hp.num_envs, grid=grid, device=dev, seed=config.seed, raycaster=config.raycaster,
                     map_weights=config.map_weights)
     play_eval = _eval_set(spec, grid, dev)
-    if dev.type == "cpu" and (spec.threads or threads):
+    count = spec.threads or (threads if dev.type == "cpu" else None)
+    if count:
         # After the environments exist: the first numba parallel kernel of a process starts its
         # OpenMP pool, which resets the thread count torch shares with it (the first run of every
         # process used to learn on 2 threads, competing with the collector for the same cores).
-        # Without a count of the spec's, the learner keeps the count train() was called with.
-        torch.set_num_threads(spec.threads or threads)
+        # Without a count of the spec's, a CPU learner keeps the count train() was called with.
+        torch.set_num_threads(count)
     learner = run_learner(spec, dev)
     cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     maps = _map_stream(spec, cycles)
