@@ -7,7 +7,9 @@
   knob that is recorded beside the machine, never inside its name.
 
 * device: the name a run asks for (``auto``, ``cpu``, ``cuda``, ``cuda:N``), checked and resolved against
-  what this machine has (:func:`resolve_device`; the spec and ``flashnav eval`` call it).
+  what this machine has (:func:`resolve_device`; the spec and ``flashnav eval`` call it), and the
+  switches that follow from it: precision, the CUDA-graph path and the collector/learner overlap
+  (:func:`resolve_precision`, :func:`resolve_cuda_graph`, :func:`resolve_overlap`; the spec records them).
 
 Runs written before the split spelled both in one string, ``AMD EPYC 7B13 (2 threads)``;
 :func:`split_device_name` reads either spelling. torch is imported lazily (GPU names and thread
@@ -21,6 +23,8 @@ import platform
 import re
 from contextlib import contextmanager
 from functools import lru_cache
+
+from flashnav.names import CUDA_GRAPH_MODES, check_name
 
 _OLD_SPELLING = re.compile(r"^(?P<machine>.*?)\s*\((?P<threads>\d+) threads?\)$")
 
@@ -167,5 +171,31 @@ def resolve_device(device: str) -> str:
     return device
 
 
+def resolve_cuda_graph(mode: str, device: str) -> bool:
+    """``TrainConfig.cuda_graph`` on a resolved ``device``: whether the loop runs a cycle's updates on
+    static buffers (:class:`flashnav.learn.cuda_graph.CycleUpdates`; captured as a CUDA graph only on
+    a CUDA device). ``auto`` -> off on every device for now: the capture has never run on a GPU (no GPU
+    was lent to the session that built it), so a GPU user opts in with ``on`` until the CUDA tests and
+    ``flashnav bench update --device cuda --ways eager,cuda-graph`` have been run (docs/benchmarks.md
+    "GPU fast path"); then ``auto`` becomes on for cuda if the measurement says it pays."""
+    check_name("cuda_graph", mode, CUDA_GRAPH_MODES)
+    del device  # kept in the signature: auto will depend on it once measured
+    return mode == "on"
+
+
+def resolve_overlap(mode: bool | str, device: str) -> bool:
+    """``TrainConfig.overlap`` on a resolved ``device``: whether the collector steps in a second thread
+    beside the learner. ``auto`` -> on for cuda (the collector's kernels on a stream of their own), off
+    for cpu: both schedules do the same work in the same order, and on a CPU the learner's matrix
+    products on every core beat one core each for learner and collector, because collection is a
+    small part of the cycle (on a 2-core AMD EPYC without AVX-512, whole training processes 0.85x
+    (`cpu` recipe) and 0.84x (`paper`) the wall time: docs/benchmarks.md "Overlap or all cores")."""
+    if isinstance(mode, bool):
+        return mode
+    if mode != "auto":
+        raise ValueError(f"overlap: {mode!r} is not one of true, false, auto")
+    return str(device).startswith("cuda")
+
+
 __all__ = ["cpu_model", "cpu_has_bf16", "native_bf16", "resolve_precision", "cpu_cores", "machine_name", "learner_threads", "split_device_name", "check_device_name",
-           "resolve_device", "numba_threads"]
+           "resolve_device", "resolve_cuda_graph", "resolve_overlap", "numba_threads"]

@@ -23,11 +23,11 @@ from pydantic import Field, ValidationError, ValidationInfo, field_validator, mo
 from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
 from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
-from flashnav.machine import check_device_name, resolve_device, resolve_precision
+from flashnav.machine import check_device_name, resolve_cuda_graph, resolve_device, resolve_overlap, resolve_precision
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
-from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_name, check_robot
+from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_robot
 from flashnav.presets import load_robot, with_recipe_setup
 
 #: Prefixes of the keys in ``TrainConfig.overrides``: into the hyperparameters, into the robot preset.
@@ -97,7 +97,7 @@ class TrainConfig(KnownKeys):
     overlap: bool | Literal["auto"] = Field(
         "auto", description="overlap collection and learning (the collector in a second thread); False = the plain "
                             "sequential loop, the learner on every CPU core the process has; auto = on for cuda, "
-                            "off for cpu (resolve_overlap)")
+                            "off for cpu (flashnav.machine.resolve_overlap)")
     cuda_graph: Literal[CUDA_GRAPH_MODES] = Field(  # type: ignore[valid-type]
         "auto", description="the U updates of a cycle on static batch buffers, captured as one CUDA graph on a "
                             "GPU (on a CPU: the same updates eagerly, capture skipped); auto = on for cuda, off for cpu")
@@ -210,32 +210,6 @@ def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None
 
 
 # ---- resolving -------------------------------------------------------------------------------------
-
-
-def resolve_cuda_graph(mode: str, device: str) -> bool:
-    """``TrainConfig.cuda_graph`` on a resolved ``device``: whether the loop runs a cycle's updates on
-    static buffers (:class:`flashnav.learn.cuda_graph.CycleUpdates`; captured as a CUDA graph only on
-    a CUDA device). ``auto`` -> off on every device for now: the capture has never run on a GPU (no GPU
-    was lent to the session that built it), so a GPU user opts in with ``on`` until the CUDA tests and
-    ``flashnav bench update --device cuda --ways eager,cuda-graph`` have been run (docs/benchmarks.md
-    "GPU fast path"); then ``auto`` becomes on for cuda if the measurement says it pays."""
-    check_name("cuda_graph", mode, CUDA_GRAPH_MODES)
-    del device  # kept in the signature: auto will depend on it once measured
-    return mode == "on"
-
-
-def resolve_overlap(mode: bool | str, device: str) -> bool:
-    """``TrainConfig.overlap`` on a resolved ``device``: whether the collector steps in a second thread
-    beside the learner. ``auto`` -> on for cuda (the collector's kernels on a stream of their own), off
-    for cpu: both schedules do the same work in the same order, and on a CPU the learner's matrix
-    products on every core beat one core each for learner and collector, because collection is a
-    small part of the cycle (on a 2-core AMD EPYC without AVX-512, the `cpu` recipe's cycle 119 against
-    134 ms: docs/benchmarks.md "Overlap or all cores")."""
-    if isinstance(mode, bool):
-        return mode
-    if mode != "auto":
-        raise ValueError(f"overlap: {mode!r} is not one of true, false, auto")
-    return str(device).startswith("cuda")
 
 
 def resolve_recipe(recipe: str, device: str) -> str:

@@ -21,7 +21,8 @@ from flashnav.learn.learners import make_learner
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.presets import load_robot
-from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve, resolve_cuda_graph
+from flashnav.machine import resolve_cuda_graph
+from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
 
 ALGOS = ("fastdsac", "fastsac", "fasttd3")
 N, B = 16, 64

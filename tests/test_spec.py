@@ -17,7 +17,8 @@ from flashnav.learn.hparams import MODELS, load_hparams
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.ros import save_ros_map
 from flashnav.presets import load_robot
-from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve, resolve_overlap
+from flashnav.machine import resolve_overlap
+from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
 
 FIXTURES = Path(__file__).parent / "fixtures"
 
