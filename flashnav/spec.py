@@ -357,6 +357,11 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     if hparams.precision == "auto":  # what this device runs, recorded as such in the run's config
         hparams = hparams.model_copy(update={"precision": resolve_precision(hparams.precision, device)})
     cuda_graph = resolve_cuda_graph(config.cuda_graph, device)
+    if cuda_graph and device.startswith("cuda") and hparams.lr_final_ratio < 1:
+        # a captured optimiser step replays the learning rate it was recorded with
+        raise ValueError(f"algo.lr_final_ratio={hparams.lr_final_ratio} (a decaying learning rate) cannot run with "
+                         "cuda_graph=on on a GPU: the captured updates keep the rate of the capture; "
+                         "use cuda_graph=off or algo.lr_final_ratio=1")
     overlap = resolve_overlap(config.overlap, device)
     init = checkpoint = None
     if config.init_from is not None:  # before the maps: a mismatch is refused without loading any

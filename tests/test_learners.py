@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from flashnav.checkpoint import load_checkpoint
-from flashnav.learn import c51, fastdsac, fastsac, fasttd3
+from flashnav.learn import c51, common, fastdsac, fastsac, fasttd3
 from flashnav.learn.hparams import load_hparams
 from flashnav.learn.learners import MODULES, make_learner
 from flashnav.learn.networks import ObsLayout, gaussian_head
@@ -385,3 +385,26 @@ def test_policy_averaging_evaluates_a_polyak_average_of_the_actor(algorithm):
     copy.load_state_dict(lrn.state_dict())
     assert all(torch.equal(a, b) for a, b in zip(got, params(copy.state.averaged_actor)))
     assert learner(algorithm).state.averaged_actor is None  # off: the policy is the trained actor
+
+
+def test_lr_decay_is_a_cosine_from_the_recipe_rates_to_their_final_fraction():
+    assert common.lr_factor(0.1, 0.0) == 1.0 and common.lr_factor(0.1, 1.0) == pytest.approx(0.1)
+    assert common.lr_factor(0.1, 0.5) == pytest.approx(0.55)  # half way between, at half the budget
+    assert common.lr_factor(0.1, 2.0) == pytest.approx(0.1) and common.lr_factor(0.1, -1.0) == 1.0  # clamped
+    steps = [common.lr_factor(0.0, p / 10) for p in range(11)]
+    assert steps == sorted(steps, reverse=True) and steps[-1] == pytest.approx(0.0, abs=1e-12)
+    lrn = learner("fastdsac", lr_final_ratio=0.25, actor_lr=1e-3, critic_lr=2e-3)
+    alpha_lr = lrn.state.algo.temperature.opt.param_groups[0]["lr"]
+    lrn.schedule(1.0)
+    assert [g["lr"] for g in lrn.state.actor_opt.param_groups] == [pytest.approx(2.5e-4)]
+    assert [g["lr"] for g in lrn.state.critic_opt.param_groups] == [pytest.approx(5e-4)]
+    assert lrn.state.algo.temperature.opt.param_groups[0]["lr"] == alpha_lr  # the temperature keeps its rate
+    lrn.schedule(0.0)
+    assert lrn.state.actor_opt.param_groups[0]["lr"] == pytest.approx(1e-3)
+    constant = learner("fastdsac")  # every recipe: ratio 1, the rates never touched
+    assert constant.hp.lr_final_ratio == 1.0
+    constant.state.actor_opt.param_groups[0]["lr"] = 0.123
+    constant.schedule(1.0)
+    assert constant.state.actor_opt.param_groups[0]["lr"] == 0.123
+    with pytest.raises(ValueError, match="lr_final_ratio"):
+        learner("fastdsac", lr_final_ratio=1.5)

@@ -186,6 +186,17 @@ def test_overlap_decides_the_learner_threads_on_a_cpu():
         resolve_overlap("sometimes", "cpu")
 
 
+def test_a_decaying_learning_rate_is_refused_with_a_captured_cuda_graph(monkeypatch):
+    import flashnav.spec as spec_module
+
+    monkeypatch.setattr(spec_module, "resolve_device", lambda device: "cuda")  # no GPU needed to refuse
+    with pytest.raises(ValueError, match="lr_final_ratio=0.1.*cuda_graph=on"):
+        resolve(TrainConfig(device="cuda", cuda_graph="on", overrides={"algo.lr_final_ratio": 0.1}))
+    monkeypatch.undo()
+    ok = resolve(TrainConfig(device="cpu", cuda_graph="on", overrides={"algo.lr_final_ratio": 0.1}))
+    assert ok.cuda_graph and ok.hparams.lr_final_ratio == 0.1  # eager updates on a CPU: the schedule applies
+
+
 # ---- names defined once -------------------------------------------------------------------------------
 
 

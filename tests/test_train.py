@@ -197,3 +197,18 @@ def test_cpu_learner_threads_hold_from_the_first_run(overlap, learner_threads):
     assert got["during"] == [learner_threads] and got["threads"] == learner_threads, got
     assert got["name"].endswith(" cores)") and got["overlap"] == (1.0 if overlap is True else 0.0), got
     assert got["after"] == 2, got  # restored for the caller
+
+
+def test_lr_decay_runs_the_cosine_over_the_env_step_budget():
+    from flashnav.learn.common import lr_factor
+
+    decayed = train(tiny(overrides={**TINY, "algo.lr_final_ratio": 0.1}))
+    hp = decayed.spec.hparams
+    last = (decayed.env_steps - hp.num_envs) / decayed.spec.max_env_steps  # the last cycle's progress
+    assert decayed.learner.state.critic_opt.param_groups[0]["lr"] == pytest.approx(hp.critic_lr * lr_factor(0.1, last))
+    assert decayed.learner.state.actor_opt.param_groups[0]["lr"] < 0.3 * hp.actor_lr
+    constant = train(tiny())
+    assert constant.learner.state.actor_opt.param_groups[0]["lr"] == hp.actor_lr
+    a = torch.cat([p.detach().flatten() for p in decayed.learner.policy.parameters()])
+    b = torch.cat([p.detach().flatten() for p in constant.learner.policy.parameters()])
+    assert not torch.equal(a, b)  # the schedule reached the updates

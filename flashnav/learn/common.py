@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 from typing import Any, Iterable, Sequence
 
 import numpy as np
@@ -70,6 +71,25 @@ def optimizer_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer, params:
         norm = torch.zeros((), device=loss.device)
     optimizer.step()
     return norm.detach()
+
+
+def lr_factor(final_ratio: float, progress: float) -> float:
+    """The learning-rate multiplier of ``hp.lr_final_ratio``'s cosine decay at ``progress`` (the
+    fraction of the run's env-step budget done, clamped to [0, 1]): 1 at the start, ``final_ratio``
+    at the end, ``final_ratio + (1 - final_ratio) (1 + cos(pi p)) / 2`` between."""
+    p = min(max(float(progress), 0.0), 1.0)
+    return final_ratio + (1.0 - final_ratio) * 0.5 * (1.0 + math.cos(math.pi * p))
+
+
+def set_learning_rates(state: "LearnerState", factor: float) -> None:
+    """Actor and critic optimisers at ``factor`` x their recipe rates (``hp.actor_lr``, ``hp.critic_lr``);
+    the temperature's rate is left as it is. A tensor rate (a captured optimiser's) is filled in place."""
+    for opt, base in ((state.actor_opt, state.hp.actor_lr), (state.critic_opt, state.hp.critic_lr)):
+        for group in opt.param_groups:
+            if isinstance(group["lr"], torch.Tensor):
+                group["lr"].fill_(base * factor)
+            else:
+                group["lr"] = base * factor
 
 
 def derive_seeds(seed: int, n: int) -> list[int]:

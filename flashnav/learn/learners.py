@@ -80,6 +80,12 @@ class Learner:
         """Copy the trained actor's weights into the collector's copy."""
         common.copy_params_(self.state.collector, self.state.actor)
 
+    def schedule(self, progress: float) -> None:
+        """Set the learning rates for ``progress`` (the fraction of the run's env-step budget done):
+        ``hp.lr_final_ratio``'s cosine decay; a no-op at the recipes' constant rate (ratio 1)."""
+        if self.state.hp.lr_final_ratio < 1:
+            common.set_learning_rates(self.state, common.lr_factor(self.state.hp.lr_final_ratio, progress))
+
     def update(self, batch: Transition) -> dict[str, torch.Tensor]:
         """One critic update (+ actor/temperature on schedule) + Polyak on ``batch`` ``[B, ...]``
         (with ``hp.obs_norm``, the batch's observations first update the running feature statistics)."""

@@ -217,6 +217,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
                     obs_box[0] = env.replace_maps(maps.take())[0]
                     learner.on_episode_end(torch.ones(hp.num_envs, dtype=torch.bool, device=dev))
                 batches = sample() if learning else None
+                learner.schedule((cycle - 1) * hp.num_envs / spec.max_env_steps)  # this cycle's learning rates
                 if collector_stream is not None:
                     collector_stream.wait_stream(torch.cuda.current_stream(dev))
                 capturing = updates is not None and learning and updates.captures_next
