@@ -10,8 +10,10 @@ the shortest 8-connected grid path from start to goal through the cells where th
 disc is collision-free (the oracle's graph, :func:`flashnav.sim.oracle.grid_graph`). Prints success / collision
 / timeout by route length and by detour ratio (route / straight line), and the time the route needs at top speed
 against the horizon. The failed episodes are replayed alone (``set_state`` at their start and goal, the
-deterministic policy gives the same path) to find each one's closest approach to its goal; ``--failures`` draws
-their paths on the map, split into near misses (within 0.1 m of the goal radius) and the rest.
+deterministic policy gives the same path) to find each one's closest approach to its goal and how far it drove in
+the second half of its horizon: a timeout that drove under 0.5 m there (of the 5 m its top speed allows) "stalled",
+the policy parked in front of an obstacle; the other timeouts "wandered". ``--failures`` draws their paths on the
+map, split into near misses (within 0.1 m of the goal radius) and the rest.
 """
 
 from __future__ import annotations
@@ -73,6 +75,20 @@ def replay_failures(policy, robot: str, start_pose: np.ndarray, goal: np.ndarray
         running = ~(step["terminated"] | step["truncated"])
         active, obs = active[running], step["obs"][running]
     return paths, closest
+
+
+STALL_M = 0.5  # a timeout that drove less than this (of the 5 m top speed allows) in the second half of its horizon "stalled"
+
+
+def stalled_metres(paths: np.ndarray, steps: int) -> np.ndarray:
+    """Metres each replayed episode drove in its last ``steps`` recorded steps (``paths [T, F, 2]``,
+    NaN after the episode ended): a timeout's deterministic policy that parks in front of an obstacle
+    drives almost nothing, one that wanders keeps driving."""
+    out = np.zeros(paths.shape[1])
+    for j in range(paths.shape[1]):
+        track = paths[:, j][~np.isnan(paths[:, j, 0])][-(steps + 1):]
+        out[j] = float(np.linalg.norm(np.diff(track, axis=0), axis=1).sum()) if len(track) > 1 else 0.0
+    return out
 
 
 def draw_failures(path: str, grid, paths: np.ndarray, goal: np.ndarray, near: np.ndarray, title: str) -> None:
@@ -139,10 +155,15 @@ def main() -> None:
     failed = np.nonzero(outcome != "success")[0]
     paths, closest = replay_failures(policy, meta["robot"], e["start_pose"][failed], goal[failed])
     near = closest < ep.goal_threshold + 0.1
+    late = stalled_metres(paths, ep.horizon // 2)
+    stalled = (outcome[failed] == "timeout") & ~near & (late < STALL_M)
     print(f"\nfailed episodes ({len(failed)}; {int(near.sum())} came within 0.1 m of the {ep.goal_threshold:g} m "
-          "goal radius): " + ", ".join(f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f} "
-                                       f"closest {c:.2f} m" for k, c in zip(failed[:40], closest)))
-    out["failed"] = [{"index": int(k), "outcome": str(outcome[k]), "closest_m": float(c)} for k, c in zip(failed, closest)]
+          f"goal radius; {int(stalled.sum())} stalled: under {STALL_M:g} m driven in their last {ep.horizon // 2} "
+          "steps): " + ", ".join(f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f} "
+                                 f"closest {c:.2f} m late {m:.2f} m" for k, c, m in zip(failed[:40], closest, late)))
+    out["failed"] = [{"index": int(k), "outcome": str(outcome[k]), "closest_m": float(c), "late_m": float(m),
+                      "kind": "near miss" if n else "stalled" if st else "wandered" if outcome[k] == "timeout" else "collision"}
+                     for k, c, m, n, st in zip(failed, closest, late, near, stalled)]
     if args.failures:
         draw_failures(args.failures, env.map, paths, goal[failed], near,
                       f"{len(failed)} failures of {args.policy} on {args.episodes} evaluation episodes")
