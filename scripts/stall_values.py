@@ -1,0 +1,80 @@
+"""What does the critic think of a parked robot? (issue 16, items 3 and 4)
+
+    .venv/bin/python scripts/stall_values.py RUN_DIR [--episodes 1024] [--seed 12345] [--step 100]
+
+Loads a FastDSAC run's final learner (``RUN_DIR/checkpoint.pt`` with its ``config.yaml``), evaluates its final
+deterministic actor on the fixed set ``flashnav train`` evaluates on (``--episodes`` start/goal pairs, evaluation
+seed ``--seed``, the run's robot on its bundled map), replays the failed episodes alone and, at step ``--step``,
+prints the critic's value (the smaller of the twin critics' means, the target the actor climbs) of the actor's own
+action, of the best action on a 21 x 21 grid over [-1, 1]^2, of driving straight at top speed, and of turning in
+place at full rate either way, beside the goal distance and bearing. A parked robot whose critic rates turning and
+driving no better than staying put is a value problem (how far the discount sees), not an actor stuck on a slope.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from flashnav.checkpoint import load_checkpoint
+from flashnav.evaluate import evaluate_episodes
+from flashnav.learn.loop import run_learner
+from flashnav.sim.env import make_env
+from flashnav.spec import RunSpec
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("run", help="a flashnav train --out directory of a FastDSAC run")
+    p.add_argument("--episodes", type=int, default=1024)
+    p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
+    p.add_argument("--step", type=int, default=100, help="the replay step at which the critic is read")
+    args = p.parse_args()
+    run = Path(args.run)
+    spec = RunSpec.from_dict(yaml.safe_load((run / "config.yaml").read_text()))
+    if spec.algorithm != "fastdsac":
+        raise SystemExit(f"{run}: a {spec.algorithm} run; this reads FastDSAC's Gaussian critic means")
+    learner = run_learner(spec, "cpu")
+    learner.load_state_dict(load_checkpoint(run / "checkpoint.pt")["learner"])
+    actor, critic = learner.state.actor, learner.state.critic
+
+    def policy(obs):
+        return torch.tanh(actor(obs)[..., :2])
+
+    def value(obs, action):  # min over the twin critics of the Gaussian mean
+        return critic(obs, action)[..., 0].min(0).values
+
+    env = make_env(spec.robot.name, args.episodes, seed=args.seed)
+    with torch.no_grad():
+        e = {k: v.cpu().numpy() for k, v in evaluate_episodes(policy, env, args.seed).items()}
+        failed = np.nonzero(~e["success"])[0]
+        print(f"{run}: final actor, {args.episodes} episodes, success {e['success'].mean():.2%}; "
+              f"failed: {', '.join(f'#{k}' for k in failed) or 'none'}")
+        if not len(failed):
+            return
+        replay = make_env(spec.robot.name, len(failed), seed=0)
+        replay.reset(seed=0)
+        obs = replay.set_state(torch.as_tensor(e["start_pose"][failed]), torch.as_tensor(e["goal"][failed]))
+        axis = torch.linspace(-1, 1, 21)
+        grid = torch.stack(torch.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
+        named = {"drive straight": (1.0, 0.0), "turn left in place": (-1.0, 1.0), "turn right in place": (-1.0, -1.0)}
+        for _ in range(args.step):
+            obs = replay.step_slots(torch.arange(len(failed)), policy(obs))["obs"]
+        action = policy(obs)
+        print(f"at step {args.step} (actions normalised: v -1 = stop, +1 = 0.5 m/s; w +-1 = +-pi/4 rad/s):")
+        for j, k in enumerate(failed):
+            q = value(obs[j:j + 1].expand(len(grid), -1), grid)
+            best = int(q.argmax())
+            fixed = {name: value(obs[j:j + 1], torch.tensor([a])).item() for name, a in named.items()}
+            print(f"  #{k}: goal {obs[j, 30]:.2f} m at {obs[j, 31]:+.2f} rad, speed {obs[j, 32]:.2f} m/s; "
+                  f"Q(actor's ({action[j, 0]:+.2f}, {action[j, 1]:+.2f})) {value(obs[j:j + 1], action[j:j + 1]).item():.3f}, "
+                  f"best on the grid {q[best]:.3f} at ({grid[best, 0]:+.1f}, {grid[best, 1]:+.1f}), "
+                  + ", ".join(f"{name} {v:.3f}" for name, v in fixed.items()))
+
+
+if __name__ == "__main__":
+    main()
