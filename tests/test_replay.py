@@ -122,6 +122,11 @@ def test_sample_out_names_the_field_that_does_not_fit():
     strided = Transition(*good[:4], torch.zeros(2, 4, D * 2)[..., ::2])
     with pytest.raises(ValueError, match="next_obs must be a contiguous"):
         replay.sample(4, 2, out=strided)
+    # the device is the stored rows' own: a replay made on "cpu:0" (as "cuda" on a GPU, whose tensors live on
+    # "cuda:0") takes buffers on "cpu" (found by the first CUDA run: "cuda" != "cuda:0")
+    indexed = Replay(N, D, A, capacity=12, device="cpu:0")
+    fill(indexed, 2)
+    assert indexed.sample(4, 2, out=Transition(*good)).obs.shape == (2, 4, D)
 
 
 # --- n-step returns -------------------------------------------------------------------------------

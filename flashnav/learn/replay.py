@@ -172,10 +172,10 @@ class Replay:
         for name, src, dst in zip(Transition._fields, (self.obs, self.action, self.reward, self.terminated,
                                                        self.next_obs), out):
             want = (n_batches, batch_size, *src.shape[2:])
-            if tuple(dst.shape) != want or dst.dtype != src.dtype or dst.device != self.device \
+            if tuple(dst.shape) != want or dst.dtype != src.dtype or dst.device != src.device \
                     or not dst.is_contiguous():
                 raise ValueError(f"sample(out=...): {name} must be a contiguous {src.dtype} tensor of shape "
-                                 f"{want} on {self.device}, got {dst.dtype} {tuple(dst.shape)} on {dst.device}")
+                                 f"{want} on {src.device}, got {dst.dtype} {tuple(dst.shape)} on {dst.device}")
 
     def clear(self) -> None:
         """Forget all transitions (storage is kept)."""
