@@ -174,10 +174,10 @@ def resolve_device(device: str) -> str:
 def resolve_cuda_graph(mode: str, device: str) -> bool:
     """``TrainConfig.cuda_graph`` on a resolved ``device``: whether the loop runs a cycle's updates on
     static buffers (:class:`flashnav.learn.cuda_graph.CycleUpdates`; captured as a CUDA graph only on
-    a CUDA device). ``auto`` -> off on every device for now: the capture has never run on a GPU (no GPU
-    was lent to the session that built it), so a GPU user opts in with ``on`` until the CUDA tests and
-    ``flashnav bench update --device cuda --ways eager,cuda-graph`` have been run (docs/benchmarks.md
-    "GPU fast path"); then ``auto`` becomes on for cuda if the measurement says it pays."""
+    a CUDA device). ``auto`` -> off on every device for now: on its first GPU (an H200, 2026-11-26) the CUDA
+    tests pass and the captured cycle updates 8.05x faster than eager (docs/benchmarks.md "First GPU run"), but
+    no whole training with it has been measured yet, so a GPU user opts in with ``on``; ``auto`` becomes on
+    for cuda once a training run says it pays."""
     check_name("cuda_graph", mode, CUDA_GRAPH_MODES)
     del device  # kept in the signature: auto will depend on it once measured
     return mode == "on"

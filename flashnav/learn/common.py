@@ -83,13 +83,10 @@ def lr_factor(final_ratio: float, progress: float) -> float:
 
 def set_learning_rates(state: "LearnerState", factor: float) -> None:
     """Actor and critic optimisers at ``factor`` x their recipe rates (``hp.actor_lr``, ``hp.critic_lr``);
-    the temperature's rate is left as it is. A tensor rate (a captured optimiser's) is filled in place."""
+    the temperature's rate is left as it is."""
     for opt, base in ((state.actor_opt, state.hp.actor_lr), (state.critic_opt, state.hp.critic_lr)):
         for group in opt.param_groups:
-            if isinstance(group["lr"], torch.Tensor):
-                group["lr"].fill_(base * factor)
-            else:
-                group["lr"] = base * factor
+            group["lr"] = base * factor
 
 
 def derive_seeds(seed: int, n: int) -> list[int]:
