@@ -31,6 +31,7 @@ import time
 
 import numpy as np
 import torch
+from agent_hits import stand_still  # scripts/: the action that maps to v = 0, w = 0
 from scipy.sparse.csgraph import dijkstra
 
 from flashnav.names import SCENARIOS
@@ -132,13 +133,6 @@ def replay(preset, episodes: int, seed: int, plans: list, still: torch.Tensor) -
     return {"success_rate": float((counted == 1).sum()) / total, "agent_collision_rate": float((counted == 2).sum()) / total,
             "wall_collision_rate": float((counted == 3).sum()) / total, "timeout_rate": float((counted == 0).sum()) / total,
             "episodes": episodes, "scored": int(scored.sum())}
-
-
-def stand_still(preset) -> torch.Tensor:
-    """The action [1, 2] that maps to v = 0, w = 0 on ``preset`` (the action bounds may be asymmetric)."""
-    m = preset.motion
-    to_a = lambda x, lo, hi: 2.0 * (x - lo) / (hi - lo) - 1.0  # noqa: E731
-    return torch.tensor([[to_a(0.0, *m.v_bounds), to_a(0.0, *m.w_bounds)]])
 
 
 def clairvoyant(preset, episodes: int, seed: int, *, beam: int = 3000, v_levels: int = 5, w_levels: int = 5,
