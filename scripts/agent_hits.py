@@ -7,7 +7,8 @@ First a robot that stands still (action v = 0, w = 0) on the episodes of every a
 hits that no policy avoids without moving out of the way. Then, for each exported POLICY, its episodes of
 ``--scenario`` played with its deterministic actions, and for each agent collision the bearing of the
 agent that hit, relative to the robot's heading at the moment of contact: behind the LiDAR's field of view,
-from the side (45-135 deg) or from the front (within 45 deg).
+from the side (45-135 deg) or from the front (within 45 deg); and the forward speed it commands (mean over
+every step played, and the share of steps below 0.1 m/s: a hesitant robot stays longer among the agents).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from flashnav.export import load_policy
 from flashnav.names import SCENARIOS
 from flashnav.scenarios import run_scenario, scenario_preset
 from flashnav.sim.env import make_env
+from flashnav.sim.motion import action_to_velocity
 
 
 def stand_still(preset) -> torch.Tensor:
@@ -32,13 +34,17 @@ def stand_still(preset) -> torch.Tensor:
     return torch.tensor([[to_action(0.0, *m.v_bounds), to_action(0.0, *m.w_bounds)]])
 
 
-def hit_bearings(policy, preset, episodes: int, seed: int) -> list[float]:
-    """Degrees in [0, 180]: |bearing| of the hitting agent (the one nearest the footprint) per agent collision."""
+def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None = None) -> list[float]:
+    """Degrees in [0, 180]: |bearing| of the hitting agent (the one nearest the footprint) per agent collision.
+    ``speeds``, if given, collects the forward speed (m/s) the policy commands at every step played."""
     env = make_env(preset, episodes, seed=seed)
     obs, _ = env.reset(seed=seed)
     active, out = torch.arange(episodes), []
     for _ in range(preset.episode.horizon):
-        t = env.step_slots(active, policy(obs))
+        action = policy(obs)
+        if speeds is not None:
+            speeds.extend(action_to_velocity(action, preset.motion)[0].tolist())
+        t = env.step_slots(active, action)
         for i in active[t["collision_agent"]].tolist():
             d = env.agents.pos[i] - env.pose[i, :2]
             gap = torch.linalg.vector_norm(d, dim=1) - env.agents.radius[i]
@@ -73,10 +79,13 @@ def main() -> None:
         robot = RobotPreset.model_validate(meta["preset"]) if "preset" in meta else meta["robot"]
         preset = scenario_preset(robot, args.scenario)
         half_fov = preset.lidar.fov_deg / 2
-        b = np.array(hit_bearings(policy, preset, args.episodes, args.seed))
+        speeds: list[float] = []
+        b = np.array(hit_bearings(policy, preset, args.episodes, args.seed, speeds))
+        v = np.array(speeds)
         print(f"{path} on {args.scenario}: {b.size} agent collisions in {args.episodes} episodes; agent behind the "
               f"field of view (> {half_fov:g} deg) {(b > half_fov).sum()}, side (45-{half_fov:g} deg) "
-              f"{((b > 45) & (b <= half_fov)).sum()}, front (<= 45 deg) {(b <= 45).sum()}")
+              f"{((b > 45) & (b <= half_fov)).sum()}, front (<= 45 deg) {(b <= 45).sum()}; forward speed over "
+              f"{v.size} steps: mean {v.mean():.3f} m/s, {np.mean(v < 0.1):.1%} of steps below 0.1 m/s")
 
 
 if __name__ == "__main__":
