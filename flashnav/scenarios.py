@@ -52,14 +52,24 @@ def run_scenario(policy: Callable[[torch.Tensor], torch.Tensor], env, seed: int)
     Returns the rates over the scored episodes (success, agent_collision, wall_collision, timeout; a
     collision with both counts as an agent collision), ``episodes`` drawn and ``scored``."""
     obs, _ = env.reset(seed=seed)
-    n, dev = env.num_envs, env.device
+    scored = scenario_scored(env)
+    return scenario_rates(play_episodes(policy, env, obs), scored)
+
+
+def scenario_scored(env) -> torch.Tensor:
+    """[N] bool: the episodes just placed in ``env`` that a scenario scores - all of them, except on a
+    crossing scenario, where only those whose crossing agent could be placed."""
     crossing = env.agents is not None and env.preset.agents.mix.get("crossing", 0.0) > 0
-    scored = env.agents.placed.any(dim=1) if crossing else torch.ones(n, dtype=torch.bool, device=dev)
-    e = play_episodes(policy, env, obs)
+    return env.agents.placed.any(dim=1) if crossing else torch.ones(env.num_envs, dtype=torch.bool, device=env.device)
+
+
+def scenario_rates(e: dict, scored: torch.Tensor) -> dict:
+    """The report of :func:`run_scenario` from each episode's ending flags ``e`` (``success``,
+    ``collision_agent``, ``collision``: [N] bool) over the ``scored`` [N] episodes."""
     # 0 timeout, 1 success, 2 agent, 3 wall (success and either collision exclude each other)
     outcome = torch.where(e["success"], 1, torch.where(e["collision_agent"], 2, torch.where(e["collision"], 3, 0)))
     counted = outcome[scored]
     total = max(int(scored.sum()), 1)
     rate = lambda k: float((counted == k).sum()) / total  # noqa: E731
     return {"success_rate": rate(1), "agent_collision_rate": rate(2), "wall_collision_rate": rate(3),
-            "timeout_rate": rate(0), "episodes": n, "scored": int(scored.sum())}
+            "timeout_rate": rate(0), "episodes": len(scored), "scored": int(scored.sum())}

@@ -35,7 +35,7 @@ from agent_hits import stand_still  # scripts/: the action that maps to v = 0, w
 from scipy.sparse.csgraph import dijkstra
 
 from flashnav.names import SCENARIOS
-from flashnav.scenarios import scenario_preset
+from flashnav.scenarios import scenario_preset, scenario_rates, scenario_scored
 from flashnav.sim.agent_geometry import footprint_hits_discs
 from flashnav.sim.env import make_env
 from flashnav.sim.motion import action_to_velocity, integrate
@@ -96,13 +96,11 @@ def plan_episode(env, slot: int, field: np.ndarray, cells, pos, act, actions: to
         # neighbourhood) is ranked by its straight-line distance behind every pose on the graph
         straight = dist[keep].double().numpy()  # breaks ties inside a cell: nearer the goal first
         score = np.where(np.isfinite(score), score + 0.1 * straight, 1e3 + straight)
-        ok = np.ones(len(score), dtype=bool)
         ix = np.floor(xy[:, 0] / cell_m).astype(np.int64)
         iy = np.floor(xy[:, 1] / cell_m).astype(np.int64)
         ih = np.floor((new[:, 2].double().numpy() + math.pi) / (2 * math.pi / headings)).astype(np.int64) % headings
         key = (ix * 100_003 + iy) * headings + ih
-        order = np.argsort(np.where(ok, score, np.inf), kind="stable")
-        order = order[ok[order]]
+        order = np.argsort(score, kind="stable")
         _, first = np.unique(key[order], return_index=True)
         chosen = order[np.sort(first)][:beam]
         pose = new[torch.as_tensor(chosen)]
@@ -112,27 +110,23 @@ def plan_episode(env, slot: int, field: np.ndarray, cells, pos, act, actions: to
 
 
 def replay(preset, episodes: int, seed: int, plans: list, still: torch.Tensor) -> dict:
-    """Play every episode's plan (standing still where there is none, or after it ends) in a fresh env."""
+    """Play every episode's plan (standing still where there is none, or after it ends) in a fresh env;
+    scored by :func:`flashnav.scenarios.scenario_rates`, as ``flashnav eval --scenario`` scores a policy."""
     env = make_env(preset, episodes, seed=seed)
     env.reset(seed=seed)
-    crossing = preset.agents.mix.get("crossing", 0.0) > 0
-    scored = env.agents.placed.any(dim=1) if crossing else torch.ones(episodes, dtype=torch.bool)
-    outcome = torch.zeros(episodes, dtype=torch.long)  # 0 timeout, 1 success, 2 agent, 3 wall
+    scored = scenario_scored(env)
+    ended = {k: torch.zeros(episodes, dtype=torch.bool) for k in ("success", "collision", "collision_agent")}
     active = torch.arange(episodes)
     for t in range(preset.episode.horizon):
         a = torch.stack([plans[i][t] if plans[i] is not None and t < len(plans[i]) else still[0] for i in active.tolist()])
         r = env.step_slots(active, a)
-        o = torch.where(r["success"], 1, torch.where(r["collision_agent"], 2, torch.where(r["collision"], 3, 0)))
         done = r["terminated"] | r["truncated"]
-        outcome[active[done]] = o[done]
+        for k, flags in ended.items():
+            flags[active[done]] = r[k][done]
         active = active[~done]
         if active.numel() == 0:
             break
-    counted = outcome[scored]
-    total = max(int(scored.sum()), 1)
-    return {"success_rate": float((counted == 1).sum()) / total, "agent_collision_rate": float((counted == 2).sum()) / total,
-            "wall_collision_rate": float((counted == 3).sum()) / total, "timeout_rate": float((counted == 0).sum()) / total,
-            "episodes": episodes, "scored": int(scored.sum())}
+    return scenario_rates(ended, scored)
 
 
 def clairvoyant(preset, episodes: int, seed: int, *, beam: int = 3000, v_levels: int = 5, w_levels: int = 5,
