@@ -190,6 +190,10 @@ class Agents(Strict):
 
 #: Largest ``observation.scan_history``: each frame adds ``lidar.sectors`` columns to every network's input.
 MAX_SCAN_HISTORY = 16
+#: Largest ``observation.agent_tracks``: each track adds TRACK_FEATURES (6) columns.
+MAX_AGENT_TRACKS = 16
+#: Columns of one agent track (:mod:`flashnav.sim.tracks`).
+TRACK_FEATURES = ("present", "x", "y", "vx", "vy", "radius")
 
 
 class Observation(Strict):
@@ -198,6 +202,10 @@ class Observation(Strict):
     scan_history: int = Field(0, ge=0, le=MAX_SCAN_HISTORY, description="previous pooled scans appended "
                               "after the paper's observation, newest first (0 = the paper's observation); "
                               "one frame per control step, a new episode starts with its first scan repeated")
+    agent_tracks: int = Field(0, ge=0, le=MAX_AGENT_TRACKS, description="the M nearest agents the robot can see, "
+                              "as a people tracker on the robot reports them (present, x, y, vx, vy, radius in "
+                              "the robot frame; flashnav.sim.tracks), appended last; 0 = none, the paper's "
+                              "observation")
 
 
 class RobotPreset(Strict):
@@ -229,9 +237,15 @@ class RobotPreset(Strict):
         return self.lidar.sectors + 2 + self.motion.velocity_state_dims
 
     @property
-    def obs_dim(self) -> int:
-        """The paper's observation plus ``observation.scan_history`` previous frames of ``sectors`` each."""
+    def history_end(self) -> int:
+        """End column of the scan history (= base_obs_dim without one): where the agent tracks start."""
         return self.base_obs_dim + self.observation.scan_history * self.lidar.sectors
+
+    @property
+    def obs_dim(self) -> int:
+        """The paper's observation, then ``observation.scan_history`` previous frames of ``sectors`` each,
+        then ``observation.agent_tracks`` tracks of ``len(TRACK_FEATURES)`` columns each."""
+        return self.history_end + self.observation.agent_tracks * len(TRACK_FEATURES)
 
 
 class DuplicateKeyError(yaml.YAMLError):

@@ -26,9 +26,10 @@ from torch import nn
 
 import flashnav
 from flashnav.checkpoint import is_checkpoint
-from flashnav.config import RobotPreset
+from flashnav.config import TRACK_FEATURES, RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, parse_metadata as _parse_metadata  # noqa: F401
+from flashnav.sim.tracks import track_bounds
 
 #: ONNX opset: well inside what onnxruntime >= 1.18 implements, and every op used here exists in it.
 ONNX_OPSET = 17
@@ -117,6 +118,15 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                              "order": "frame j (0-based) is the pooled scan of j + 1 control steps ago, "
                                       "newest first; each frame has the 'lidar' sector layout",
                              "reset": "a new episode (goal) fills every frame with its first scan"},
+            # always written (0 = none): the people tracker's input (flashnav.sim.tracks)
+            "agent_tracks": {"count": preset.observation.agent_tracks,
+                             "columns": [preset.history_end, preset.obs_dim], "features": list(TRACK_FEATURES),
+                             "units": ["1", "m", "m", "m/s", "m/s", "m"],
+                             "frame": "robot frame: x ahead, y to the left; velocity rotated into it",
+                             "order": "nearest first by the distance from the robot's centre to the agent's "
+                                      "edge; absent tracks are all zero",
+                             "velocity": "displacement over the last control step / control_period_s; 0 for an "
+                                         "agent not seen at the previous step"},
         },
         "command_bounds": {"v": list(m.v_bounds), "w": list(m.w_bounds),
                            "max_linear_velocity": m.max_linear_velocity,
@@ -220,7 +230,18 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
     w = m.w_bounds[0] + (m.w_bounds[1] - m.w_bounds[0]) * u(n, 1)
     velocity = [v, w] if m.velocity_state_dims == 2 else [v, torch.zeros_like(v), w]
     history = [_readings(n, s, r_in, r_max, u) for _ in range(preset.observation.scan_history)]
-    return torch.cat([ranges, dist, angle, *velocity, *history], dim=1)
+    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u)], dim=1)
+
+
+def _tracks(preset: RobotPreset, n: int, u) -> torch.Tensor:
+    """``[n, 6 M]`` agent tracks for :func:`sample_observations`: each present with probability 1/2,
+    features uniform within the observation bounds, absent ones zero."""
+    m = preset.observation.agent_tracks
+    lo, hi = (torch.tensor(b, dtype=torch.float32) for b in track_bounds(preset))
+    feats = lo + (hi - lo) * u(n, m, len(TRACK_FEATURES))
+    present = (u(n, m, 1) < 0.5).float()
+    feats = torch.cat([present, feats[..., 1:]], dim=-1) * present
+    return feats.flatten(1)
 
 
 def _readings(n: int, s: int, r_in: float, r_max: float, u) -> torch.Tensor:

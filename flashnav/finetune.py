@@ -115,6 +115,7 @@ def _layout_keys(robot) -> dict[str, Any]:
         "robot.motion.v_bounds (velocity scale)": max(abs(b) for b in robot.motion.v_bounds),
         "robot.motion.w_bounds (velocity scale)": max(abs(b) for b in robot.motion.w_bounds),
         "robot.observation.scan_history": robot.observation.scan_history,
+        "robot.observation.agent_tracks": robot.observation.agent_tracks,
     }
 
 

@@ -52,3 +52,17 @@ def scan_history_frames(meta: dict[str, Any], path: str | Path = "<policy>") -> 
     if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < 0:
         raise ValueError(f"{path}: the policy's metadata records scan_history {recorded!r}; expected an integer >= 0")
     return recorded
+
+
+def agent_track_count(meta: dict[str, Any], path: str | Path = "<policy>") -> int:
+    """The number of agent tracks M the policy's observation ends with (``observation.agent_tracks``,
+    :mod:`flashnav.sim.tracks`): ``observation.agent_tracks.count``, else the exported preset's
+    ``observation.agent_tracks``, else 0 (files written before the tracks existed).
+
+    Raises ValueError naming ``path`` when the recorded value is not an integer >= 0."""
+    recorded = ((meta.get("observation") or {}).get("agent_tracks") or {}).get("count")
+    if recorded is None:
+        recorded = ((meta.get("preset") or {}).get("observation") or {}).get("agent_tracks", 0)
+    if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < 0:
+        raise ValueError(f"{path}: the policy's metadata records agent_tracks {recorded!r}; expected an integer >= 0")
+    return recorded

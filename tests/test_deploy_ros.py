@@ -160,6 +160,36 @@ def test_twenty_goals_in_closed_loop_on_simulated_time(ros, tmp_path):
     assert [e["goal"] for e in report["episodes"]] == goals.tolist()
 
 
+def test_a_tracks_policy_drives_on_the_sim_robots_people(ros, tmp_path):
+    """A policy with agent tracks (observation.agent_tracks) and a sim-robot with 6 agents: the node
+    subscribes to /people, the sim-robot publishes the agents its robot sees, and the node answers every
+    scan (a node without fresh people would be stale and answer none)."""
+    import yaml
+    from test_export import random_actor
+
+    from flashnav.export import export_policy
+    from flashnav.presets import load_robot
+
+    preset = load_robot("turtlebot2", **{"observation.agent_tracks": 3, "agents.count": 6})
+    paths = export_policy(random_actor(preset, seed=3), preset, tmp_path / "policy")
+    robot = tmp_path / "tb2_agents.yaml"
+    robot.write_text(yaml.safe_dump(preset.model_dump(mode="json")))
+    ros.set_param("/use_sim_time", True)
+    node = ros.flashnav("node", "deploy", "ros", str(paths["onnx"]))
+    results = tmp_path / "tracks.json"
+    sim = ros.flashnav("sim", "deploy", "sim-robot", "--robot", str(robot), "--episodes", "3", "--seed", str(SEED),
+                       "--results", str(results))
+    try:
+        rc = sim.wait(300)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"sim-robot did not finish: {ros.log('sim')}\nnode: {ros.log('node')}")
+    assert rc == 0, f"sim-robot failed: {ros.log('sim')}\nnode: {ros.log('node')}"
+    assert "+ /people" in ros.log("node")
+    episodes = json.loads(results.read_text())["episodes"]
+    assert len(episodes) == 3 and sum(e["steps"] for e in episodes) > 3
+    assert sum(e["missed_answers"] for e in episodes) == 0, ros.log("node")
+
+
 def _drive_far_goal(ros, results: Path):
     """Real time: the node and a free-running sim-robot driving to the farthest of 64 sampled goals
     for 4 s; returns (node, sim) once the robot has been driving for 1.5 s."""

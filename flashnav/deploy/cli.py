@@ -27,6 +27,9 @@ def _topics(p: argparse.ArgumentParser, cmd: bool = True) -> None:
     p.add_argument("--odom", default="/odom", help="nav_msgs/Odometry topic (default /odom)")
     p.add_argument("--goal", default="/move_base_simple/goal",
                    help="geometry_msgs/PoseStamped goal topic, in the odometry frame (default /move_base_simple/goal)")
+    p.add_argument("--people", default="/people",
+                   help="std_msgs/Float32MultiArray of tracked people, rows (x, y, vx, vy, radius) in the odometry "
+                        "frame; read only for a policy trained with observation.agent_tracks (default /people)")
     if cmd:
         p.add_argument("--cmd", default="/cmd_vel", help="geometry_msgs/Twist command topic (default /cmd_vel)")
         p.add_argument("--status", default="/flashnav_deploy/status",
@@ -103,9 +106,11 @@ def run_ros(args) -> int:
     from flashnav.deploy.ros1 import DeployNode
 
     ctl = make_controller(args)
-    node = DeployNode(ctl, scan=args.scan, odom=args.odom, goal=args.goal, cmd=args.cmd, status=args.status)
+    node = DeployNode(ctl, scan=args.scan, odom=args.odom, goal=args.goal, cmd=args.cmd, status=args.status,
+                      people=args.people)
+    people = f" + {args.people}" if ctl.rt.agent_tracks else ""
     print(f"flashnav deploy ros: {args.policy} ({ctl.rt.meta.get('robot')}) at {1 / ctl.period:g} Hz: "
-          f"{args.scan} + {args.odom} + {args.goal} -> {args.cmd}", file=sys.stderr, flush=True)
+          f"{args.scan} + {args.odom} + {args.goal}{people} -> {args.cmd}", file=sys.stderr, flush=True)
     node.spin()
     return 0
 
@@ -128,6 +133,6 @@ def run_replay(args) -> int:
 
     check_output_file(args.out, "--out")
     n = replay.replay_bag(args.bag, make_controller(args), args.out, scan=args.scan, odom=args.odom,
-                          goal=args.goal, goal_at=args.goal_at)
+                          goal=args.goal, goal_at=args.goal_at, people=args.people)
     print(f"flashnav deploy replay: {n} commands -> {args.out}")
     return 0

@@ -21,6 +21,11 @@ sectors of the k previous control steps (only the scans that ran a step count: o
 period, as one per env step in the simulator). Like the simulator's new episode, the first control
 step after a new goal - or after any stop (stale, reached), which also zeroes the velocity state -
 sees its own scan in every history frame.
+A policy with agent tracks (``observation.agent_tracks`` M > 0, :mod:`flashnav.sim.tracks`) also needs
+the people a tracker reports (:meth:`Controller.on_people`: rows of (x, y, vx, vy, radius) in the
+odometry's fixed frame, an empty list for nobody); each control step turns them into the robot frame
+of the current pose. For such a policy the people input is one more input that must be fresh: a
+tracker that falls silent for ``timeout`` stops the robot like a silent scanner does.
 Times are seconds on one clock (ROS time: wall or simulated).
 """
 
@@ -60,7 +65,8 @@ class Controller:
         self.state = "idle"
         self.goal: tuple[float, float] | None = None
         self.pose: tuple[float, float, float] | None = None
-        self.odom_time = self.scan_time = -math.inf
+        self.odom_time = self.scan_time = self.people_time = -math.inf
+        self.people = np.zeros((0, 5))  # the tracker's latest people, fixed frame
         self.last_step_stamp = -math.inf
         self.velocity = (0.0, 0.0)
         self.distance = math.nan
@@ -82,6 +88,16 @@ class Controller:
     def on_odom(self, x: float, y: float, yaw: float, now: float) -> None:
         self.pose, self.odom_time = (float(x), float(y), float(yaw)), float(now)
 
+    def on_people(self, people, now: float) -> None:
+        """The people a tracker reports: rows of (x, y, vx, vy, radius) in the odometry's frame, m and
+        m/s (an empty list when it sees nobody). Raises ValueError naming ``people`` for another shape or
+        a value that is not finite."""
+        rows = np.asarray(people, np.float64)
+        rows = rows.reshape(0, 5) if rows.size == 0 else rows
+        if rows.ndim != 2 or rows.shape[1] != 5 or not np.isfinite(rows).all():
+            raise ValueError(f"people must be finite rows of (x, y, vx, vy, radius), got shape {list(rows.shape)}")
+        self.people, self.people_time = rows, float(now)
+
     def on_scan(self, angle_min: float, angle_increment: float, ranges, range_min: float, range_max: float,
                 stamp: float, now: float) -> Command | None:
         """A scan (``stamp``: its header time; ``now``: when it arrived). Returns the command to send, if any."""
@@ -93,7 +109,7 @@ class Controller:
         if self._stale(now):
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
-        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity, self._history(sectors))
+        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity, self._history(sectors), self._tracks())
         self.last_step_stamp, self.steps = float(stamp), self.steps + 1
         self.distance, self.last_obs = d.distance, d.obs
         self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
@@ -115,7 +131,19 @@ class Controller:
 
     # ---- helpers --------------------------------------------------------------------------------
     def _stale(self, now: float) -> bool:
-        return (self.pose is None or now - self.scan_time > self.timeout or now - self.odom_time > self.timeout)
+        return (self.pose is None or now - self.scan_time > self.timeout or now - self.odom_time > self.timeout
+                or (self.rt.agent_tracks > 0 and now - self.people_time > self.timeout))
+
+    def _tracks(self) -> np.ndarray | None:
+        """The tracker's people in the robot frame of the current pose (None for a policy without tracks)."""
+        if not self.rt.agent_tracks:
+            return None
+        x, y, yaw = self.pose
+        c, s = math.cos(yaw), math.sin(yaw)
+        p = self.people
+        dx, dy = p[:, 0] - x, p[:, 1] - y
+        return np.stack([c * dx + s * dy, -s * dx + c * dy, c * p[:, 2] + s * p[:, 3], -s * p[:, 2] + c * p[:, 3],
+                         p[:, 4]], axis=1)
 
     def _stop(self, state: str) -> Command:
         self.state, self.velocity, self.frames = state, (0.0, 0.0), []
@@ -140,6 +168,7 @@ class Controller:
                 "goal": None if self.goal is None else list(self.goal),
                 "command": list(self.velocity), "action": self.last_action, "steps": self.steps,
                 "scan_age": _age(now, self.scan_time), "odom_age": _age(now, self.odom_time),
+                "people_age": _age(now, self.people_time),
                 "last_step_stamp": None if math.isinf(self.last_step_stamp) else self.last_step_stamp}
 
 

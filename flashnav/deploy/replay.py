@@ -13,7 +13,7 @@ import csv
 from pathlib import Path
 
 from flashnav.deploy.controller import Controller
-from flashnav.deploy.ros1 import import_rospy, odom_pose, scan_args
+from flashnav.deploy.ros1 import import_rospy, odom_pose, people_rows, scan_args
 
 COLUMNS = ["time", "scan_stamp", "v", "w", "state", "distance"]
 
@@ -34,22 +34,27 @@ def _open_bag(path: Path):
 
 
 def replay_bag(bag_path, controller: Controller, out, *, scan: str = "/scan", odom: str = "/odom",
-               goal: str = "/move_base_simple/goal", goal_at=None) -> int:
+               goal: str = "/move_base_simple/goal", goal_at=None, people: str = "/people") -> int:
     """Replay ``bag_path`` through ``controller``; write the commands to the CSV ``out``; return their count.
 
     Raises ValueError naming the bag when it holds no messages on ``scan`` or ``odom``, or when it has
-    no goal messages and ``goal_at`` is not given."""
+    no goal messages and ``goal_at`` is not given, or (for a policy with agent tracks) no messages on
+    ``people``."""
     bag_path = Path(bag_path)
     with _open_bag(bag_path) as bag:
         topics = bag.get_type_and_topic_info().topics
         for name, flag in ((scan, "--scan"), (odom, "--odom")):
             if name not in topics:
                 raise ValueError(f"{bag_path}: no messages on {flag} {name} (topics: {', '.join(sorted(topics))})")
+        tracks = controller.rt.agent_tracks > 0
+        if tracks and people not in topics:
+            raise ValueError(f"{bag_path}: the policy sees tracked people (observation.agent_tracks = "
+                             f"{controller.rt.agent_tracks}) but the bag has no messages on --people {people}")
         if goal not in topics and goal_at is None:
             raise ValueError(f"{bag_path}: no goal messages on --goal {goal}; give the goal with --goal-at X,Y")
         rows = []
         started = goal_at is None
-        for topic, msg, t in bag.read_messages(topics=[scan, odom, goal]):
+        for topic, msg, t in bag.read_messages(topics=[scan, odom, goal] + ([people] if tracks else [])):
             now = t.to_sec()
             if not started:  # the fixed goal starts with the first message
                 controller.on_goal(goal_at[0], goal_at[1], now)
@@ -61,6 +66,8 @@ def replay_bag(bag_path, controller: Controller, out, *, scan: str = "/scan", od
                 controller.on_odom(*odom_pose(msg), now)
             elif topic == goal:
                 controller.on_goal(msg.pose.position.x, msg.pose.position.y, now)
+            elif topic == people and tracks:
+                controller.on_people(people_rows(msg), now)
             else:
                 stamp = msg.header.stamp.to_sec()
                 command = controller.on_scan(*scan_args(msg), stamp=stamp, now=now)

@@ -4,6 +4,10 @@ Only message conversion and wiring live here (an rclpy node would be the same ma
 
 * in: ``sensor_msgs/LaserScan`` (scan), ``nav_msgs/Odometry`` (pose in its ``header.frame_id``, the
   fixed frame), ``geometry_msgs/PoseStamped`` (goal, in the odometry's frame or with an empty frame);
+* in, only for a policy with agent tracks (``observation.agent_tracks``): ``std_msgs/Float32MultiArray``
+  (people), the people a tracker reports as rows of (x, y, vx, vy, radius) in the odometry's frame, m and
+  m/s, flattened row by row (an empty array for nobody): a few lines of bridge turn a
+  ``people_msgs/People`` or a SPENCER ``TrackedPersons`` message into it (neither package is in Debian);
 * out: ``geometry_msgs/Twist`` (linear.x = v m/s, angular.z = w rad/s) and ``std_msgs/String`` with
   the controller's status as JSON.
 
@@ -57,6 +61,14 @@ def scan_args(msg) -> tuple:
     return msg.angle_min, msg.angle_increment, msg.ranges, msg.range_min, msg.range_max
 
 
+def people_rows(msg) -> list[list[float]]:
+    """Float32MultiArray -> rows of (x, y, vx, vy, radius); ValueError unless its length is a multiple of 5."""
+    data = list(msg.data)
+    if len(data) % 5:
+        raise ValueError(f"people: {len(data)} values, not rows of 5 (x, y, vx, vy, radius)")
+    return [data[i:i + 5] for i in range(0, len(data), 5)]
+
+
 def odom_pose(msg) -> tuple[float, float, float]:
     """Odometry (or a PoseStamped's pose holder) -> (x, y, yaw) in its header's frame."""
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
@@ -69,7 +81,7 @@ class DeployNode:
     runs its watchdog; every decision is published with a status message."""
 
     def __init__(self, controller: Controller, *, scan: str, odom: str, goal: str, cmd: str, status: str,
-                 name: str = "flashnav_deploy"):
+                 people: str = "/people", name: str = "flashnav_deploy"):
         self.rospy = rospy = import_rospy()
         from geometry_msgs.msg import PoseStamped, Twist
         from nav_msgs.msg import Odometry
@@ -85,6 +97,10 @@ class DeployNode:
         rospy.Subscriber(odom, Odometry, self._on_odom, queue_size=1, tcp_nodelay=True)
         rospy.Subscriber(goal, PoseStamped, self._on_goal, queue_size=1, tcp_nodelay=True)
         rospy.Subscriber(scan, LaserScan, self._on_scan, queue_size=1, tcp_nodelay=True)
+        if controller.rt.agent_tracks:  # only a policy that sees tracked people listens for them
+            from std_msgs.msg import Float32MultiArray
+
+            rospy.Subscriber(people, Float32MultiArray, self._on_people, queue_size=1, tcp_nodelay=True)
         rospy.on_shutdown(self._on_shutdown)
         self.timer = rospy.Timer(rospy.Duration(controller.period / 4.0), self._on_tick)
 
@@ -115,6 +131,13 @@ class DeployNode:
             now = self._now()
             self.ctl.on_goal(msg.pose.position.x, msg.pose.position.y, now)
             self._publish(None, now)
+
+    def _on_people(self, msg) -> None:
+        with self.lock:
+            try:
+                self.ctl.on_people(people_rows(msg), self._now())
+            except ValueError as exc:  # a malformed message is dropped (the input goes stale), not fatal
+                self.rospy.logerr(f"people message ignored: {exc}")
 
     def _on_scan(self, msg) -> None:
         with self.lock:

@@ -11,9 +11,11 @@ The observation is the simulator's (``flashnav/sim/env.py``): the pooled sectors
 (m) and angle (rad, robot frame, [-pi, pi), positive = left), then the velocity state, the command
 executed in the last control step (``(v, w)``; ``(vx, 0, w)`` for a 3-D velocity state), then, for
 a policy trained with ``observation.scan_history`` k > 0, the sectors of the k previous control steps
-(newest first; ``history`` [k, S], kept by :class:`flashnav.deploy.controller.Controller`). The network
-holds its own input scaling, so the runtime passes physical units. Inside the goal radius the runtime
-commands (0, 0) without running the network.
+(newest first; ``history`` [k, S], kept by :class:`flashnav.deploy.controller.Controller`), then, for a
+policy trained with ``observation.agent_tracks`` M > 0, the M nearest people a tracker reports
+(``tracks``: rows of (x, y, vx, vy, radius) in the robot frame, m and m/s; :func:`track_columns`).
+The network holds its own input scaling, so the runtime passes physical units. Inside the goal radius
+the runtime commands (0, 0) without running the network.
 """
 
 from __future__ import annotations
@@ -26,7 +28,10 @@ from typing import Any
 import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
-from flashnav.policy_meta import METADATA_KEY, parse_metadata, scan_history_frames
+from flashnav.policy_meta import METADATA_KEY, agent_track_count, parse_metadata, scan_history_frames
+
+#: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
+TRACK_WIDTH = 6
 
 
 def wrap_angle(a: float) -> float:
@@ -81,10 +86,12 @@ class PolicyRuntime:
         if not self.goal_threshold > 0 or not self.control_period > 0:
             raise ValueError(f"{path}: the policy's metadata lacks goal_threshold / control_period_s")
         self.scan_history = scan_history_frames(meta, path)  # k previous frames after the paper's layout
-        self.velocity_dims = self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
+        self.agent_tracks = agent_track_count(meta, path)  # M people of a tracker, last
+        self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
+                              - TRACK_WIDTH * self.agent_tracks)
         if self.velocity_dims not in (2, 3):
             raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + "
-                             f"velocity + {self.scan_history} history frames")
+                             f"velocity + {self.scan_history} history frames + {self.agent_tracks} agent tracks")
         bounds = meta.get("command_bounds") or {}
         self.v_limit = float(bounds.get("max_linear_velocity", math.inf))
         self.w_limit = float(bounds.get("max_angular_velocity", math.inf))
@@ -126,10 +133,12 @@ class PolicyRuntime:
         dx, dy = float(goal[0]) - float(pose[0]), float(goal[1]) - float(pose[1])
         return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - float(pose[2]))
 
-    def observation(self, sectors, pose, goal, velocity, history=None) -> np.ndarray:
+    def observation(self, sectors, pose, goal, velocity, history=None, tracks=None) -> np.ndarray:
         """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed,
         then ``history`` [k, S] m (the sectors of the k previous control steps, newest first; None
-        when the policy has no scan history)."""
+        when the policy has no scan history), then the policy's M agent tracks from ``tracks`` (the
+        people a tracker reports, rows of (x, y, vx, vy, radius) in the robot frame; an empty list when
+        it reports nobody; None when the policy has no tracks)."""
         sectors = np.asarray(sectors, np.float32).reshape(-1)
         if sectors.size != self.layout.sectors:
             raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
@@ -145,6 +154,12 @@ class PolicyRuntime:
                 raise ValueError(f"history must be [{want[0]}, {want[1]}] (the policy's scan_history frames "
                                  f"of sectors, newest first), got {got}")
             parts.append(past.reshape(-1))
+        if tracks is not None or self.agent_tracks:
+            if tracks is None or not self.agent_tracks:
+                raise ValueError(f"tracks: the policy has {self.agent_tracks} agent tracks (observation.agent_tracks); "
+                                 + ("pass the people the tracker reports (an empty list for nobody)" if tracks is None
+                                    else "it takes no tracks, got some"))
+            parts.append(track_columns(tracks, self.agent_tracks))
         return np.concatenate(parts)
 
     # ---- the command ----------------------------------------------------------------------------
@@ -159,12 +174,31 @@ class PolicyRuntime:
         w = min(max(float(command[0, 1]), -self.w_limit), self.w_limit)
         return action[0], v, w
 
-    def decide(self, sectors, pose, goal, velocity, history=None) -> Decision:
-        """One control step: stop inside the goal radius, else the policy's command (``history`` as
-        in :meth:`observation`)."""
-        obs = self.observation(sectors, pose, goal, velocity, history)
+    def decide(self, sectors, pose, goal, velocity, history=None, tracks=None) -> Decision:
+        """One control step: stop inside the goal radius, else the policy's command (``history`` and
+        ``tracks`` as in :meth:`observation`)."""
+        obs = self.observation(sectors, pose, goal, velocity, history, tracks)
         dist, angle = float(obs[self.layout.sectors]), float(obs[self.layout.sectors + 1])
         if dist < self.goal_threshold:
             return Decision("reached", 0.0, 0.0, dist, angle, None, obs)
         action, v, w = self.act(obs)
         return Decision("driving", v, w, dist, angle, action, obs)
+
+
+def track_columns(tracks, count: int) -> np.ndarray:
+    """[count * 6] float32: the ``count`` nearest of ``tracks`` (rows of (x, y, vx, vy, radius), robot
+    frame, m and m/s) by the distance from the robot's centre to their edge, each as (1, x, y, vx, vy,
+    radius), then zeros for absent tracks: the simulator's layout (:mod:`flashnav.sim.tracks`).
+
+    Raises ValueError naming ``tracks`` for another shape, a value that is not finite or a negative radius."""
+    rows = np.asarray(tracks, np.float64)
+    rows = rows.reshape(0, 5) if rows.size == 0 else rows
+    if rows.ndim != 2 or rows.shape[1] != 5:
+        raise ValueError(f"tracks must be rows of (x, y, vx, vy, radius), got shape {list(rows.shape)}")
+    if not np.isfinite(rows).all() or (rows[:, 4] < 0).any():
+        raise ValueError(f"tracks must be finite with radius >= 0, got {rows.tolist()}")
+    order = np.argsort(np.hypot(rows[:, 0], rows[:, 1]) - rows[:, 4], kind="stable")[:count]
+    out = np.zeros((count, TRACK_WIDTH), np.float32)
+    out[: len(order), 0] = 1.0
+    out[: len(order), 1:] = rows[order]
+    return out.reshape(-1)

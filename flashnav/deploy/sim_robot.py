@@ -46,18 +46,23 @@ def episodes_of(robot, map_, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]
 
 class SimRobot:
     def __init__(self, robot, map_, *, scan: str, odom: str, cmd: str, goal: str, status: str,
-                 real_time: bool, answer_timeout: float = 2.0):
+                 real_time: bool, answer_timeout: float = 2.0, people: str = "/people"):
         from flashnav.sim.env import make_env
+        from flashnav.sim.tracks import TrackerView
 
         self.rospy = rospy = import_rospy()
         from geometry_msgs.msg import PoseStamped, Twist
         from nav_msgs.msg import Odometry
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import LaserScan
-        from std_msgs.msg import String
+        from std_msgs.msg import Float32MultiArray, String
 
-        self.msgs = dict(PoseStamped=PoseStamped, Odometry=Odometry, Clock=Clock, LaserScan=LaserScan)
+        self.msgs = dict(PoseStamped=PoseStamped, Odometry=Odometry, Clock=Clock, LaserScan=LaserScan,
+                         People=Float32MultiArray)
         self.env = make_env(robot, 1, map=map_)
+        # the people tracker a policy with agent tracks listens to: the agents the robot sees (none
+        # without agents in the --robot preset), published before every scan
+        self.view, self.people_state = TrackerView(self.env.preset, self.env.beam_angles), None
         self.preset, self.real_time, self.answer_timeout = self.env.preset, real_time, answer_timeout
         self.dt = self.preset.episode.dt
         self.t = 1.0  # simulated seconds (ROS time 0 means "no clock yet")
@@ -74,6 +79,7 @@ class SimRobot:
         self.scan_pub = rospy.Publisher(scan, LaserScan, queue_size=1, tcp_nodelay=True)
         self.odom_pub = rospy.Publisher(odom, Odometry, queue_size=1, tcp_nodelay=True)
         self.goal_pub = rospy.Publisher(goal, PoseStamped, queue_size=1, latch=True)
+        self.people_pub = rospy.Publisher(people, Float32MultiArray, queue_size=1, tcp_nodelay=True)
         self.cmd_sub = rospy.Subscriber(cmd, Twist, self._on_cmd, queue_size=10, tcp_nodelay=True)
         self.status_sub = rospy.Subscriber(status, String, self._on_status, queue_size=100, tcp_nodelay=True)
         signal.signal(signal.SIGUSR1, lambda *_: self._scan_off())
@@ -114,6 +120,7 @@ class SimRobot:
         odom.pose.pose.orientation.z, odom.pose.pose.orientation.w = math.sin(pose[2] / 2), math.cos(pose[2] / 2)
         odom.twist.twist.linear.x, odom.twist.twist.angular.z = v, w
         self.odom_pub.publish(odom)
+        self.publish_people()
         if not self.scan_on and self.scan_off_wall is None:
             self.scan_pub.unregister()
             self.scan_off_wall, self.scan_off_t = time.monotonic(), self.t
@@ -130,6 +137,15 @@ class SimRobot:
             scan.ranges = self.env.scan()[0].tolist()
             self.scan_pub.publish(scan)
         return stamp.to_sec()
+
+    def publish_people(self) -> None:
+        """The agents the robot sees now, as rows (x, y, vx, vy, radius) in the odometry frame."""
+        from flashnav.sim.tracks import seen_world_rows
+
+        env = self.env
+        rows, self.people_state = seen_world_rows(self.view, env.agents, env.pose, env.scan(), self.people_state,
+                                                  self.dt, env.frame_origin)
+        self.people_pub.publish(self.msgs["People"](data=[v for row in rows for v in row]))
 
     def wait_for_node(self, timeout: float = 60.0) -> None:
         """Block (wall) until something subscribes to the scan, odometry and goal and publishes the
@@ -204,6 +220,7 @@ class SimRobot:
 
     def run_episode(self, pose, goal) -> dict:
         self.env.set_state(torch.tensor(pose, dtype=torch.float64)[None], torch.tensor(goal, dtype=torch.float64)[None])
+        self.people_state = None  # a new episode: the tracker starts afresh, as in the simulator
         with self.cond:
             self.cmd = (0.0, 0.0)
         self.publish_clock()
@@ -238,7 +255,8 @@ def _same_goal(status: dict | None, goal) -> bool:
 def run(args) -> dict:
     """The ``flashnav deploy sim-robot`` job (parsed arguments: see :mod:`flashnav.deploy.cli`)."""
     robot = SimRobot(args.robot, args.map, scan=args.scan, odom=args.odom, cmd=args.cmd, goal=args.goal,
-                     status=args.status, real_time=args.real_time, answer_timeout=args.answer_timeout)
+                     status=args.status, real_time=args.real_time, answer_timeout=args.answer_timeout,
+                     people=args.people)
     robot.publish_clock()
     if args.episodes or args.goal_at is not None:
         robot.wait_for_node()

@@ -4,7 +4,8 @@ Observation layout (raw physical units, from the simulator), ``obs [N, D] float3
 columns ``0..S-1`` pooled LiDAR sector minima (metres, ``(0, max_range]``), ``S`` goal distance
 (metres), ``S+1`` goal angle in the robot frame (radians, ``[-pi, pi)``), then the velocity state
 (``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5); with a scan history of k frames
-(:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans newest first.
+(:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans newest first;
+with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns end it (present, x, y, vx, vy, radius each).
 Actions are ``[N, A]`` in ``[-1, 1]``.
 
 Every network owns its input transform: LiDAR readings become ``1 / (l - beta)`` with a trainable
@@ -22,6 +23,8 @@ from typing import Sequence
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from flashnav.sim.tracks import track_scales
 
 #: Floor on ``r_in - beta`` (metres). softplus(rho) underflows to exactly 0 in float32 for rho below
 #: about -104, which would put beta on the inscribed radius and the feature at infinity; the margin
@@ -45,6 +48,8 @@ class ObsLayout:
     ``goal_scale``: ``(distance, angle)`` divisors, metres and radians (a float = distance, angle pi).
     ``velocity_scales``: one divisor per velocity column (m/s or rad/s), e.g. ``(0.5, pi/4)``.
     ``scan_history``: previous pooled scans k after those columns (k * S more LiDAR columns; 0 = none).
+    ``agent_tracks``: tracked agents M after everything else (M * len(track_scales) columns; 0 = none).
+    ``track_scales``: the divisors of one track's columns (:func:`flashnav.sim.tracks.track_scales`).
     """
 
     sectors: int
@@ -53,12 +58,15 @@ class ObsLayout:
     goal_scale: tuple[float, float]
     velocity_scales: tuple[float, ...]
     scan_history: int = 0
+    agent_tracks: int = 0
+    track_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
         goal = self.goal_scale
         if isinstance(goal, (int, float)):
             object.__setattr__(self, "goal_scale", (float(goal), math.pi))
         object.__setattr__(self, "velocity_scales", tuple(float(v) for v in self.velocity_scales))
+        object.__setattr__(self, "track_scales", tuple(float(v) for v in self.track_scales))
         if self.sectors <= 0:
             raise ValueError(f"ObsLayout.sectors must be > 0, got {self.sectors}")
         if not 0 < self.inscribed_radius < self.max_range:
@@ -66,10 +74,12 @@ class ObsLayout:
                              f"{self.inscribed_radius} and {self.max_range}")
         if BETA_INIT >= self.inscribed_radius - BETA_MARGIN:
             raise ValueError(f"inscribed_radius {self.inscribed_radius} m is too small for beta init {BETA_INIT}")
-        if min(self.goal_scale) <= 0 or any(v <= 0 for v in self.velocity_scales):
+        if min(self.goal_scale) <= 0 or any(v <= 0 for v in (*self.velocity_scales, *self.track_scales)):
             raise ValueError("ObsLayout scales must all be > 0")
         if not isinstance(self.scan_history, int) or self.scan_history < 0:
             raise ValueError(f"ObsLayout.scan_history must be an integer >= 0, got {self.scan_history!r}")
+        if not isinstance(self.agent_tracks, int) or self.agent_tracks < 0:
+            raise ValueError(f"ObsLayout.agent_tracks must be an integer >= 0, got {self.agent_tracks!r}")
 
     @property
     def base_dim(self) -> int:
@@ -77,13 +87,19 @@ class ObsLayout:
         return self.sectors + 2 + len(self.velocity_scales)
 
     @property
-    def obs_dim(self) -> int:
-        """D = B + scan_history * sectors."""
+    def history_end(self) -> int:
+        """B + scan_history * sectors: the end of the LiDAR history, where the agent tracks start."""
         return self.base_dim + self.scan_history * self.sectors
 
+    @property
+    def obs_dim(self) -> int:
+        """D = B + scan_history * sectors + agent_tracks * len(track_scales)."""
+        return self.history_end + self.agent_tracks * len(self.track_scales)
+
     def feature_scales(self) -> torch.Tensor:
-        """``[D - S]`` divisors for the non-LiDAR columns (goal distance, angle, velocities)."""
-        return torch.tensor((*self.goal_scale, *self.velocity_scales), dtype=torch.float32)
+        """Divisors for the scaled columns: goal distance, angle, velocities, then the agent tracks'."""
+        return torch.tensor((*self.goal_scale, *self.velocity_scales, *self.track_scales * self.agent_tracks),
+                            dtype=torch.float32)
 
     @classmethod
     def from_robot(cls, preset, goal_distance_max: float) -> "ObsLayout":
@@ -99,7 +115,8 @@ class ObsLayout:
         velocity = (v_max, w_max) if preset.motion.velocity_state_dims == 2 else (v_max, v_max, w_max)
         return cls(sectors=preset.lidar.sectors, inscribed_radius=preset.footprint.inscribed_radius,
                    max_range=preset.lidar.max_range, goal_scale=(float(goal_distance_max), math.pi),
-                   velocity_scales=velocity, scan_history=preset.observation.scan_history)
+                   velocity_scales=velocity, scan_history=preset.observation.scan_history,
+                   agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset))
 
 
 class IPAPRec(nn.Module):
@@ -113,7 +130,8 @@ class IPAPRec(nn.Module):
     only by :meth:`update_stats`), like the reference code's empirical observation normaliser.
     History frames (columns from ``layout.base_dim`` on) get the same ``1 / (l - beta)`` with the same
     beta: one reading means the same distance whenever it was taken, and sharing keeps one parameter
-    per transform. The output keeps the input's column order.
+    per transform; agent tracks (the last columns) are divided by their bounds like the goal and
+    velocity columns. The output keeps the input's column order.
     """
 
     def __init__(self, layout: ObsLayout, copies: int = 0, normalize: bool = False):
@@ -122,8 +140,11 @@ class IPAPRec(nn.Module):
         self.r_in = float(layout.inscribed_radius)
         self.max_range = float(layout.max_range)
         self.copies = copies
-        self.base_dim = layout.base_dim
-        self.history = layout.obs_dim > layout.base_dim  # a Python bool: tracing records one path
+        self.base_dim, self.history_end = layout.base_dim, layout.history_end
+        # Python bools: tracing records one path
+        self.history = layout.history_end > layout.base_dim
+        self.tracks = layout.obs_dim > layout.history_end
+        self.scaled_base = layout.base_dim - layout.sectors  # goal and velocity columns
         # softplus(rho0) = r_in - margin - BETA_INIT puts beta at BETA_INIT
         gap = self.r_in - BETA_MARGIN - BETA_INIT
         rho0 = gap + math.log(-math.expm1(-gap))
@@ -168,21 +189,26 @@ class IPAPRec(nn.Module):
         beta = self.beta(detach_rho)
         if self.copies > 0:
             beta = beta.view(-1, 1, 1)
-        if not self.history:
+        if not self.history and not self.tracks:
             return torch.cat([self._reciprocal(obs[..., : self.sectors], beta),
                               self._scaled(obs[..., self.sectors:])], dim=-1)
-        return torch.cat([self._reciprocal(obs[..., : self.sectors], beta),
-                          self._scaled(obs[..., self.sectors: self.base_dim]),
-                          self._reciprocal(obs[..., self.base_dim:], beta)], dim=-1)
+        parts = [self._reciprocal(obs[..., : self.sectors], beta)]
+        parts.append(self._scaled(obs[..., self.sectors: self.base_dim], 0, self.scaled_base))
+        if self.history:
+            parts.append(self._reciprocal(obs[..., self.base_dim: self.history_end], beta))
+        if self.tracks:
+            parts.append(self._scaled(obs[..., self.history_end:], self.scaled_base, None))
+        return torch.cat(parts, dim=-1)
 
     def _reciprocal(self, lidar: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
         """LiDAR columns ``[B, L]`` -> ``1 / (clamp(l) - beta)``, ``[B, L]`` or ``[C, B, L]``."""
         lidar = lidar.clamp(min=self.r_in, max=self.max_range)
         return torch.reciprocal((lidar.unsqueeze(0) if self.copies > 0 else lidar) - beta)
 
-    def _scaled(self, rest: torch.Tensor) -> torch.Tensor:
-        """Goal and velocity columns divided by their bounds, expanded over copies."""
-        rest = rest * self.inv_scale
+    def _scaled(self, rest: torch.Tensor, start: int = 0, stop: int | None = None) -> torch.Tensor:
+        """Goal and velocity columns (and agent tracks) divided by their bounds ``inv_scale[start:stop]``,
+        expanded over copies."""
+        rest = rest * (self.inv_scale if start == 0 and stop is None else self.inv_scale[start:stop])
         return rest.unsqueeze(0).expand(self.copies, -1, -1) if self.copies > 0 else rest
 
 

@@ -18,6 +18,9 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
                 m/s and rad/s, the command executed in the last step (0 after a reset)
     then, only with ``observation.scan_history`` k > 0, the k previous pooled scans, newest first
     (:mod:`flashnav.sim.history`; a new episode starts with its first scan repeated); obs_dim += k S
+    then, only with ``observation.agent_tracks`` M > 0, the M nearest agents the robot sees as a people
+    tracker reports them (present, x, y, vx, vy, radius in the robot frame; :mod:`flashnav.sim.tracks`);
+    obs_dim += 6 M
 
 Rewards and flags (:mod:`flashnav.sim.reward`): goal reached (distance < goal_threshold) -> +goal,
 terminated; else collision -> collision, terminated (the goal is checked first, as the paper lists it);
@@ -65,6 +68,7 @@ from flashnav.sim.observation import beam_angles, observation_bounds, observe  #
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.reward import Shaping, outcome
 from flashnav.sim.sampling import EpisodeSampler, MapSetSampler
+from flashnav.sim.tracks import AgentTracks
 
 
 class NavVecEnv(VectorEnv):
@@ -109,6 +113,9 @@ class NavVecEnv(VectorEnv):
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
         k = preset.observation.scan_history  # k = 0: no history at all, the step is exactly the paper's
         self.history = ScanHistory(n, k, preset.lidar.sectors, self.device) if k else None
+        # observation.agent_tracks M = 0: no tracks at all, the step is exactly the paper's
+        self.tracks = (AgentTracks(preset, n, self.beam_angles, self.device)
+                       if preset.observation.agent_tracks else None)
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
@@ -209,8 +216,12 @@ class NavVecEnv(VectorEnv):
         self.shaping.start(idx, pose[:, :2], goal, self.goal_distance[idx], self._maps_of(idx))
         if self.agents is not None:  # the slots' agents start with their episodes, on the slots' maps
             self.agents.reset(idx, pose, goal, self._gen, self._maps_of(idx))
-        obs = self._observe(self._scan(pose, idx), pose, goal, zeros)
-        self.obs[idx] = obs if self.history is None else self.history.start(idx, obs)
+        ranges = self._scan(pose, idx)
+        obs = self._observe(ranges, pose, goal, zeros)
+        obs = obs if self.history is None else self.history.start(idx, obs)
+        if self.tracks is not None:
+            obs = torch.cat([obs, self.tracks.start(idx, self.agents, pose, ranges)], dim=1)
+        self.obs[idx] = obs
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Reset all slots, or only ``options["reset_mask"]`` ([N] bool). ``seed`` reseeds the
@@ -344,6 +355,8 @@ class NavVecEnv(VectorEnv):
         obs = self._observe(ranges, pose, goal, velocity)
         if self.history is not None:  # the frames before this step, then this scan joins them
             obs = self.history.push(sel, obs)
+        if self.tracks is not None:  # the agents the robot sees in this scan, as a tracker reports them
+            obs = torch.cat([obs, self.tracks.step(sel, self.agents, pose, ranges)], dim=1)
 
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs

@@ -11,6 +11,7 @@ import torch
 
 from flashnav.config import RobotPreset
 from flashnav.sim.motion import wrap_angle
+from flashnav.sim.tracks import track_bounds
 
 
 def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
@@ -21,15 +22,18 @@ def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
 
 
 def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) [obs_dim] float32 of the observation space; history frames repeat the LiDAR bounds."""
+    """(low, high) [obs_dim] float32 of the observation space; history frames repeat the LiDAR bounds,
+    agent tracks :func:`flashnav.sim.tracks.track_bounds`."""
     s = preset.lidar.sectors
     (v_lo, v_hi), (w_lo, w_hi) = preset.motion.v_bounds, preset.motion.w_bounds
     vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if preset.motion.velocity_state_dims == 2 else (
         [v_lo, 0.0, w_lo], [v_hi, 0.0, w_hi])
     low = np.array([0.0] * s + [0.0, -math.pi] + vel_lo, dtype=np.float32)
     high = np.array([preset.lidar.max_range] * s + [goal_distance_max, math.pi] + vel_hi, dtype=np.float32)
-    k = preset.observation.scan_history
-    return np.concatenate([low, np.tile(low[:s], k)]), np.concatenate([high, np.tile(high[:s], k)])
+    k, m = preset.observation.scan_history, preset.observation.agent_tracks
+    t_lo, t_hi = track_bounds(preset)
+    return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m)]),
+            np.concatenate([high, np.tile(high[:s], k), np.tile(np.array(t_hi, np.float32), m)]))
 
 
 def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator) -> torch.Tensor:
