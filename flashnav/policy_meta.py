@@ -46,12 +46,7 @@ def scan_history_frames(meta: dict[str, Any], path: str | Path = "<policy>") -> 
     ``observation.scan_history``, else 0 (files written before the history existed).
 
     Raises ValueError naming ``path`` when the recorded value is not an integer >= 0."""
-    recorded = ((meta.get("observation") or {}).get("scan_history") or {}).get("frames")
-    if recorded is None:
-        recorded = ((meta.get("preset") or {}).get("observation") or {}).get("scan_history", 0)
-    if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < 0:
-        raise ValueError(f"{path}: the policy's metadata records scan_history {recorded!r}; expected an integer >= 0")
-    return recorded
+    return _recorded_count(meta, "scan_history", "frames", path)
 
 
 def agent_track_count(meta: dict[str, Any], path: str | Path = "<policy>") -> int:
@@ -60,9 +55,15 @@ def agent_track_count(meta: dict[str, Any], path: str | Path = "<policy>") -> in
     ``observation.agent_tracks``, else 0 (files written before the tracks existed).
 
     Raises ValueError naming ``path`` when the recorded value is not an integer >= 0."""
-    recorded = ((meta.get("observation") or {}).get("agent_tracks") or {}).get("count")
+    return _recorded_count(meta, "agent_tracks", "count", path)
+
+
+def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | Path) -> int:
+    """``observation.<option>.<field>`` of the metadata, else the preset block's ``observation.<option>``,
+    else 0; a ValueError naming ``path`` unless it is an integer >= 0."""
+    recorded = ((meta.get("observation") or {}).get(option) or {}).get(field)
     if recorded is None:
-        recorded = ((meta.get("preset") or {}).get("observation") or {}).get("agent_tracks", 0)
+        recorded = ((meta.get("preset") or {}).get("observation") or {}).get(option, 0)
     if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < 0:
-        raise ValueError(f"{path}: the policy's metadata records agent_tracks {recorded!r}; expected an integer >= 0")
+        raise ValueError(f"{path}: the policy's metadata records {option} {recorded!r}; expected an integer >= 0")
     return recorded

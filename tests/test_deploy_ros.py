@@ -132,17 +132,22 @@ def _in_simulation_success() -> list[bool]:
     return success.tolist()
 
 
+def _finished(ros, sim, timeout: float) -> None:
+    """Wait for the sim-robot process; fail with both logs if it runs over or fails."""
+    try:
+        rc = sim.wait(timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"sim-robot did not finish: {ros.log('sim')}\nnode: {ros.log('node')}")
+    assert rc == 0, f"sim-robot failed: {ros.log('sim')}\nnode: {ros.log('node')}"
+
+
 def test_twenty_goals_in_closed_loop_on_simulated_time(ros, tmp_path):
     ros.set_param("/use_sim_time", True)
     node = ros.flashnav("node", "deploy", "ros", str(POLICY))
     results = tmp_path / "closed_loop.json"
     sim = ros.flashnav("sim", "deploy", "sim-robot", "--episodes", str(EPISODES), "--seed", str(SEED),
                        "--results", str(results))
-    try:
-        rc = sim.wait(480)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"sim-robot did not finish: {ros.log('sim')}\nnode: {ros.log('node')}")
-    assert rc == 0, f"sim-robot failed: {ros.log('sim')}\nnode: {ros.log('node')}"
+    _finished(ros, sim, 480)
     assert node.poll() is None, f"the node died: {ros.log('node')}"
     report = json.loads(results.read_text())
     closed = [e["outcome"] == "success" for e in report["episodes"]]
@@ -179,11 +184,7 @@ def test_a_tracks_policy_drives_on_the_sim_robots_people(ros, tmp_path):
     results = tmp_path / "tracks.json"
     sim = ros.flashnav("sim", "deploy", "sim-robot", "--robot", str(robot), "--episodes", "3", "--seed", str(SEED),
                        "--results", str(results))
-    try:
-        rc = sim.wait(300)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"sim-robot did not finish: {ros.log('sim')}\nnode: {ros.log('node')}")
-    assert rc == 0, f"sim-robot failed: {ros.log('sim')}\nnode: {ros.log('node')}"
+    _finished(ros, sim, 300)
     assert "+ /people" in ros.log("node")
     episodes = json.loads(results.read_text())["episodes"]
     assert len(episodes) == 3 and sum(e["steps"] for e in episodes) > 3
