@@ -343,3 +343,18 @@ def test_a_silent_tracker_stops_a_tracks_policy(tb2t):
     assert ctl.tick(0.75) is not None and ctl.state == "stale"  # scan and odometry fresh, people 0.55 s old
     with pytest.raises(ValueError, match="people must be finite rows"):
         ctl.on_people([[1.0, 2.0, 3.0]], now=1.0)
+
+
+def test_bench_sim_times_the_tracks_beside_the_static_and_agent_steps(tmp_path):
+    import json
+
+    from flashnav.cli import main as cli_main
+
+    out = tmp_path / "bench.json"
+    assert cli_main(["bench", "sim", "--robots", "turtlebot2", "--raycasters", "exact", "--num-envs", "8",
+                     "--seconds", "0.05", "--max-steps", "8", "--no-irsim", "--agents", "4", "--tracks", "2",
+                     "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["agents"], r["tracks"]) for r in rows] == [(0, 0), (4, 0), (4, 2)]
+    assert all(r["steps"] >= 2 and r["env_steps_per_s"] > 0 for r in rows)
+    assert cli_main(["bench", "sim", "--quick", "--no-irsim", "--tracks", "2"]) == 2  # tracks of no agents

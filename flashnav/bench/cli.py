@@ -30,6 +30,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--agents", type=int, default=0, metavar="K",
                    help="also time every row with K moving agents per environment (e.g. 8), interleaved with "
                         "the static rows; the table gives the ratio to the static step ('x static')")
+    p.add_argument("--tracks", type=int, default=0, metavar="M",
+                   help="with --agents: also time every row with those agents and M agent tracks in the "
+                        "observation (observation.agent_tracks), interleaved with the others")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -57,6 +60,10 @@ def run_sim(args) -> int:
     console = Console()
     robots, raycasters, sizes = _csv(args.robots), _csv(args.raycasters), _csv(args.num_envs, int)
     seconds = args.seconds
+    if args.agents < 0 or args.tracks < 0:
+        raise ValueError(f"--agents and --tracks must be >= 0, got {args.agents} and {args.tracks}")
+    if args.tracks and not args.agents:
+        raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
     if args.quick:
         robots, sizes, seconds = ["turtlebot2"], [64], 0.5
     from flashnav.machine import learner_threads, machine_name
@@ -75,10 +82,10 @@ def run_sim(args) -> int:
                 # march is orders of magnitude slower: a couple of steps give its rate
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
                 for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many,
-                                          agents=args.agents):
+                                          agents=args.agents, tracks=args.tracks):
                     rows.append(row.to_dict(1080))
-                    console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d}: "
-                                  f"{row.env_steps_per_s:12,.0f} env-steps/s")
+                    console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d} "
+                                  f"tracks={row.tracks:2d}: {row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
                 accuracy.append(sim.accuracy(robot, rc, args.device))
@@ -110,22 +117,24 @@ def _many_maps(robot: str, spec: str | None):
 
 
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
-    key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"])  # noqa: E731
+    key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"], r.get("tracks", 0))  # noqa: E731
     base = {key(r): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
     # the static single-map row of the same robot, size and raycaster: the reference of both ratios
     one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows
            if r["maps"] == 1 and r["agents"] == 0}
     many = any(r["maps"] > 1 for r in rows)
     moving = any(r["agents"] > 0 for r in rows)
+    tracked = any(r.get("tracks", 0) > 0 for r in rows)
     t = Table(title="whole env step, random actions (full 1,080-beam scans)")
     for col in ("robot", "raycaster", "envs", *(("maps",) if many else ()), *(("agents",) if moving else ()),
-                "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if moving else ())):
+                *(("tracks",) if tracked else ()), "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if moving else ())):
         t.add_column(col, justify="right")
     for r in rows:
         ref = base.get(key(r))
         ratio = f"{r['env_steps_per_s'] / ref:,.0f}x" if ref else "-"
         cells = [r["robot"], r["raycaster"], str(r["num_envs"])] + ([str(r["maps"])] if many else [])
         cells += [str(r["agents"])] if moving else []
+        cells += [str(r.get("tracks", 0))] if tracked else []
         cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
         single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:
@@ -135,6 +144,7 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         t.add_row(*cells)
     for p in peer:
         t.add_row(p["robot"], "ir-sim (peer)", "1", *(("1",) if many else ()), *(("0",) if moving else ()),
+                  *(("0",) if tracked else ()),
                   f"{p['env_steps_per_s']:,.1f}", f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-",
                   *(("-",) if many else ()), *(("-",) if moving else ()))
     console.print(t)
