@@ -161,7 +161,7 @@ def test_tracks_see_through_nothing_and_only_inside_the_field_of_view():
     ranges = env.scan()
     seen = env.tracks.seen_by(env.pose, a.pos, a.radius, a.active, ranges)
     assert seen[0].tolist() == [True, False, False, False]
-    feats = env.tracks.start(torch.tensor([0]), a, env.pose, ranges)
+    feats = env.tracks.observe(torch.tensor([0]), a, env.pose, ranges, fresh=True)
     assert feats[0, :W].tolist() == pytest.approx([1.0, 1.0, 0.0, 0.0, 0.0, 0.25], abs=1e-5)
     assert feats[0, W:].abs().sum() == 0
 

@@ -187,10 +187,17 @@ class NavVecEnv(VectorEnv):
         """The map index of slots ``sel`` for the geometry, or None with a single map."""
         return None if len(self.maps) == 1 else self.map_index[sel]
 
-    def _observe(self, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor,
-                 velocity: torch.Tensor) -> torch.Tensor:
-        """The paper's observations [n, base_obs_dim] from ranges [n, beams] and the state of n slots."""
-        return observe(self.preset, ranges, pose, goal, velocity, self._gen)
+    def _observe(self, sel, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, velocity: torch.Tensor,
+                 start: bool) -> torch.Tensor:
+        """Observations [k, obs_dim] of slots ``sel`` from ranges [k, beams] and their state: the paper's,
+        then the opt-in extras - the scan history (a new episode, ``start``, fills it; a step gives the
+        frames before it, then this scan joins them) and the agents seen, as a tracker reports them."""
+        obs = observe(self.preset, ranges, pose, goal, velocity, self._gen)
+        if self.history is not None:
+            obs = (self.history.start if start else self.history.push)(sel, obs)
+        if self.tracks is not None:
+            obs = torch.cat([obs, self.tracks.observe(sel, self.agents, pose, ranges, fresh=start)], dim=1)
+        return obs
 
     # ---- episode control --------------------------------------------------------------------------
     def _reset_slots(self, idx: torch.Tensor) -> None:
@@ -217,11 +224,7 @@ class NavVecEnv(VectorEnv):
         if self.agents is not None:  # the slots' agents start with their episodes, on the slots' maps
             self.agents.reset(idx, pose, goal, self._gen, self._maps_of(idx))
         ranges = self._scan(pose, idx)
-        obs = self._observe(ranges, pose, goal, zeros)
-        obs = obs if self.history is None else self.history.start(idx, obs)
-        if self.tracks is not None:
-            obs = torch.cat([obs, self.tracks.start(idx, self.agents, pose, ranges)], dim=1)
-        self.obs[idx] = obs
+        self.obs[idx] = self._observe(idx, ranges, pose, goal, zeros, start=True)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Reset all slots, or only ``options["reset_mask"]`` ([N] bool). ``seed`` reseeds the
@@ -352,11 +355,7 @@ class NavVecEnv(VectorEnv):
             shaping = shaping - p.reward.agent_proximity * near
         out = outcome(p, dist, static, agent, steps, shaping)
         episode_return = self.episode_return[sel] + out["reward"]
-        obs = self._observe(ranges, pose, goal, velocity)
-        if self.history is not None:  # the frames before this step, then this scan joins them
-            obs = self.history.push(sel, obs)
-        if self.tracks is not None:  # the agents the robot sees in this scan, as a tracker reports them
-            obs = torch.cat([obs, self.tracks.step(sel, self.agents, pose, ranges)], dim=1)
+        obs = self._observe(sel, ranges, pose, goal, velocity, start=False)
 
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs

@@ -77,16 +77,10 @@ class AgentTracks:
     def columns(self) -> int:
         return self.tracks * WIDTH
 
-    def start(self, idx, agents, pose: torch.Tensor, ranges: torch.Tensor) -> torch.Tensor:
-        """New episodes in slots ``idx``: the tracks [k, M * 6] of their first step (every velocity 0)."""
-        return self._observe(idx, agents, pose, ranges, fresh=True)
-
-    def step(self, sel, agents, pose: torch.Tensor, ranges: torch.Tensor) -> torch.Tensor:
-        """One step of slots ``sel`` (the agents already moved, ``ranges`` [k, B] m the noise-free scan
-        at ``pose`` [k, 3] with the agents in it): their tracks [k, M * 6]."""
-        return self._observe(sel, agents, pose, ranges, fresh=False)
-
-    def _observe(self, sel, agents, pose, ranges, fresh: bool) -> torch.Tensor:
+    def observe(self, sel, agents, pose: torch.Tensor, ranges: torch.Tensor, fresh: bool) -> torch.Tensor:
+        """The tracks [k, M * 6] of slots ``sel`` (``ranges`` [k, B] m the noise-free scan at ``pose`` [k, 3]
+        with the agents in it); ``fresh``: new episodes there, every velocity 0, else one step after
+        the last call (the agents already moved)."""
         k = pose.shape[0]
         if agents is None:
             return torch.zeros(k, self.columns, device=pose.device)
