@@ -129,6 +129,24 @@ def replay(preset, episodes: int, seed: int, plans: list, still: torch.Tensor) -
     return scenario_rates(ended, scored)
 
 
+def path_fields(env):
+    """(cells, field_of) for the episodes placed in ``env`` (one map): ``cells(xy)`` the flat cell index of
+    simulator-frame points [n, 2] (float64 numpy), ``field_of(i)`` the path length (m) from every cell to slot
+    ``i``'s goal through the cells where the footprint's circumscribed disc is free (inf off them; Dijkstra
+    on the 8-connected grid)."""
+    g = env.map
+    graph = grid_graph(g.free_space(env.preset.footprint.circumscribed_radius), g.resolution)
+    (x0, y0), res, (h, w) = env.frame_maps[0].origin, g.resolution, g.shape
+
+    def cells(xy: np.ndarray) -> np.ndarray:
+        j = np.clip(((xy[:, 0] - x0) / res).astype(np.int64), 0, w - 1)
+        i = np.clip(((xy[:, 1] - y0) / res).astype(np.int64), 0, h - 1)
+        return i * w + j
+
+    goals = cells(env.goal.double().numpy())
+    return cells, lambda i: dijkstra(graph, directed=True, indices=int(goals[i]))
+
+
 def clairvoyant(preset, episodes: int, seed: int, *, beam: int = 3000, v_levels: int = 5, w_levels: int = 5,
                 bin_m: float = 0.05, headings: int = 16, progress=None) -> tuple[dict, list]:
     """Search every episode of ``preset``'s scenario, then replay the plans in the simulator: (its rates,
@@ -141,20 +159,10 @@ def clairvoyant(preset, episodes: int, seed: int, *, beam: int = 3000, v_levels:
     pos, act = agent_tracks(preset, episodes, seed, still)
     env = make_env(preset, episodes, seed=seed)
     env.reset(seed=seed)
-    g = env.map
-    graph = grid_graph(g.free_space(preset.footprint.circumscribed_radius), g.resolution)
-    (x0, y0), res, (h, w) = env.frame_maps[0].origin, g.resolution, g.shape
-
-    def cells(xy: np.ndarray) -> np.ndarray:
-        j = np.clip(((xy[:, 0] - x0) / res).astype(np.int64), 0, w - 1)
-        i = np.clip(((xy[:, 1] - y0) / res).astype(np.int64), 0, h - 1)
-        return i * w + j
-
-    goals = cells(env.goal.double().numpy())
+    cells, field_of = path_fields(env)
     plans: list = []
     for i in range(episodes):
-        field = dijkstra(graph, directed=True, indices=int(goals[i]))  # path length to the goal through free cells
-        plans.append(plan_episode(env, i, field, cells, pos, act, grid, beam, bin_m, headings))
+        plans.append(plan_episode(env, i, field_of(i), cells, pos, act, grid, beam, bin_m, headings))
         if progress is not None:
             progress(i + 1, sum(p is not None for p in plans))
     result = replay(preset, episodes, seed, plans, still)
