@@ -25,13 +25,12 @@ timeout.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 
 import numpy as np
 import torch
 from agent_hits import stand_still  # scripts/
-from agent_oracle import agent_tracks, path_fields
+from agent_oracle import agent_tracks, path_fields, report
 
 from flashnav.names import SCENARIOS
 from flashnav.presets import load_robot
@@ -204,17 +203,8 @@ def main() -> None:
                          w_levels=args.w_levels, progress=progress)
     except ValueError as e:
         raise SystemExit(str(e)) from None
-    result.update(scenario=args.scenario, robot=args.robot, seed=args.seed, tracker=args.tracker,
-                  lookahead=args.lookahead, margin=args.margin, growth=args.growth, v_levels=args.v_levels, w_levels=args.w_levels,
-                  seconds=round(time.time() - t0, 1))
-    print(f"constant-velocity MPC ({args.tracker} tracker), {args.scenario}: success {result['success_rate']:.1%}, "
-          f"agent collision {result['agent_collision_rate']:.1%}, wall {result['wall_collision_rate']:.1%}, "
-          f"timeout {result['timeout_rate']:.1%} of {result['scored']} scored episodes; mean speed "
-          f"{result['mean_speed']:.3f} m/s; {result['seconds']} s")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(result, f, indent=1)
-
+    report(result, args, t0, f"constant-velocity MPC ({args.tracker} tracker)",
+           f"; mean speed {result['mean_speed']:.3f} m/s")
 
 if __name__ == "__main__":
     main()

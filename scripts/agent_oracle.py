@@ -196,17 +196,19 @@ def main() -> None:
                                 progress=progress)
     except ValueError as e:
         raise SystemExit(str(e)) from None
-    result.update(scenario=args.scenario, robot=args.robot, seed=args.seed, beam=args.beam, bin_m=args.bin,
-                  headings=args.headings, v_levels=args.v_levels, w_levels=args.w_levels,
-                  seconds=round(time.time() - t0, 1))
-    print(f"clairvoyant planner, {args.scenario}: success {result['success_rate']:.1%}, agent collision "
+    report(result, args, t0, "clairvoyant planner", f" (plans found for {result['plans_found']})")
+
+
+def report(result: dict, args, t0: float, title: str, detail: str = "") -> None:
+    """Print a scenario result of the planner scripts as one line (``detail`` after the episode count) and
+    write it, with every command-line setting and the seconds taken, to ``args.json`` if given."""
+    result.update({k: v for k, v in vars(args).items() if k != "json"}, seconds=round(time.time() - t0, 1))
+    print(f"{title}, {args.scenario}: success {result['success_rate']:.1%}, agent collision "
           f"{result['agent_collision_rate']:.1%}, wall {result['wall_collision_rate']:.1%}, timeout "
-          f"{result['timeout_rate']:.1%} of {result['scored']} scored episodes (plans found for "
-          f"{result['plans_found']}); {result['seconds']} s")
+          f"{result['timeout_rate']:.1%} of {result['scored']} scored episodes{detail}; {result['seconds']} s")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(result, f, indent=1)
-
 
 if __name__ == "__main__":
     main()
