@@ -20,7 +20,10 @@ BAR = {"wander-8": (0.90, 0.03), "crossing": (0.85, None)}  # issue 13, done-mea
 
 def rates_of(path: str, scenario: str) -> dict:
     """The scenario's rates in a result file of either kind (module docstring); errors name the file."""
-    data = json.loads(Path(path).read_text())
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise SystemExit(f"{path}: not a readable JSON result ({e})") from None
     if "scenarios" in data:
         if scenario not in data["scenarios"]:
             raise SystemExit(f"{path}: no scenario {scenario!r} in it (has {', '.join(data['scenarios'])})")
@@ -53,21 +56,22 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 5.0))
+    fig, ax = plt.subplots(figsize=(10.0, 5.0))
     success_min, agent_max = BAR.get(args.scenario, (None, None))
     if success_min is not None:
         right = agent_max * 100 if agent_max is not None else 100
         ax.fill_between([0, right], success_min * 100, 100.5, color="tab:green", alpha=0.15, label="issue 13's bar")
+    markers = "osD^vP*Xh<>p"
     for i, (label, r) in enumerate(points):
         x, y = r["agent_collision_rate"] * 100, r["success_rate"] * 100
-        ax.scatter(x, y, s=40, color=f"C{i % 10}", zorder=3)
-        ax.annotate(label, (x, y), textcoords="offset points", xytext=(6, 4), fontsize=8)
+        ax.scatter(x, y, s=50, color=f"C{i % 10}", marker=markers[i % len(markers)], zorder=3,
+                   label=f"{label} ({r['scored']} ep.)")
     ax.set_xlabel(f"agent collisions on {args.scenario} (% of episodes)")
     ax.set_ylabel(f"success on {args.scenario} (%)")
     ax.set_xlim(left=-0.5)
     ax.set_ylim(top=100.5)
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower left", fontsize=8)
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
     fig.tight_layout()
     fig.savefig(args.out, dpi=120)
     print(f"figure: {args.out}")

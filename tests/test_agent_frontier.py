@@ -34,5 +34,7 @@ def test_a_result_for_another_scenario_is_named(tmp_path):
     planner.write_text(json.dumps({**RATES, "scenario": "crossing"}))
     r = run(f"mpc={planner}")
     assert r.returncode != 0 and "mpc.json" in r.stderr and "crossing" in r.stderr
+    r = run(f"gone={tmp_path / 'gone.json'}")
+    assert r.returncode != 0 and "gone.json" in r.stderr and "Traceback" not in r.stderr
     r = run(str(planner))
     assert r.returncode != 0 and "LABEL=RESULT.json" in r.stderr
