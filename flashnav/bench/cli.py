@@ -44,6 +44,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     from flashnav.bench import train as bench_train
 
     bench_train.register_cli(bsub)
+    from flashnav.bench import runs as bench_runs
+
+    bench_runs.register_cli(bsub)
     from flashnav.bench import cycle as bench_cycle
 
     bench_cycle.register_cli(bsub)

@@ -125,7 +125,7 @@ def run_bench_plot(args) -> int:
     for source in args.sources:
         try:
             found, date = load_curves(Path(source))
-        except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
+        except (OSError, ValueError, KeyError) as e:
             print(f"flashnav bench plot: {source} is not a `flashnav bench train --json` file or a "
                   f"`flashnav train` run folder with metrics.json ({e})")
             return 2
@@ -142,20 +142,15 @@ def run_bench_plot(args) -> int:
 def load_curves(source: Path) -> tuple[list[dict], str]:
     """The runs (records with ``curve``) of a ``bench train --json`` file, or the one run of a
     ``flashnav train`` folder (its metrics.json; labelled with the folder's name), and their date."""
-    if source.is_dir():
-        with open(source / "metrics.json", encoding="utf-8") as f:
-            m = json.load(f)
-        config = m["config"]
-        run = {"robot": config["robot"], "algorithm": config["algorithm"], "seed": config["seed"],
-               "label": source.name, **{k: m[k] for k in ("curve", "time_to_threshold", "env_steps_to_threshold")}}
-        when = dt.datetime.fromtimestamp((source / "metrics.json").stat().st_mtime).strftime("%Y-%m-%d")
-        return [run], when
-    with open(source, encoding="utf-8") as f:
-        data = json.load(f)
-    runs = data["runs"]
+    from flashnav.bench.runs import load_runs
+
+    runs = load_runs(source)
     if not runs or not all("curve" in r for r in runs):
         raise KeyError("curve")
-    return runs, data.get("date", "?")
+    if source.is_dir():
+        return runs, dt.datetime.fromtimestamp((source / "metrics.json").stat().st_mtime).strftime("%Y-%m-%d")
+    with open(source, encoding="utf-8") as f:
+        return runs, json.load(f).get("date", "?")
 
 
 def _save(path: str | None, when: str, groups, runs: list[dict]) -> None:

@@ -1,0 +1,129 @@
+"""``flashnav bench runs``: the table of finished training runs, environment steps first (issue 16, item 1).
+
+Reads ``flashnav train`` run folders (their ``metrics.json``) and ``flashnav bench train --json`` files,
+and prints one row per run - environment steps to 90 / 95 / 100 % on the fixed evaluation set, the best
+evaluation, the mean and the worst of the last evaluations (how steady the end of the run is), and where
+the training episodes reached 100 % - then one row per robot x algorithm with the paper-budget view: how
+many runs reached 100 % within the paper's environment-step budget. Nothing is re-run: the numbers are the
+runs' own records.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from flashnav.learn.hparams import paper_budget
+from flashnav.metrics import THRESHOLDS
+
+LAST = 10  # the last evaluations read for "steady at the end"
+
+
+def register_cli(bsub: argparse._SubParsersAction) -> None:
+    p = bsub.add_parser("runs", help="the table of finished runs (run folders and bench train --json files): "
+                                     "env steps to 90/95/100 %%, best, last evaluations, paper budget")
+    p.add_argument("sources", nargs="+", metavar="JSON_OR_RUN_DIR",
+                   help="a flashnav train run folder (its metrics.json) or a flashnav bench train --json file")
+    p.add_argument("--last", type=int, default=LAST, help="how many of the last evaluations the steadiness columns read")
+    p.add_argument("--json", metavar="FILE", help="also write the rows and the groups as JSON")
+    p.set_defaults(func=run_bench_runs)
+
+
+def load_runs(source: Path) -> list[dict]:
+    """The run records of a run folder (``label``: the folder's name) or a ``bench train --json`` file
+    (``source``: the file's stem), each with ``robot``, ``algorithm``, ``seed``, ``curve`` and the threshold
+    records; a ValueError names the source."""
+    try:
+        if source.is_dir():
+            m = json.loads((source / "metrics.json").read_text(encoding="utf-8"))
+            c = m["config"]
+            return [{**m, "label": source.name, "robot": c["robot"], "algorithm": c["algorithm"], "seed": c["seed"]}]
+        data = json.loads(source.read_text(encoding="utf-8"))
+        runs = data["runs"]
+        if not isinstance(runs, list):
+            raise TypeError("its runs are not a list")
+        return [{**r, "source": source.stem} for r in runs]
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
+        raise ValueError(f"{source}: not a flashnav train run folder with metrics.json or a flashnav bench train "
+                         f"--json file ({type(e).__name__}: {e})") from None
+
+
+def run_row(r: dict, last: int = LAST) -> dict:
+    """One run's row: env steps to each threshold (None: not reached), best, the mean and the minimum of
+    the last ``last`` evaluations, the env steps where the training episodes reached 100 %, env steps run."""
+    if last < 1:
+        raise ValueError(f"--last must be >= 1, got {last}")
+    label = r.get("label") or f"{r.get('source', '?')} seed {r['seed']}"
+    curve = r["curve"]
+    if not curve:
+        raise ValueError(f"{label}: no evaluations in its curve")
+    tail = [p["success_rate"] for p in curve[-last:]]
+    train = (r.get("training_episodes_to_threshold") or {}).get("env_steps", {})
+    return {"label": label, "robot": r["robot"], "algorithm": r["algorithm"], "seed": r["seed"],
+            **{f"to_{t}": r["env_steps_to_threshold"].get(str(t)) for t in THRESHOLDS},
+            "best": max(p["success_rate"] for p in curve), "last_mean": sum(tail) / len(tail), "last_min": min(tail),
+            "last_n": len(tail), "train_episodes_100": train.get(str(THRESHOLDS[-1])),
+            "env_steps": r.get("env_steps", curve[-1].get("env_steps"))}
+
+
+def group_rows(rows: list[dict]) -> list[dict]:
+    """Per robot x algorithm: runs, k reached and mean env steps per threshold, 100 % within the paper's
+    budget (k / runs; None where the paper has no recipe for the pair)."""
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault((row["robot"], row["algorithm"]), []).append(row)
+    out = []
+    for (robot, algo), rs in groups.items():
+        budget = paper_budget(algo, Path(robot).stem)
+        g = {"robot": robot, "algorithm": algo, "runs": len(rs), "budget": budget}
+        for t in THRESHOLDS:
+            hit = [x[f"to_{t}"] for x in rs if x[f"to_{t}"] is not None]
+            g[f"to_{t}"] = {"reached": len(hit), "mean": sum(hit) / len(hit) if hit else None}
+        top = f"to_{THRESHOLDS[-1]}"
+        g["within_budget"] = None if budget is None else sum(
+            1 for x in rs if x[top] is not None and x[top] <= budget)
+        g["best"] = [min(x["best"] for x in rs), max(x["best"] for x in rs)]
+        out.append(g)
+    return out
+
+
+def _steps(v) -> str:
+    return "-" if v is None else f"{v:,.0f}"
+
+
+def run_bench_runs(args) -> int:
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=200)
+    try:
+        records = [r for source in args.sources for r in load_runs(Path(source))]
+        rows = [run_row(r, args.last) for r in records]
+    except ValueError as e:
+        console.print(f"flashnav bench runs: {e}", markup=False)
+        return 2
+    groups = group_rows(rows)
+    t = Table(title="finished runs: environment steps to success on the fixed evaluation set")
+    for col in ("run", "robot", "algo", "seed", "to 90%", "to 95%", "to 100%", "best",
+                f"last {args.last}: mean (min)", "training episodes 100% at", "env steps run"):
+        t.add_column(col, justify="right")
+    for x in rows:
+        t.add_row(x["label"], x["robot"], x["algorithm"], str(x["seed"]), *(_steps(x[f"to_{th}"]) for th in THRESHOLDS),
+                  f"{x['best']:.2%}", f"{x['last_mean']:.1%} ({x['last_min']:.1%})", _steps(x["train_episodes_100"]),
+                  _steps(x["env_steps"]))
+    console.print(t)
+    g = Table(title="per robot x algorithm: mean env steps over the runs that reached each threshold (k/n)")
+    for col in ("robot", "algo", "runs", "90%", "95%", "100%", "100% within the paper's budget", "best"):
+        g.add_column(col, justify="right")
+    for x in groups:
+        cells = [f"{_steps(x[f'to_{th}']['mean'])} ({x[f'to_{th}']['reached']}/{x['runs']})" for th in THRESHOLDS]
+        budget = "-" if x["budget"] is None else f"{x['within_budget']}/{x['runs']} (<= {x['budget']:,})"
+        g.add_row(x["robot"], x["algorithm"], str(x["runs"]), *cells, budget, f"{x['best'][0]:.2%}-{x['best'][1]:.2%}")
+    console.print(g)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"runs": rows, "groups": groups}, indent=2), encoding="utf-8")
+        console.print(f"written: {args.json}", markup=False)
+    return 0

@@ -1,0 +1,70 @@
+"""``flashnav bench runs``: the finished-runs table (issue 16, item 1) is the runs' own records, read right."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from flashnav.bench.runs import group_rows, load_runs, run_row
+from flashnav.cli import main as cli_main
+
+
+def _metrics(seed: int, success: list[float], to100=None, train100=None, robot="turtlebot2") -> dict:
+    steps = [5120 * (i + 1) for i in range(len(success))]
+    return {"config": {"robot": robot, "algorithm": "fastdsac", "seed": seed},
+            "curve": [{"env_steps": s, "train_seconds": s / 1000, "success_rate": r} for s, r in zip(steps, success)],
+            "time_to_threshold": {"0.9": 1.0, "0.95": 2.0, "1.0": None if to100 is None else 3.0},
+            "env_steps_to_threshold": {"0.9": 10240, "0.95": 15360, "1.0": to100},
+            "training_episodes_to_threshold": {"env_steps": {"1.0": train100}}, "env_steps": steps[-1]}
+
+
+def _run(tmp_path, name: str, metrics: dict):
+    d = tmp_path / name
+    d.mkdir()
+    (d / "metrics.json").write_text(json.dumps(metrics))
+    return d
+
+
+def test_rows_read_thresholds_best_and_the_last_evaluations(tmp_path):
+    a = _run(tmp_path, "a", _metrics(0, [0.2, 0.9, 0.96, 1.0, 0.98, 0.99], to100=20480, train100=15360))
+    b = _run(tmp_path, "b", _metrics(1, [0.1, 0.92, 0.97, 0.99, 0.995], to100=None))
+    rows = [run_row(r, last=3) for d in (a, b) for r in load_runs(d)]
+    assert rows[0]["label"] == "a" and rows[0]["to_1.0"] == 20480 and rows[0]["best"] == 1.0
+    assert rows[0]["last_mean"] == pytest.approx((1.0 + 0.98 + 0.99) / 3) and rows[0]["last_min"] == 0.98
+    assert rows[0]["train_episodes_100"] == 15360 and rows[0]["env_steps"] == 30720
+    assert rows[1]["to_1.0"] is None and rows[1]["last_min"] == 0.97 and rows[1]["train_episodes_100"] is None
+    (g,) = group_rows(rows)
+    assert g["runs"] == 2 and g["budget"] == 200_704  # the paper's TurtleBot2 FastDSAC budget
+    assert g["to_1.0"] == {"reached": 1, "mean": 20480} and g["to_0.9"] == {"reached": 2, "mean": 10240}
+    assert g["within_budget"] == 1 and g["best"] == [0.995, 1.0]
+    late = run_row(load_runs(_run(tmp_path, "late", _metrics(2, [1.0], to100=250_000)))[0])
+    assert group_rows([late])[0]["within_budget"] == 0  # 100 % after the budget does not count
+
+
+def test_the_command_prints_both_tables_and_writes_json(tmp_path, capsys):
+    a = _run(tmp_path, "run-a", _metrics(0, [0.5, 1.0], to100=10240))
+    bench = tmp_path / "bench.json"
+    m = _metrics(3, [0.4, 0.93])
+    bench.write_text(json.dumps({"date": "2026-11-26", "runs": [{**m, "robot": "turtlebot2",
+                                                                  "algorithm": "fastdsac", "seed": 3}]}))
+    out = tmp_path / "t.json"
+    assert cli_main(["bench", "runs", str(a), str(bench), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "run-a" in text and "bench seed 3" in text and "1/2 (<= 200,704)" in text
+    data = json.loads(out.read_text())
+    assert [r["label"] for r in data["runs"]] == ["run-a", "bench seed 3"] and data["groups"][0]["runs"] == 2
+
+
+def test_bad_sources_and_options_are_named(tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli_main(["bench", "runs", str(empty)]) == 2
+    assert "empty: not a flashnav train run folder" in capsys.readouterr().out
+    sim = tmp_path / "sim.json"
+    sim.write_text(json.dumps({"rows": []}))
+    assert cli_main(["bench", "runs", str(sim)]) == 2
+    assert "sim.json: not a flashnav train run folder" in capsys.readouterr().out
+    a = _run(tmp_path, "a", _metrics(0, [1.0], to100=5120))
+    assert cli_main(["bench", "runs", str(a), "--last", "0"]) == 2
+    assert "--last must be >= 1" in capsys.readouterr().out
