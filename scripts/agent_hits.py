@@ -8,7 +8,9 @@ hits that no policy avoids without moving out of the way. Then, for each exporte
 ``--scenario`` played with its deterministic actions, and for each agent collision the bearing of the
 agent that hit, relative to the robot's heading at the moment of contact: behind the LiDAR's field of view,
 from the side (45-135 deg) or from the front (within 45 deg); and the forward speed it commands (mean over
-every step played, and the share of steps below 0.1 m/s: a hesitant robot stays longer among the agents).
+every step played, and the share of steps below 0.1 m/s: a hesitant robot stays longer among the agents);
+and the hitting agents' behaviours and how many of them turned (> 20 deg) in the second before the contact,
+beside how often any moving agent does in a second: are the hits the agents' turns?
 """
 
 from __future__ import annotations
@@ -21,10 +23,14 @@ import torch
 
 from flashnav.config import RobotPreset
 from flashnav.export import load_policy
-from flashnav.names import SCENARIOS
+from flashnav.names import AGENT_BEHAVIOURS, SCENARIOS
 from flashnav.scenarios import run_scenario, scenario_preset
 from flashnav.sim.env import make_env
 from flashnav.sim.motion import action_to_velocity
+
+
+TURN_STEPS = 10  # steps back over which an agent's turn before a contact is read (1 s at dt 0.1)
+TURNED = 20.0  # degrees: a heading change above this counts as a turn
 
 
 def stand_still(preset) -> torch.Tensor:
@@ -34,17 +40,32 @@ def stand_still(preset) -> torch.Tensor:
     return torch.tensor([[to_action(0.0, *m.v_bounds), to_action(0.0, *m.w_bounds)]])
 
 
-def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None = None) -> list[float]:
+def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None = None,
+                 hitters: list | None = None, base: dict | None = None) -> list[float]:
     """Degrees in [0, 180]: |bearing| of the hitting agent (the one nearest the footprint) per agent collision.
-    ``speeds``, if given, collects the forward speed (m/s) the policy commands at every step played."""
+    ``speeds``, if given, collects the forward speed (m/s) the policy commands at every step played;
+    ``hitters`` (kind, turn) per collision: the hitting agent's behaviour and how far its heading turned
+    (degrees) between the step ``TURN_STEPS`` before the contact and the contact's step (None: too early in
+    the episode, or the agent stood still in one of the two steps); ``base`` counts the same for every moving
+    agent of the running slots at every step (``known``, ``turned`` > ``TURNED``): how often agents turn at all."""
     env = make_env(preset, episodes, seed=seed)
     obs, _ = env.reset(seed=seed)
     active, out = torch.arange(episodes), []
+    past = [env.agents.pos.clone()]  # agent centres after each step (every slot), newest last
     for _ in range(preset.episode.horizon):
         action = policy(obs)
         if speeds is not None:
             speeds.extend(action_to_velocity(action, preset.motion)[0].tolist())
         t = env.step_slots(active, action)
+        past = (past + [env.agents.pos.clone()])[-(TURN_STEPS + 2):]
+        if base is not None and len(past) == TURN_STEPS + 2:  # every agent of the running slots, this step
+            now = past[-1][active] - past[-2][active]
+            before = past[-1 - TURN_STEPS][active] - past[-2 - TURN_STEPS][active]
+            moving = (now.norm(dim=-1) > 1e-6) & (before.norm(dim=-1) > 1e-6) & env.agents.active[active]
+            a = torch.atan2(now[..., 1], now[..., 0]) - torch.atan2(before[..., 1], before[..., 0])
+            turn = torch.rad2deg(torch.atan2(torch.sin(a), torch.cos(a)).abs())
+            base["known"] = base.get("known", 0) + int(moving.sum())
+            base["turned"] = base.get("turned", 0) + int((moving & (turn > TURNED)).sum())
         for i in active[t["collision_agent"]].tolist():
             d = env.agents.pos[i] - env.pose[i, :2]
             gap = torch.linalg.vector_norm(d, dim=1) - env.agents.radius[i]
@@ -52,11 +73,26 @@ def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None =
             j = int(gap.argmin())
             b = math.atan2(float(d[j, 1]), float(d[j, 0])) - float(env.pose[i, 2])
             out.append(abs(math.degrees(math.atan2(math.sin(b), math.cos(b)))))
+            if hitters is not None:
+                hitters.append((AGENT_BEHAVIOURS[int(env.agents.kind[i, j])], turn_degrees(past, i, j)))
         running = ~(t["terminated"] | t["truncated"])
         active, obs = active[running], t["obs"][running]
         if active.numel() == 0:
             break
     return out
+
+
+def turn_degrees(past: list, i: int, j: int) -> float | None:
+    """Heading change (degrees, [0, 180]) of agent ``j`` of slot ``i`` from its last-step displacement
+    ``TURN_STEPS`` steps ago to its last one, from ``past`` (agent centres [N, K, 2] after each step, newest
+    last); None without enough steps or where it did not move in one of the two."""
+    if len(past) < TURN_STEPS + 2:
+        return None
+    now, before = past[-1][i, j] - past[-2][i, j], past[-1 - TURN_STEPS][i, j] - past[-2 - TURN_STEPS][i, j]
+    if float(now.norm()) < 1e-6 or float(before.norm()) < 1e-6:
+        return None
+    a = math.atan2(float(now[1]), float(now[0])) - math.atan2(float(before[1]), float(before[0]))
+    return abs(math.degrees(math.atan2(math.sin(a), math.cos(a))))
 
 
 def main() -> None:
@@ -80,12 +116,20 @@ def main() -> None:
         preset = scenario_preset(robot, args.scenario)
         half_fov = preset.lidar.fov_deg / 2
         speeds: list[float] = []
-        b = np.array(hit_bearings(policy, preset, args.episodes, args.seed, speeds))
+        hitters: list = []
+        base: dict = {}
+        b = np.array(hit_bearings(policy, preset, args.episodes, args.seed, speeds, hitters, base))
         v = np.array(speeds)
         print(f"{path} on {args.scenario}: {b.size} agent collisions in {args.episodes} episodes; agent behind the "
               f"field of view (> {half_fov:g} deg) {(b > half_fov).sum()}, side (45-{half_fov:g} deg) "
               f"{((b > 45) & (b <= half_fov)).sum()}, front (<= 45 deg) {(b <= 45).sum()}; forward speed over "
               f"{v.size} steps: mean {v.mean():.3f} m/s, {np.mean(v < 0.1):.1%} of steps below 0.1 m/s")
+        print("  the hitting agents: " + "; ".join(
+            f"{kind} {sum(k == kind for k, _ in hitters)} (turned > {TURNED:g} deg in the last "
+            f"{TURN_STEPS * preset.episode.dt:g} s: {sum(k == kind and x is not None and x > TURNED for k, x in hitters)}, "
+            f"unknown {sum(k == kind and x is None for k, x in hitters)})"
+            for kind in AGENT_BEHAVIOURS if any(k == kind for k, _ in hitters))
+            + f"; every moving agent at every step: turned in {base.get('turned', 0) / max(base.get('known', 0), 1):.1%}")
 
 
 if __name__ == "__main__":
