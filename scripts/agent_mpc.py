@@ -130,9 +130,7 @@ def run_mpc(preset, episodes: int, seed: int, *, tracker: str = "lidar", progres
     if tracker not in TRACKERS:
         raise ValueError(f"tracker must be one of {', '.join(TRACKERS)}, got {tracker!r}")
     count = preset.agents.count
-    if tracker == "future" and count:  # non-reactive agents: their tracks do not depend on the robot
-        if preset.agents.reactive > 0:
-            raise ValueError(f"tracker future needs agents.reactive = 0, got {preset.agents.reactive}")
+    if tracker == "future" and count:  # non-reactive agents only: their tracks do not depend on the robot
         track, on = agent_tracks(preset, episodes, seed, stand_still(preset))  # [H + 1, E, K, ...]
     if count:  # the tracks the policy would see of every agent: the nearest agent_tracks = count
         preset = load_robot(preset, **{"observation.agent_tracks": count})

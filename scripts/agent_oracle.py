@@ -44,7 +44,11 @@ from flashnav.sim.oracle import grid_graph
 
 def agent_tracks(preset, episodes: int, seed: int, still: torch.Tensor):
     """Agent centres [H + 1, E, K, 2] and active flags [H + 1, E, K] after each step 0..H, every slot
-    stepped for the whole horizon with the robot standing at its start (no reset after an ending)."""
+    stepped for the whole horizon with the robot standing at its start (no reset after an ending).
+    Only non-reactive agents move the same whatever the robot does; reactive ones are refused by name."""
+    if preset.agents.reactive > 0:
+        raise ValueError(f"agents.reactive = {preset.agents.reactive}: reactive agents move with the robot, "
+                         "so their tracks cannot be recorded beforehand")
     env = make_env(preset, episodes, seed=seed)
     env.reset(seed=seed)
     idx = torch.arange(episodes)
@@ -151,9 +155,6 @@ def clairvoyant(preset, episodes: int, seed: int, *, beam: int = 3000, v_levels:
                 bin_m: float = 0.05, headings: int = 16, progress=None) -> tuple[dict, list]:
     """Search every episode of ``preset``'s scenario, then replay the plans in the simulator: (its rates,
     with ``plans_found``; the plans, [T, 2] actions or None per episode)."""
-    if preset.agents.reactive > 0:
-        raise ValueError(f"agents.reactive = {preset.agents.reactive}: reactive agents move with the robot, "
-                         "so their tracks cannot be recorded beforehand")
     still = stand_still(preset)
     grid = torch.cartesian_prod(torch.linspace(-1, 1, v_levels), torch.linspace(-1, 1, w_levels))
     pos, act = agent_tracks(preset, episodes, seed, still)
