@@ -18,7 +18,7 @@ from rich.console import Console
 from rich.table import Table
 
 from flashnav.learn.hparams import paper_budget
-from flashnav.metrics import THRESHOLDS
+from flashnav.metrics import THRESHOLDS, over_seeds, within_budget
 
 LAST = 10  # the last evaluations read for "steady at the end"
 
@@ -81,11 +81,10 @@ def group_rows(rows: list[dict]) -> list[dict]:
         budget = paper_budget(algo, Path(robot).stem)
         g = {"robot": robot, "algorithm": algo, "runs": len(rs), "budget": budget}
         for t in THRESHOLDS:
-            hit = [x[f"to_{t}"] for x in rs if x[f"to_{t}"] is not None]
-            g[f"to_{t}"] = {"reached": len(hit), "mean": sum(hit) / len(hit) if hit else None}
-        top = f"to_{THRESHOLDS[-1]}"
-        g["within_budget"] = None if budget is None else sum(
-            1 for x in rs if x[top] is not None and x[top] <= budget)
+            stats = over_seeds([x[f"to_{t}"] for x in rs], interval=False)
+            g[f"to_{t}"] = {"reached": stats.k, "mean": stats.mean}
+        top = [x[f"to_{THRESHOLDS[-1]}"] for x in rs]
+        g["within_budget"] = None if budget is None else within_budget(top, budget)
         g["best"] = [min(x["best"] for x in rs), max(x["best"] for x in rs)]
         out.append(g)
     return out
