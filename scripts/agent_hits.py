@@ -58,14 +58,12 @@ def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None =
             speeds.extend(action_to_velocity(action, preset.motion)[0].tolist())
         t = env.step_slots(active, action)
         past = (past + [env.agents.pos.clone()])[-(TURN_STEPS + 2):]
-        if base is not None and len(past) == TURN_STEPS + 2:  # every agent of the running slots, this step
-            now = past[-1][active] - past[-2][active]
-            before = past[-1 - TURN_STEPS][active] - past[-2 - TURN_STEPS][active]
-            moving = (now.norm(dim=-1) > 1e-6) & (before.norm(dim=-1) > 1e-6) & env.agents.active[active]
-            a = torch.atan2(now[..., 1], now[..., 0]) - torch.atan2(before[..., 1], before[..., 0])
-            turn = torch.rad2deg(torch.atan2(torch.sin(a), torch.cos(a)).abs())
+        turns = agent_turns(past) if hitters is not None or base is not None else None
+        if base is not None and turns is not None:  # every moving agent of the running slots, this step
+            turn, known = turns
+            moving = known[active] & env.agents.active[active]
             base["known"] = base.get("known", 0) + int(moving.sum())
-            base["turned"] = base.get("turned", 0) + int((moving & (turn > TURNED)).sum())
+            base["turned"] = base.get("turned", 0) + int((moving & (turn[active] > TURNED)).sum())
         for i in active[t["collision_agent"]].tolist():
             d = env.agents.pos[i] - env.pose[i, :2]
             gap = torch.linalg.vector_norm(d, dim=1) - env.agents.radius[i]
@@ -74,7 +72,7 @@ def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None =
             b = math.atan2(float(d[j, 1]), float(d[j, 0])) - float(env.pose[i, 2])
             out.append(abs(math.degrees(math.atan2(math.sin(b), math.cos(b)))))
             if hitters is not None:
-                hitters.append((AGENT_BEHAVIOURS[int(env.agents.kind[i, j])], turn_degrees(past, i, j)))
+                hitters.append((AGENT_BEHAVIOURS[int(env.agents.kind[i, j])], turn_at(turns, i, j)))
         running = ~(t["terminated"] | t["truncated"])
         active, obs = active[running], t["obs"][running]
         if active.numel() == 0:
@@ -82,17 +80,26 @@ def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None =
     return out
 
 
-def turn_degrees(past: list, i: int, j: int) -> float | None:
-    """Heading change (degrees, [0, 180]) of agent ``j`` of slot ``i`` from its last-step displacement
-    ``TURN_STEPS`` steps ago to its last one, from ``past`` (agent centres [N, K, 2] after each step, newest
-    last); None without enough steps or where it did not move in one of the two."""
+def agent_turns(past: list):
+    """Heading change (degrees, [0, 180]) of every agent [N, K] from its last-step displacement ``TURN_STEPS``
+    steps ago to its last one, from ``past`` (agent centres [N, K, 2] after each step, newest last), and
+    [N, K] whether it is known (it moved in both steps); None without enough steps."""
     if len(past) < TURN_STEPS + 2:
         return None
-    now, before = past[-1][i, j] - past[-2][i, j], past[-1 - TURN_STEPS][i, j] - past[-2 - TURN_STEPS][i, j]
-    if float(now.norm()) < 1e-6 or float(before.norm()) < 1e-6:
-        return None
-    a = math.atan2(float(now[1]), float(now[0])) - math.atan2(float(before[1]), float(before[0]))
-    return abs(math.degrees(math.atan2(math.sin(a), math.cos(a))))
+    now, before = past[-1] - past[-2], past[-1 - TURN_STEPS] - past[-2 - TURN_STEPS]
+    known = (now.norm(dim=-1) >= 1e-6) & (before.norm(dim=-1) >= 1e-6)
+    a = torch.atan2(now[..., 1], now[..., 0]) - torch.atan2(before[..., 1], before[..., 0])
+    return torch.rad2deg(torch.atan2(torch.sin(a), torch.cos(a)).abs()), known
+
+
+def turn_at(turns, i: int, j: int) -> float | None:
+    """Agent ``j`` of slot ``i`` in :func:`agent_turns`' result; None without enough steps or where it did not move."""
+    return None if turns is None or not turns[1][i, j] else float(turns[0][i, j])
+
+
+def turn_degrees(past: list, i: int, j: int) -> float | None:
+    """:func:`turn_at` of ``past`` (agent centres [N, K, 2] after each step, newest last)."""
+    return turn_at(agent_turns(past), i, j)
 
 
 def main() -> None:
