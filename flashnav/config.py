@@ -194,6 +194,8 @@ MAX_SCAN_HISTORY = 16
 MAX_AGENT_TRACKS = 16
 #: Columns of one agent track (:mod:`flashnav.sim.tracks`).
 TRACK_FEATURES = ("present", "x", "y", "vx", "vy", "radius")
+#: Largest ``observation.pose_trail``: each breadcrumb adds 2 columns (x, y in the robot frame).
+MAX_POSE_TRAIL = 32
 
 
 class Observation(Strict):
@@ -206,6 +208,12 @@ class Observation(Strict):
                               "as a people tracker on the robot reports them (present, x, y, vx, vy, radius in "
                               "the robot frame; flashnav.sim.tracks), appended last; 0 = none, the paper's "
                               "observation")
+    pose_trail: int = Field(0, ge=0, le=MAX_POSE_TRAIL, description="the robot's own earlier positions (x, y in "
+                            "the robot frame of the current pose; flashnav.sim.trail), one every trail_every "
+                            "control steps, newest first, appended after everything else: a memory of where it "
+                            "has been that odometry gives any robot; 0 = none, the paper's observation")
+    trail_every: int = Field(10, ge=1, le=1000, description="control steps between two breadcrumbs of the pose "
+                             "trail (the trail covers pose_trail * trail_every steps)")
 
 
 class RobotPreset(Strict):
@@ -242,10 +250,16 @@ class RobotPreset(Strict):
         return self.base_obs_dim + self.observation.scan_history * self.lidar.sectors
 
     @property
+    def tracks_end(self) -> int:
+        """End column of the agent tracks: where the pose trail starts."""
+        return self.history_end + self.observation.agent_tracks * len(TRACK_FEATURES)
+
+    @property
     def obs_dim(self) -> int:
         """The paper's observation, then ``observation.scan_history`` previous frames of ``sectors`` each,
-        then ``observation.agent_tracks`` tracks of ``len(TRACK_FEATURES)`` columns each."""
-        return self.history_end + self.observation.agent_tracks * len(TRACK_FEATURES)
+        then ``observation.agent_tracks`` tracks of ``len(TRACK_FEATURES)`` columns each, then
+        ``observation.pose_trail`` breadcrumbs of 2 columns each."""
+        return self.tracks_end + 2 * self.observation.pose_trail
 
 
 class DuplicateKeyError(yaml.YAMLError):

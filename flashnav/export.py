@@ -30,6 +30,7 @@ from flashnav.config import TRACK_FEATURES, RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, parse_metadata as _parse_metadata  # noqa: F401
 from flashnav.sim.tracks import track_bounds
+from flashnav.sim.trail import trail_bound
 
 #: ONNX opset: well inside what onnxruntime >= 1.18 implements, and every op used here exists in it.
 ONNX_OPSET = 17
@@ -127,6 +128,13 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                                       "edge; absent tracks are all zero",
                              "velocity": "displacement over the last control step / control_period_s; 0 for an "
                                          "agent not seen at the previous step"},
+            # always written (0 = none): the robot's own earlier positions from odometry (flashnav.sim.trail)
+            "pose_trail": {"count": preset.observation.pose_trail, "every": preset.observation.trail_every,
+                           "columns": [preset.tracks_end, preset.obs_dim], "features": ["x", "y"], "units": "m",
+                           "frame": "robot frame of the current pose: x ahead, y to the left",
+                           "order": "breadcrumb j (0-based) newest first; a breadcrumb is the position after "
+                                    "every 'every'-th control step of the episode",
+                           "reset": "a new episode (goal) sets every breadcrumb to the start position"},
         },
         "command_bounds": {"v": list(m.v_bounds), "w": list(m.w_bounds),
                            "max_linear_velocity": m.max_linear_velocity,
@@ -230,7 +238,9 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
     w = m.w_bounds[0] + (m.w_bounds[1] - m.w_bounds[0]) * u(n, 1)
     velocity = [v, w] if m.velocity_state_dims == 2 else [v, torch.zeros_like(v), w]
     history = [_readings(n, s, r_in, r_max, u) for _ in range(preset.observation.scan_history)]
-    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u)], dim=1)
+    bound = trail_bound(preset)
+    trail = bound * (2.0 * u(n, 2 * preset.observation.pose_trail) - 1.0)
+    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u), trail], dim=1)
 
 
 def _tracks(preset: RobotPreset, n: int, u) -> torch.Tensor:

@@ -116,6 +116,8 @@ def _layout_keys(robot) -> dict[str, Any]:
         "robot.motion.w_bounds (velocity scale)": max(abs(b) for b in robot.motion.w_bounds),
         "robot.observation.scan_history": robot.observation.scan_history,
         "robot.observation.agent_tracks": robot.observation.agent_tracks,
+        "robot.observation.pose_trail": robot.observation.pose_trail,
+        "robot.observation.trail_every (trail scale)": robot.observation.trail_every,
     }
 
 

@@ -58,6 +58,22 @@ def agent_track_count(meta: dict[str, Any], path: str | Path = "<policy>") -> in
     return _recorded_count(meta, "agent_tracks", "count", path)
 
 
+def pose_trail_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, int]:
+    """``(count, every)`` of the policy's pose trail (``observation.pose_trail`` breadcrumbs, one every
+    ``observation.trail_every`` control steps, :mod:`flashnav.sim.trail`): the metadata's
+    ``observation.pose_trail``, else the exported preset's, else ``(0, 1)`` (files written before the
+    trail existed).
+
+    Raises ValueError naming ``path`` when a recorded value is not an integer (count >= 0, every >= 1)."""
+    count = _recorded_count(meta, "pose_trail", "count", path)
+    every = ((meta.get("observation") or {}).get("pose_trail") or {}).get("every")
+    if every is None:
+        every = ((meta.get("preset") or {}).get("observation") or {}).get("trail_every", 1)
+    if not isinstance(every, int) or isinstance(every, bool) or every < 1:
+        raise ValueError(f"{path}: the policy's metadata records trail_every {every!r}; expected an integer >= 1")
+    return count, every
+
+
 def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | Path) -> int:
     """``observation.<option>.<field>`` of the metadata, else the preset block's ``observation.<option>``,
     else 0; a ValueError naming ``path`` unless it is an integer >= 0."""

@@ -26,6 +26,11 @@ the people a tracker reports (:meth:`Controller.on_people`: rows of (x, y, vx, v
 odometry's fixed frame, an empty list for nobody); each control step turns them into the robot frame
 of the current pose. For such a policy the people input is one more input that must be fresh: a
 tracker that falls silent for ``timeout`` stops the robot like a silent scanner does.
+A policy with a pose trail (``observation.pose_trail`` P > 0, :mod:`flashnav.sim.trail`) gets the robot's
+own earlier positions from the odometry pose: every breadcrumb is the goal's first control step's pose at
+first, and after every ``trail_every``-th control step since the goal that step's pose becomes the newest
+(as the simulator's episode steps). Only a new goal restarts the trail: a stop (stale) does not change
+where the robot has been.
 Times are seconds on one clock (ROS time: wall or simulated).
 """
 
@@ -73,6 +78,8 @@ class Controller:
         self.last_action: list[float] | None = None
         self.last_obs: np.ndarray | None = None  # the observation of the last control step
         self.frames: list[np.ndarray] = []  # sectors of the previous control steps, newest first
+        self.crumbs: list[tuple[float, float]] = []  # the pose trail, newest first (empty: a new goal)
+        self.goal_steps = 0  # control steps since the goal (the pose trail's clock)
         self.steps = 0
 
     # ---- inputs ---------------------------------------------------------------------------------
@@ -83,7 +90,7 @@ class Controller:
         if self.state == "stopped":
             return
         self.goal, self.velocity, self.last_step_stamp = (float(x), float(y)), (0.0, 0.0), -math.inf
-        self.state, self.frames = "driving", []
+        self.state, self.frames, self.crumbs, self.goal_steps = "driving", [], [], 0
 
     def on_odom(self, x: float, y: float, yaw: float, now: float) -> None:
         self.pose, self.odom_time = (float(x), float(y), float(yaw)), float(now)
@@ -109,8 +116,9 @@ class Controller:
         if self._stale(now):
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
-        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity, self._history(sectors), self._tracks())
-        self.last_step_stamp, self.steps = float(stamp), self.steps + 1
+        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity, self._history(sectors), self._tracks(),
+                           self._trail())
+        self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1
         self.distance, self.last_obs = d.distance, d.obs
         self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
         if d.state == "reached":
@@ -158,6 +166,20 @@ class Controller:
         past = self.frames or [sectors] * k
         self.frames = [sectors, *past[:-1]]
         return np.stack(past)
+
+    def _trail(self) -> np.ndarray | None:
+        """The breadcrumbs [P, 2] (odometry frame, newest first) for this control step (None without a
+        pose trail): the current pose repeated at the goal's first step, then the pose of every
+        ``trail_every``-th step since the goal pushed in front."""
+        p = self.rt.pose_trail
+        if not p:
+            return None
+        here = (self.pose[0], self.pose[1])
+        if not self.crumbs:
+            self.crumbs = [here] * p
+        elif self.goal_steps % self.rt.trail_every == 0:
+            self.crumbs = [here, *self.crumbs[:-1]]
+        return np.asarray(self.crumbs, np.float64)
 
     def status(self, now: float) -> dict:
         """What the node publishes on its status topic (JSON)."""

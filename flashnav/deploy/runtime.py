@@ -13,7 +13,11 @@ executed in the last control step (``(v, w)``; ``(vx, 0, w)`` for a 3-D velocity
 a policy trained with ``observation.scan_history`` k > 0, the sectors of the k previous control steps
 (newest first; ``history`` [k, S], kept by :class:`flashnav.deploy.controller.Controller`), then, for a
 policy trained with ``observation.agent_tracks`` M > 0, the M nearest people a tracker reports
-(``tracks``: rows of (x, y, vx, vy, radius) in the robot frame, m and m/s; :func:`track_columns`).
+(``tracks``: rows of (x, y, vx, vy, radius) in the robot frame, m and m/s; :func:`track_columns`), then,
+for a policy trained with ``observation.pose_trail`` P > 0, the robot's own P earlier positions
+(``trail`` [P, 2], x and y in the same fixed frame as the pose, newest first, one every ``trail_every``
+control steps; kept by the controller; :mod:`flashnav.sim.trail`), which the runtime turns into the
+robot frame.
 The network holds its own input scaling, so the runtime passes physical units. Inside the goal radius
 the runtime commands (0, 0) without running the network.
 """
@@ -28,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
-from flashnav.policy_meta import METADATA_KEY, agent_track_count, parse_metadata, scan_history_frames
+from flashnav.policy_meta import METADATA_KEY, agent_track_count, parse_metadata, pose_trail_shape, scan_history_frames
 
 #: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
 TRACK_WIDTH = 6
@@ -86,12 +90,14 @@ class PolicyRuntime:
         if not self.goal_threshold > 0 or not self.control_period > 0:
             raise ValueError(f"{path}: the policy's metadata lacks goal_threshold / control_period_s")
         self.scan_history = scan_history_frames(meta, path)  # k previous frames after the paper's layout
-        self.agent_tracks = agent_track_count(meta, path)  # M people of a tracker, last
+        self.agent_tracks = agent_track_count(meta, path)  # M people of a tracker
+        self.pose_trail, self.trail_every = pose_trail_shape(meta, path)  # P breadcrumbs, last
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
-                              - TRACK_WIDTH * self.agent_tracks)
+                              - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail)
         if self.velocity_dims not in (2, 3):
             raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + "
-                             f"velocity + {self.scan_history} history frames + {self.agent_tracks} agent tracks")
+                             f"velocity + {self.scan_history} history frames + {self.agent_tracks} agent tracks + "
+                             f"{self.pose_trail} pose-trail breadcrumbs")
         bounds = meta.get("command_bounds") or {}
         self.v_limit = float(bounds.get("max_linear_velocity", math.inf))
         self.w_limit = float(bounds.get("max_angular_velocity", math.inf))
@@ -133,12 +139,14 @@ class PolicyRuntime:
         dx, dy = float(goal[0]) - float(pose[0]), float(goal[1]) - float(pose[1])
         return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - float(pose[2]))
 
-    def observation(self, sectors, pose, goal, velocity, history=None, tracks=None) -> np.ndarray:
+    def observation(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None) -> np.ndarray:
         """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed,
         then ``history`` [k, S] m (the sectors of the k previous control steps, newest first; None
         when the policy has no scan history), then the policy's M agent tracks from ``tracks`` (the
         people a tracker reports, rows of (x, y, vx, vy, radius) in the robot frame; an empty list when
-        it reports nobody; None when the policy has no tracks)."""
+        it reports nobody; None when the policy has no tracks), then ``trail`` [P, 2] (the robot's
+        earlier positions in the pose's frame, newest first; None when the policy has no pose trail)
+        in the robot frame of ``pose``."""
         sectors = np.asarray(sectors, np.float32).reshape(-1)
         if sectors.size != self.layout.sectors:
             raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
@@ -160,6 +168,13 @@ class PolicyRuntime:
                                  + ("pass the people the tracker reports (an empty list for nobody)" if tracks is None
                                     else "it takes no tracks, got some"))
             parts.append(track_columns(tracks, self.agent_tracks))
+        if trail is not None or self.pose_trail:
+            crumbs = np.asarray(trail, np.float64) if trail is not None else None
+            if crumbs is None or crumbs.shape != (self.pose_trail, 2) or not np.isfinite(crumbs).all():
+                got = None if crumbs is None else (list(crumbs.shape) if np.isfinite(crumbs).all() else "not finite")
+                raise ValueError(f"trail must be [{self.pose_trail}, 2] finite (x, y) positions (the policy's "
+                                 f"observation.pose_trail breadcrumbs, newest first), got {got}")
+            parts.append(trail_columns(crumbs, pose))
         return np.concatenate(parts)
 
     # ---- the command ----------------------------------------------------------------------------
@@ -174,10 +189,10 @@ class PolicyRuntime:
         w = min(max(float(command[0, 1]), -self.w_limit), self.w_limit)
         return action[0], v, w
 
-    def decide(self, sectors, pose, goal, velocity, history=None, tracks=None) -> Decision:
-        """One control step: stop inside the goal radius, else the policy's command (``history`` and
-        ``tracks`` as in :meth:`observation`)."""
-        obs = self.observation(sectors, pose, goal, velocity, history, tracks)
+    def decide(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None) -> Decision:
+        """One control step: stop inside the goal radius, else the policy's command (``history``,
+        ``tracks`` and ``trail`` as in :meth:`observation`)."""
+        obs = self.observation(sectors, pose, goal, velocity, history, tracks, trail)
         dist, angle = float(obs[self.layout.sectors]), float(obs[self.layout.sectors + 1])
         if dist < self.goal_threshold:
             return Decision("reached", 0.0, 0.0, dist, angle, None, obs)
@@ -202,3 +217,11 @@ def track_columns(tracks, count: int) -> np.ndarray:
     out[: len(order), 0] = 1.0
     out[: len(order), 1:] = rows[order]
     return out.reshape(-1)
+
+
+def trail_columns(crumbs: np.ndarray, pose) -> np.ndarray:
+    """[2 P] float32: breadcrumbs ``crumbs`` [P, 2] (x, y in the pose's fixed frame) in the robot frame of
+    ``pose`` (x, y, yaw): x ahead, y to the left, as :func:`flashnav.sim.trail.to_robot_frame`."""
+    dx, dy = crumbs[:, 0] - float(pose[0]), crumbs[:, 1] - float(pose[1])
+    c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
+    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1).astype(np.float32).reshape(-1)

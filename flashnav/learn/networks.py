@@ -5,7 +5,8 @@ columns ``0..S-1`` pooled LiDAR sector minima (metres, ``(0, max_range]``), ``S`
 (metres), ``S+1`` goal angle in the robot frame (radians, ``[-pi, pi)``), then the velocity state
 (``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5); with a scan history of k frames
 (:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans newest first;
-with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns end it (present, x, y, vx, vy, radius each).
+with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns follow (present, x, y, vx, vy, radius each);
+with a pose trail of P breadcrumbs (:mod:`flashnav.sim.trail`) 2 P columns end it (x, y each, metres).
 Actions are ``[N, A]`` in ``[-1, 1]``.
 
 Every network owns its input transform: LiDAR readings become ``1 / (l - beta)`` with a trainable
@@ -25,6 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from flashnav.sim.tracks import track_scales
+from flashnav.sim.trail import trail_bound
 
 #: Floor on ``r_in - beta`` (metres). softplus(rho) underflows to exactly 0 in float32 for rho below
 #: about -104, which would put beta on the inscribed radius and the feature at infinity; the margin
@@ -48,8 +50,10 @@ class ObsLayout:
     ``goal_scale``: ``(distance, angle)`` divisors, metres and radians (a float = distance, angle pi).
     ``velocity_scales``: one divisor per velocity column (m/s or rad/s), e.g. ``(0.5, pi/4)``.
     ``scan_history``: previous pooled scans k after those columns (k * S more LiDAR columns; 0 = none).
-    ``agent_tracks``: tracked agents M after everything else (M * len(track_scales) columns; 0 = none).
+    ``agent_tracks``: tracked agents M after the history (M * len(track_scales) columns; 0 = none).
     ``track_scales``: the divisors of one track's columns (:func:`flashnav.sim.tracks.track_scales`).
+    ``pose_trail``: breadcrumbs P after the tracks (2 P columns, x and y; 0 = none).
+    ``trail_scale``: the divisor of every breadcrumb column, metres (:func:`flashnav.sim.trail.trail_bound`).
     """
 
     sectors: int
@@ -60,6 +64,8 @@ class ObsLayout:
     scan_history: int = 0
     agent_tracks: int = 0
     track_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    pose_trail: int = 0
+    trail_scale: float = 1.0
 
     def __post_init__(self) -> None:
         goal = self.goal_scale
@@ -74,12 +80,15 @@ class ObsLayout:
                              f"{self.inscribed_radius} and {self.max_range}")
         if BETA_INIT >= self.inscribed_radius - BETA_MARGIN:
             raise ValueError(f"inscribed_radius {self.inscribed_radius} m is too small for beta init {BETA_INIT}")
-        if min(self.goal_scale) <= 0 or any(v <= 0 for v in (*self.velocity_scales, *self.track_scales)):
+        if min(self.goal_scale) <= 0 or any(v <= 0 for v in (*self.velocity_scales, *self.track_scales,
+                                                              self.trail_scale)):
             raise ValueError("ObsLayout scales must all be > 0")
         if not isinstance(self.scan_history, int) or self.scan_history < 0:
             raise ValueError(f"ObsLayout.scan_history must be an integer >= 0, got {self.scan_history!r}")
         if not isinstance(self.agent_tracks, int) or self.agent_tracks < 0:
             raise ValueError(f"ObsLayout.agent_tracks must be an integer >= 0, got {self.agent_tracks!r}")
+        if not isinstance(self.pose_trail, int) or self.pose_trail < 0:
+            raise ValueError(f"ObsLayout.pose_trail must be an integer >= 0, got {self.pose_trail!r}")
 
     @property
     def base_dim(self) -> int:
@@ -93,13 +102,14 @@ class ObsLayout:
 
     @property
     def obs_dim(self) -> int:
-        """D = B + scan_history * sectors + agent_tracks * len(track_scales)."""
-        return self.history_end + self.agent_tracks * len(self.track_scales)
+        """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail."""
+        return self.history_end + self.agent_tracks * len(self.track_scales) + 2 * self.pose_trail
 
     def feature_scales(self) -> torch.Tensor:
-        """Divisors for the scaled columns: goal distance, angle, velocities, then the agent tracks'."""
-        return torch.tensor((*self.goal_scale, *self.velocity_scales, *self.track_scales * self.agent_tracks),
-                            dtype=torch.float32)
+        """Divisors for the scaled columns: goal distance, angle, velocities, then the agent tracks' and
+        the pose trail's."""
+        return torch.tensor((*self.goal_scale, *self.velocity_scales, *self.track_scales * self.agent_tracks,
+                             *(self.trail_scale,) * (2 * self.pose_trail)), dtype=torch.float32)
 
     @classmethod
     def from_robot(cls, preset, goal_distance_max: float) -> "ObsLayout":
@@ -116,7 +126,8 @@ class ObsLayout:
         return cls(sectors=preset.lidar.sectors, inscribed_radius=preset.footprint.inscribed_radius,
                    max_range=preset.lidar.max_range, goal_scale=(float(goal_distance_max), math.pi),
                    velocity_scales=velocity, scan_history=preset.observation.scan_history,
-                   agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset))
+                   agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset),
+                   pose_trail=preset.observation.pose_trail, trail_scale=trail_bound(preset))
 
 
 class IPAPRec(nn.Module):
@@ -131,7 +142,8 @@ class IPAPRec(nn.Module):
     History frames (columns from ``layout.base_dim`` on) get the same ``1 / (l - beta)`` with the same
     beta: one reading means the same distance whenever it was taken, and sharing keeps one parameter
     per transform; agent tracks (the last columns) are divided by their bounds like the goal and
-    velocity columns. The output keeps the input's column order.
+    velocity columns, and so are the pose trail's breadcrumbs after them. The output keeps the input's
+    column order.
     """
 
     def __init__(self, layout: ObsLayout, copies: int = 0, normalize: bool = False):
@@ -143,7 +155,7 @@ class IPAPRec(nn.Module):
         self.base_dim, self.history_end = layout.base_dim, layout.history_end
         # Python bools: tracing records one path
         self.history = layout.history_end > layout.base_dim
-        self.tracks = layout.obs_dim > layout.history_end
+        self.tracks = layout.obs_dim > layout.history_end  # agent tracks and / or the pose trail
         self.scaled_base = layout.base_dim - layout.sectors  # goal and velocity columns
         # softplus(rho0) = r_in - margin - BETA_INIT puts beta at BETA_INIT
         gap = self.r_in - BETA_MARGIN - BETA_INIT

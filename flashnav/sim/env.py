@@ -21,6 +21,9 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     then, only with ``observation.agent_tracks`` M > 0, the M nearest agents the robot sees as a people
     tracker reports them (present, x, y, vx, vy, radius in the robot frame; :mod:`flashnav.sim.tracks`);
     obs_dim += 6 M
+    then, only with ``observation.pose_trail`` M > 0, the robot's own earlier positions, one every
+    ``observation.trail_every`` steps, newest first (x, y in the robot frame; :mod:`flashnav.sim.trail`;
+    a new episode starts with its start position repeated); obs_dim += 2 M
 
 Rewards and flags (:mod:`flashnav.sim.reward`): goal reached (distance < goal_threshold) -> +goal,
 terminated; else collision -> collision, terminated (the goal is checked first, as the paper lists it);
@@ -69,6 +72,7 @@ from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.reward import Shaping, outcome
 from flashnav.sim.sampling import EpisodeSampler, MapSetSampler
 from flashnav.sim.tracks import AgentTracks
+from flashnav.sim.trail import PoseTrail
 
 
 class NavVecEnv(VectorEnv):
@@ -116,6 +120,8 @@ class NavVecEnv(VectorEnv):
         # observation.agent_tracks M = 0: no tracks at all, the step is exactly the paper's
         self.tracks = (AgentTracks(preset, n, self.beam_angles, self.device)
                        if preset.observation.agent_tracks else None)
+        m = preset.observation.pose_trail  # M = 0: no trail at all, the step is exactly the paper's
+        self.trail = PoseTrail(n, m, preset.observation.trail_every, self.device) if m else None
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
@@ -188,15 +194,18 @@ class NavVecEnv(VectorEnv):
         return None if len(self.maps) == 1 else self.map_index[sel]
 
     def _observe(self, sel, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, velocity: torch.Tensor,
-                 start: bool) -> torch.Tensor:
+                 start: bool, steps: torch.Tensor | None = None) -> torch.Tensor:
         """Observations [k, obs_dim] of slots ``sel`` from ranges [k, beams] and their state: the paper's,
         then the opt-in extras - the scan history (a new episode, ``start``, fills it; a step gives the
-        frames before it, then this scan joins them) and the agents seen, as a tracker reports them."""
+        frames before it, then this scan joins them), the agents seen, as a tracker reports them, and the
+        pose trail (``steps`` [k]: the slots' episode steps after this step; not needed at a start)."""
         obs = observe(self.preset, ranges, pose, goal, velocity, self._gen)
         if self.history is not None:
             obs = (self.history.start if start else self.history.push)(sel, obs)
         if self.tracks is not None:
             obs = torch.cat([obs, self.tracks.observe(sel, self.agents, pose, ranges, fresh=start)], dim=1)
+        if self.trail is not None:
+            obs = torch.cat([obs, self.trail.start(sel, pose) if start else self.trail.push(sel, pose, steps)], dim=1)
         return obs
 
     # ---- episode control --------------------------------------------------------------------------
@@ -355,7 +364,7 @@ class NavVecEnv(VectorEnv):
             shaping = shaping - p.reward.agent_proximity * near
         out = outcome(p, dist, static, agent, steps, shaping)
         episode_return = self.episode_return[sel] + out["reward"]
-        obs = self._observe(sel, ranges, pose, goal, velocity, start=False)
+        obs = self._observe(sel, ranges, pose, goal, velocity, start=False, steps=steps)
 
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs

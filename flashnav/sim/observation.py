@@ -12,6 +12,7 @@ import torch
 from flashnav.config import RobotPreset
 from flashnav.sim.motion import wrap_angle
 from flashnav.sim.tracks import track_bounds
+from flashnav.sim.trail import trail_bound
 
 
 def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
@@ -23,7 +24,8 @@ def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
 
 def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) [obs_dim] float32 of the observation space; history frames repeat the LiDAR bounds,
-    agent tracks :func:`flashnav.sim.tracks.track_bounds`."""
+    agent tracks :func:`flashnav.sim.tracks.track_bounds`, pose-trail breadcrumbs
+    +-:func:`flashnav.sim.trail.trail_bound`."""
     s = preset.lidar.sectors
     (v_lo, v_hi), (w_lo, w_hi) = preset.motion.v_bounds, preset.motion.w_bounds
     vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if preset.motion.velocity_state_dims == 2 else (
@@ -32,8 +34,9 @@ def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[n
     high = np.array([preset.lidar.max_range] * s + [goal_distance_max, math.pi] + vel_hi, dtype=np.float32)
     k, m = preset.observation.scan_history, preset.observation.agent_tracks
     t_lo, t_hi = track_bounds(preset)
-    return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m)]),
-            np.concatenate([high, np.tile(high[:s], k), np.tile(np.array(t_hi, np.float32), m)]))
+    trail = np.full(2 * preset.observation.pose_trail, trail_bound(preset), dtype=np.float32)
+    return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m), -trail]),
+            np.concatenate([high, np.tile(high[:s], k), np.tile(np.array(t_hi, np.float32), m), trail]))
 
 
 def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator) -> torch.Tensor:
