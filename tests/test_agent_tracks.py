@@ -295,6 +295,7 @@ def test_the_deploy_controller_rebuilds_the_envs_observations_from_a_trackers_pe
     over episodes with resets."""
     from flashnav.deploy.controller import Controller
     from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.deploy.scan import simulator_scan_fields
     from flashnav.sim.tracks import TrackerView, seen_world_rows
 
     _, paths = exported_t
@@ -302,10 +303,7 @@ def test_the_deploy_controller_rebuilds_the_envs_observations_from_a_trackers_pe
     env = make_env(tb2t, 1, seed=8)
     env.reset(seed=8)
     view, state = TrackerView(tb2t, env.beam_angles), None
-    lidar = tb2t.lidar
-    fov = math.radians(lidar.fov_deg)
-    scan = dict(angle_min=float(np.float32(-fov / 2 + fov / lidar.beams / 2)),
-                angle_increment=float(np.float32(fov / lidar.beams)), range_min=0.0, range_max=lidar.max_range)
+    scan = simulator_scan_fields(tb2t.lidar)
     t, dt, episodes, people_seen = 0.0, tb2t.episode.dt, 1, 0
     ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
     for _ in range(120):

@@ -6,7 +6,6 @@ scans over an episode with resets, and eval / render / eval --scenario build the
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
@@ -16,6 +15,7 @@ from test_export import observations, random_actor, run_cli
 from flashnav.cli import main as cli_main
 from flashnav.deploy.controller import Controller
 from flashnav.deploy.runtime import PolicyRuntime
+from flashnav.deploy.scan import simulator_scan_fields
 from flashnav.export import DeployablePolicy, export_policy, load_policy, policy_metadata
 from flashnav.policy_meta import scan_history_frames
 from flashnav.presets import load_robot
@@ -87,10 +87,7 @@ def test_the_deploy_controller_rebuilds_the_envs_observations(tb2k, exported_k):
     assert ctl.rt.scan_history == K
     env = make_env(tb2k, 1, seed=8)
     env.reset(seed=8)
-    lidar = tb2k.lidar
-    fov = math.radians(lidar.fov_deg)
-    scan = dict(angle_min=float(np.float32(-fov / 2 + fov / lidar.beams / 2)),
-                angle_increment=float(np.float32(fov / lidar.beams)), range_min=0.0, range_max=lidar.max_range)
+    scan = simulator_scan_fields(tb2k.lidar)
     t, dt, episodes, checked = 0.0, tb2k.episode.dt, 1, 0
     ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
     for step in range(120):

@@ -201,15 +201,13 @@ def test_the_deploy_controller_rebuilds_the_envs_trail_from_odometry(trail_polic
     episode): every control step's observation equals the env's, breadcrumbs included."""
     from flashnav.deploy.controller import Controller
     from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.deploy.scan import simulator_scan_fields
 
     preset, paths = trail_policy
     ctl = Controller(PolicyRuntime.load(paths["onnx"]), timeout=1.0)
     env = make_env(preset, 1, seed=4)
     env.reset(seed=4)
-    lidar = preset.lidar
-    fov = math.radians(lidar.fov_deg)
-    scan = dict(angle_min=float(np.float32(-fov / 2 + fov / lidar.beams / 2)),
-                angle_increment=float(np.float32(fov / lidar.beams)), range_min=0.0, range_max=lidar.max_range)
+    scan = simulator_scan_fields(preset.lidar)
     t, dt, episodes, moved = 0.0, preset.episode.dt, 1, 0
     ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
     for _ in range(150):

@@ -30,6 +30,16 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def simulator_scan_fields(lidar) -> dict[str, float]:
+    """The ``sensor_msgs/LaserScan`` fields (``angle_min``, ``angle_increment``, ``range_min``,
+    ``range_max``) of the simulator's raw scan for a preset's ``lidar`` block: beams at bin centres from
+    -fov/2 counter-clockwise (:func:`flashnav.sim.observation.beam_angles`), 0 to ``max_range`` metres;
+    the angles rounded to float32 as the message carries them."""
+    fov, n = math.radians(lidar.fov_deg), lidar.beams
+    return {"angle_min": float(np.float32(-0.5 * fov + 0.5 * fov / n)), "angle_increment": float(np.float32(fov / n)),
+            "range_min": 0.0, "range_max": float(lidar.max_range)}
+
+
 @dataclass(frozen=True)
 class Mount:
     """Where the LiDAR sits on the robot: ``x, y`` metres in the base frame (x forward, y left) and

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from flashnav.deploy.ros1 import import_rospy
+from flashnav.deploy.scan import simulator_scan_fields
 
 
 def episodes_of(robot, map_, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -126,14 +127,12 @@ class SimRobot:
             self.scan_off_wall, self.scan_off_t = time.monotonic(), self.t
         if self.scan_on:
             self.last_scan_wall = time.monotonic()
-            lidar = self.preset.lidar
-            fov, n = math.radians(lidar.fov_deg), lidar.beams
+            fields = simulator_scan_fields(self.preset.lidar)
             scan = self.msgs["LaserScan"]()
             scan.header.stamp, scan.header.frame_id = stamp, "laser"
-            scan.angle_increment = fov / n
-            scan.angle_min = -0.5 * fov + 0.5 * fov / n
-            scan.angle_max = scan.angle_min + (n - 1) * scan.angle_increment
-            scan.scan_time, scan.range_min, scan.range_max = self.dt, 0.0, lidar.max_range
+            scan.angle_increment, scan.angle_min = fields["angle_increment"], fields["angle_min"]
+            scan.angle_max = scan.angle_min + (self.preset.lidar.beams - 1) * scan.angle_increment
+            scan.scan_time, scan.range_min, scan.range_max = self.dt, fields["range_min"], fields["range_max"]
             scan.ranges = self.env.scan()[0].tolist()
             self.scan_pub.publish(scan)
         return stamp.to_sec()
