@@ -21,9 +21,9 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     then, only with ``observation.agent_tracks`` M > 0, the M nearest agents the robot sees as a people
     tracker reports them (present, x, y, vx, vy, radius in the robot frame; :mod:`flashnav.sim.tracks`);
     obs_dim += 6 M
-    then, only with ``observation.pose_trail`` M > 0, the robot's own earlier positions, one every
+    then, only with ``observation.pose_trail`` P > 0, the robot's own earlier positions, one every
     ``observation.trail_every`` steps, newest first (x, y in the robot frame; :mod:`flashnav.sim.trail`;
-    a new episode starts with its start position repeated); obs_dim += 2 M
+    a new episode starts with its start position repeated); obs_dim += 2 P
 
 Rewards and flags (:mod:`flashnav.sim.reward`): goal reached (distance < goal_threshold) -> +goal,
 terminated; else collision -> collision, terminated (the goal is checked first, as the paper lists it);
@@ -120,8 +120,8 @@ class NavVecEnv(VectorEnv):
         # observation.agent_tracks M = 0: no tracks at all, the step is exactly the paper's
         self.tracks = (AgentTracks(preset, n, self.beam_angles, self.device)
                        if preset.observation.agent_tracks else None)
-        m = preset.observation.pose_trail  # M = 0: no trail at all, the step is exactly the paper's
-        self.trail = PoseTrail(n, m, preset.observation.trail_every, self.device) if m else None
+        p = preset.observation.pose_trail  # P = 0: no trail at all, the step is exactly the paper's
+        self.trail = PoseTrail(n, p, preset.observation.trail_every, self.device) if p else None
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
