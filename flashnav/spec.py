@@ -20,7 +20,7 @@ from typing import Any, Literal
 
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
-from flashnav.config import KnownKeys, RobotPreset, error_lines, load_yaml, parse_assignment, set_dotted
+from flashnav.config import KnownKeys, RobotPreset, error_lines
 from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
 from flashnav.machine import check_device_name, resolve_cuda_graph, resolve_device, resolve_overlap, resolve_precision
@@ -29,6 +29,7 @@ from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius,
 from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
 from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_robot
 from flashnav.presets import load_robot, with_recipe_setup
+from flashnav.yamlio import load_yaml, parse_assignment, set_dotted
 
 #: Prefixes of the keys in ``TrainConfig.overrides``: into the hyperparameters, into the robot preset.
 OVERRIDE_PREFIXES = ("algo.", "robot.")

@@ -21,9 +21,9 @@ import yaml
 from pydantic import Field, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from flashnav.config import load_yaml, parse_assignment, set_dotted
 from flashnav.names import check_robot
 from flashnav.spec import Budget, TrainConfig
+from flashnav.yamlio import load_yaml, parse_assignment, set_dotted
 from services.schema_base import Strict, SweepError, known_algorithms
 from services.search_space import Search
 
@@ -190,7 +190,7 @@ def format_errors(error: ValidationError, source: str) -> str:
 
 def apply_sets(data: dict, assignments: list[str]) -> dict:
     """Apply ``KEY.PATH=VALUE`` overrides (VALUE parsed as YAML) to raw sweep data, in place, through
-    the project's one dotted setter (:func:`flashnav.config.set_dotted`).
+    the project's one dotted setter (:func:`flashnav.yamlio.set_dotted`).
 
     Under ``overrides`` / ``search.parameters`` (and their per-algorithm maps) the rest of the path is
     one dotted config key: ``overrides.algo.batch_size=512`` sets the key ``algo.batch_size``.

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from flashnav.config import load_yaml, parse_yaml
 from flashnav.presets import load_robot
+from flashnav.yamlio import load_yaml, parse_yaml
 
 
 def test_duplicate_keys_name_the_key_and_both_lines(tmp_path):

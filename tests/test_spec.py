@@ -12,13 +12,14 @@ import yaml
 
 from flashnav import names
 from flashnav.cli import build_parser
-from flashnav.config import RobotPreset, parse_assignment, set_dotted
+from flashnav.config import RobotPreset
 from flashnav.learn.hparams import MODELS, load_hparams
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.ros import save_ros_map
 from flashnav.presets import load_robot
 from flashnav.machine import resolve_overlap
 from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
+from flashnav.yamlio import parse_assignment, set_dotted
 
 FIXTURES = Path(__file__).parent / "fixtures"
 

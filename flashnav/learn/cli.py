@@ -10,10 +10,10 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.config import dump_yaml
 from flashnav.learn.progress import TrainProgress
 from flashnav.names import ALGORITHMS, RECIPE_CHOICES, THRESHOLDS
 from flashnav.spec import TrainConfig, config_from_cli, resolve
+from flashnav.yamlio import dump_yaml
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:

@@ -12,9 +12,10 @@ from typing import Any, Literal
 
 from pydantic import Field, ValidationError, model_validator
 
-from flashnav.config import Strict, set_dotted
+from flashnav.config import Strict
 from flashnav.names import ALGORITHMS, PRECISIONS, RECIPES, check_name
 from flashnav.presets import load_preset_file
+from flashnav.yamlio import set_dotted
 
 
 class LearnerHParams(Strict):

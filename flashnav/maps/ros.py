@@ -51,9 +51,9 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from flashnav.config import load_yaml
 from flashnav.maps import grid as _grid
 from flashnav.maps.grid import OccupancyMap
+from flashnav.yamlio import load_yaml
 
 MODES = ("trinary", "scale", "raw")
 REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")

@@ -14,8 +14,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from flashnav.config import RobotPreset, deep_merge, load_yaml, set_dotted
+from flashnav.config import RobotPreset
 from flashnav.names import RECIPES, ROBOTS, check_robot
+from flashnav.yamlio import deep_merge, load_yaml, set_dotted
 
 
 def preset_path(name: str) -> Path:
