@@ -25,6 +25,8 @@ import math
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
+from failure_kinds import drive  # scripts/: the same replay from given starts and goals
+
 from flashnav.evaluate import evaluate_episodes
 from flashnav.export import load_policy
 from flashnav.sim.env import make_env
@@ -59,21 +61,8 @@ def replay_failures(policy, robot: str, start_pose: np.ndarray, goal: np.ndarray
 
     env = make_env(robot, len(goal), seed=0)
     env.reset(seed=0)
-    obs = env.set_state(torch.as_tensor(start_pose), torch.as_tensor(goal))
-    horizon = env.preset.episode.horizon
-    paths = np.full((horizon + 1, len(goal), 2), np.nan)
-    closest = np.full(len(goal), np.inf)
-    active = torch.arange(len(goal))
-    for t in range(horizon + 1):
-        idx = active.numpy()
-        xy = env.world_pose()[idx, :2].numpy()
-        paths[t, idx] = xy
-        closest[idx] = np.minimum(closest[idx], np.linalg.norm(xy - goal[idx], axis=1))
-        if t == horizon or not len(idx):
-            break
-        step = env.step_slots(active, policy(obs))
-        running = ~(step["terminated"] | step["truncated"])
-        active, obs = active[running], step["obs"][running]
+    _, _, paths = drive(env, policy, torch.as_tensor(start_pose), torch.as_tensor(goal))
+    closest = np.nanmin(np.linalg.norm(paths - np.asarray(goal)[None], axis=2), axis=0)
     return paths, closest
 
 

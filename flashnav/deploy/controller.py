@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flashnav.deploy.runtime import PolicyRuntime
+from flashnav.deploy.runtime import PolicyRuntime, robot_frame
 
 #: a scan triggers a control step when its stamp is at least this fraction of the period after the
 #: last one: a 10 Hz policy on a 40 Hz scanner acts on every 4th scan despite stamp jitter
@@ -146,12 +146,9 @@ class Controller:
         """The tracker's people in the robot frame of the current pose (None for a policy without tracks)."""
         if not self.rt.agent_tracks:
             return None
-        x, y, yaw = self.pose
-        c, s = math.cos(yaw), math.sin(yaw)
         p = self.people
-        dx, dy = p[:, 0] - x, p[:, 1] - y
-        return np.stack([c * dx + s * dy, -s * dx + c * dy, c * p[:, 2] + s * p[:, 3], -s * p[:, 2] + c * p[:, 3],
-                         p[:, 4]], axis=1)
+        return np.concatenate([robot_frame(p[:, :2], self.pose), robot_frame(p[:, 2:4], (0.0, 0.0, self.pose[2])),
+                               p[:, 4:5]], axis=1)
 
     def _stop(self, state: str) -> Command:
         self.state, self.velocity, self.frames = state, (0.0, 0.0), []

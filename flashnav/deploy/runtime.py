@@ -219,9 +219,16 @@ def track_columns(tracks, count: int) -> np.ndarray:
     return out.reshape(-1)
 
 
+def robot_frame(xy: np.ndarray, pose) -> np.ndarray:
+    """Points ``xy`` [n, 2] of the pose's fixed frame in the robot frame of ``pose`` (x, y, yaw): x ahead,
+    y to the left [n, 2] float64 (numpy's :func:`flashnav.sim.trail.to_robot_frame`). With ``pose`` =
+    (0, 0, yaw) it rotates vectors (velocities) into the robot frame."""
+    dx, dy = xy[:, 0] - float(pose[0]), xy[:, 1] - float(pose[1])
+    c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
+    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1)
+
+
 def trail_columns(crumbs: np.ndarray, pose) -> np.ndarray:
     """[2 P] float32: breadcrumbs ``crumbs`` [P, 2] (x, y in the pose's fixed frame) in the robot frame of
-    ``pose`` (x, y, yaw): x ahead, y to the left, as :func:`flashnav.sim.trail.to_robot_frame`."""
-    dx, dy = crumbs[:, 0] - float(pose[0]), crumbs[:, 1] - float(pose[1])
-    c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
-    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1).astype(np.float32).reshape(-1)
+    ``pose`` (:func:`robot_frame`), flattened x0, y0, x1, ..."""
+    return robot_frame(crumbs, pose).astype(np.float32).reshape(-1)
