@@ -12,7 +12,7 @@ import torch
 from flashnav.maps.fields import cone_field, safe_field
 from flashnav.maps.grid import OccupancyMap
 from flashnav.sim.raycast import RAYCASTERS, error_stats, make_raycaster, random_free_poses
-from flashnav.sim.raycast_torch import TorchExactRaycaster
+from flashnav.sim.raycast_torch import MarchRaycaster, TorchExactRaycaster
 
 TOL = 1e-9  # metres, 'touching' tolerance of the reference (the kernels use 1e-9 cells)
 
@@ -194,6 +194,47 @@ def test_march_within_one_step_of_exact():
     assert (diff < 0.03 + 1e-4).double().mean() > 0.97
     stats = error_stats(march, exact)
     assert 0.005 < stats["mean"] < 0.06 and stats["frac_over_5cm"] < 0.03 and stats["max"] <= 20.0
+
+
+def one_sample_march(grid: OccupancyMap, pose: torch.Tensor, angles: torch.Tensor, max_range: float,
+                     step: float) -> torch.Tensor:
+    """The paper's march one sample at a time over all rays (float32, the kernel's arithmetic):
+    t = k step for k = 1, 2, ...; the first sample in an occupied cell or off the map gives t."""
+    occ = torch.from_numpy(grid.occupied)
+    h, w = occ.shape
+    ang = pose[:, 2:3] + angles
+    c, s = torch.cos(ang).reshape(-1), torch.sin(ang).reshape(-1)
+    x = pose[:, 0:1].expand_as(ang).reshape(-1)
+    y = pose[:, 1:2].expand_as(ang).reshape(-1)
+    out = torch.full_like(x, max_range)
+    open_ = torch.ones_like(x, dtype=torch.bool)
+    for k in range(1, math.ceil(max_range / step - 1e-9) + 1):
+        t = torch.tensor([float(k)]) * step
+        col = torch.floor((x + t * c - grid.origin[0]) * (1.0 / grid.resolution)).long()
+        row = torch.floor((y + t * s - grid.origin[1]) * (1.0 / grid.resolution)).long()
+        off = (col < 0) | (col >= w) | (row < 0) | (row >= h)
+        blocked = off | occ[row.clamp(0, h - 1), col.clamp(0, w - 1)]
+        new = open_ & blocked
+        out[new] = torch.clamp(t, max=max_range).expand_as(out)[new]
+        open_ &= ~blocked
+    return out.reshape(pose.shape[0], -1)
+
+
+@pytest.mark.parametrize("chunk_steps,max_batch_rays,growth", [(1, None, 2), (5, 777, 2), (32, None, 1), (32, None, 2),
+                                                               (32, 300, 3), (200, None, 1)])
+@pytest.mark.parametrize("device", ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
+def test_march_chunking_never_changes_a_range(chunk_steps, max_batch_rays, growth, device):
+    grid = cluttered_map(23, shape=(80, 90), noise=0.02)
+    pose = torch.cat([random_free_poses(grid, 24, 3),  # and poses off the map and inside walls
+                      torch.tensor([[-1.0, 2.0, 0.3], [2.0, 2.0, 1.0], [100.0, 1.0, -2.0]])])
+    angles = torch.linspace(-math.pi, math.pi, 91)[:-1]
+    ref = one_sample_march(grid, pose, angles, 1.5, 0.03)
+    if device != "cpu":  # the device's own cos / sin: its march one sample at a time is the reference
+        ref = MarchRaycaster(grid, angles, 1.5, device, step=0.03, chunk_steps=1, chunk_growth=1)(pose.to(device)).cpu()
+    march = MarchRaycaster(grid, angles, 1.5, device, step=0.03, chunk_steps=chunk_steps, max_batch_rays=max_batch_rays,
+                           chunk_growth=growth)
+    assert torch.equal(march(pose.to(device)).cpu(), ref)
+    assert (ref < 1.5).any() and (ref == 1.5).any() and (ref <= 0.03).any()
 
 
 def test_error_stats_on_fixed_data():
