@@ -326,7 +326,7 @@ class RunSpec:
         device = str(data.get("device", config.device))
         init = InitSource.from_dict(data["init_source"]) if data.get("init_source") else None
         return cls(config, robot, hparams, device, str(data.get("recipe", config.recipe)), float(goal),
-                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device),
+                   cuda_graph=resolve_cuda_graph(config.cuda_graph, device, decaying_lr=hparams.lr_final_ratio < 1),
                    overlap=resolve_overlap(config.overlap, device), init=init,
                    eval_maps=data.get("eval_maps") if config.eval.maps is not None else None)
 
@@ -357,7 +357,7 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     hparams = load_hparams(config.algorithm, robot.name, recipe, config.algo_overrides())
     if hparams.precision == "auto":  # what this device runs, recorded as such in the run's config
         hparams = hparams.model_copy(update={"precision": resolve_precision(hparams.precision, device)})
-    cuda_graph = resolve_cuda_graph(config.cuda_graph, device)
+    cuda_graph = resolve_cuda_graph(config.cuda_graph, device, decaying_lr=hparams.lr_final_ratio < 1)
     if cuda_graph and device.startswith("cuda") and hparams.lr_final_ratio < 1:
         # a captured optimiser step replays the learning rate it was recorded with
         raise ValueError(f"algo.lr_final_ratio={hparams.lr_final_ratio} (a decaying learning rate) cannot run with "

@@ -223,8 +223,9 @@ def test_optimizers_capture_flags_and_errors():
 
 def test_cuda_graph_option_resolves_by_device():
     assert [resolve_cuda_graph(m, "cpu") for m in ("auto", "on", "off")] == [False, True, False]
-    # auto stays off on cuda until the capture has been run and measured on a GPU (opt in with on)
-    assert [resolve_cuda_graph(m, "cuda:0") for m in ("auto", "on", "off")] == [False, True, False]
+    # auto: on for cuda (measured on an H100), unless the learning rate decays (a capture replays its rate)
+    assert [resolve_cuda_graph(m, "cuda:0") for m in ("auto", "on", "off")] == [True, True, False]
+    assert [resolve_cuda_graph(m, "cuda", decaying_lr=True) for m in ("auto", "on", "off")] == [False, True, False]
     with pytest.raises(ValueError, match="cuda_graph 'fast'"):
         resolve_cuda_graph("fast", "cpu")
     with pytest.raises(ValueError, match="cuda_graph"):

@@ -9,7 +9,7 @@ slower side (the paper's producer-consumer pipeline; on a CPU each side gets one
 every core the process has: on a CPU the collector is a small part of the cycle, and the learner's
 matrix products gain more from the second core than the overlap saves (docs/benchmarks.md).
 
-With ``spec.cuda_graph`` (``TrainConfig.cuda_graph``; auto = off until measured on a GPU) the replay gathers each
+With ``spec.cuda_graph`` (``TrainConfig.cuda_graph``; auto = on for cuda) the replay gathers each
 cycle's batches into static buffers and the U updates run through
 :class:`flashnav.learn.cuda_graph.CycleUpdates`: captured once as a CUDA graph and replayed on a GPU
 (the capture cycle runs without the collector beside it), the same updates eagerly on a CPU.
