@@ -106,12 +106,16 @@ def map_labels(grids: list[OccupancyMap]) -> list[str]:
 
 @torch.no_grad()
 def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed: int, *,
-                  goal_distance_scale: float, device: str = "cpu", guide: float | None = None) -> dict:
+                  goal_distance_scale: float, device: str = "cpu", guide: float | None = None,
+                  guide_from: str = "map") -> dict:
     """Evaluate the deterministic ``policy`` (obs [k, D] -> action [k, 2]) on ``episodes`` fixed episodes
     per map of ``grids`` (see the module docstring).
 
     ``guide``: path guidance (:mod:`flashnav.guidance`) with this lookahead in metres; None = the task
-    as it is (the policy gets the goal).
+    as it is (the policy gets the goal). ``guide_from``: what the guide plans on, ``map`` (the known map,
+    :class:`~flashnav.guidance.PathGuide`) or ``scans`` (only what each episode's scans have shown,
+    :class:`~flashnav.mapless.MaplessGuide`; maps are then played one at a time, in blocks of slots whose
+    per-slot memories fit ``SCANS_GUIDE_CELLS``).
 
     Returns a dict: ``maps`` (one entry per map, in order: label, source, size, resolution, diagonal,
     ``beyond_scale`` = diagonal > ``goal_distance_scale``, ``episodes_beyond_scale`` = episodes whose goal
@@ -120,13 +124,18 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
     """
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1 per map, got {episodes}")
+    if guide_from not in GUIDE_SOURCES:
+        raise ValueError(f"guide_from must be one of {GUIDE_SOURCES}, got {guide_from!r}")
     m = len(grids)
-    env = NavVecEnv(evaluation_preset(preset), m * episodes, grid=grids[0] if m == 1 else grids, device=device,
-                    seed=seed)
-    poses, goals = zip(*(fixed_episodes(env, k, episodes, seed) for k in range(m)))
-    map_index = torch.arange(m, device=env.device).repeat_interleave(episodes)
-    obs = env.set_state(torch.cat(poses), torch.cat(goals), map_index=map_index if m > 1 else None)
-    e = play_episodes(policy, env, obs, guide=None if guide is None else PathGuide(env, lookahead=guide))
+    if guide is not None and guide_from == "scans":
+        e = _play_scans_guided(policy, evaluation_preset(preset), grids, episodes, seed, device, guide)
+    else:
+        env = NavVecEnv(evaluation_preset(preset), m * episodes, grid=grids[0] if m == 1 else grids, device=device,
+                        seed=seed)
+        poses, goals = zip(*(fixed_episodes(env, k, episodes, seed) for k in range(m)))
+        map_index = torch.arange(m, device=env.device).repeat_interleave(episodes)
+        obs = env.set_state(torch.cat(poses), torch.cat(goals), map_index=map_index if m > 1 else None)
+        e = play_episodes(policy, env, obs, guide=None if guide is None else PathGuide(env, lookahead=guide))
     rows = []
     for k, (g, label) in enumerate(zip(grids, map_labels(grids))):
         sl = slice(k * episodes, (k + 1) * episodes)
@@ -144,6 +153,29 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
             "mean_return": e["episode_return"][sl].mean().item(),
         })
     return {"maps": rows, "aggregate": aggregate(rows)}
+
+
+GUIDE_SOURCES = ("map", "scans")
+#: cells of wall memory and distance field held at once by the scans guide (~5 bytes each)
+SCANS_GUIDE_CELLS = 50_000_000
+
+
+def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, lookahead: float) -> dict:
+    """:func:`play_episodes` with a :class:`~flashnav.mapless.MaplessGuide`, map by map (its memories are
+    per map) and in blocks of slots; the episodes are each map's fixed ones, as in the one-env path."""
+    from flashnav.mapless import MaplessGuide
+
+    parts = []
+    for g in grids:
+        env = NavVecEnv(preset, episodes, grid=g, device=device, seed=seed)
+        pose, goal = fixed_episodes(env, 0, episodes, seed)
+        block = max(1, min(episodes, SCANS_GUIDE_CELLS // (g.shape[0] * g.shape[1])))
+        for s in range(0, episodes, block):
+            e = min(episodes, s + block)
+            sub = NavVecEnv(preset, e - s, grid=g, device=device, seed=seed)
+            obs = sub.set_state(pose[s:e].float(), goal[s:e].float())
+            parts.append(play_episodes(policy, sub, obs, guide=MaplessGuide(sub, lookahead=lookahead)))
+    return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
 
 
 def aggregate(rows: list[dict]) -> dict:
@@ -186,8 +218,9 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     grids = resolve_maps(suite_path(args.maps), preset.map)
     start = time.perf_counter()
     guide = getattr(args, "guide", None)
+    guide_from = getattr(args, "guide_from", None) or "map"
     result = evaluate_maps(policy, preset, grids, args.episodes, args.seed, goal_distance_scale=scale, device=device,
-                           guide=guide)
+                           guide=guide, guide_from=guide_from)
     seconds = time.perf_counter() - start
     report = {
         "kind": EVAL_MAPS_KIND, "format_version": EVAL_MAPS_FORMAT,
@@ -195,7 +228,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
         "suite": suite_label(args.maps), "maps_arg": str(args.maps), "robot": preset.name,
         "goal_sampling": sampling, "goal_band_m": [preset.episode.min_goal_distance, preset.episode.max_goal_distance],
         "episodes_per_map": args.episodes, "seed": args.seed, "goal_distance_scale": scale,
-        "guide_lookahead_m": guide,
+        "guide_lookahead_m": guide, "guide_from": guide_from if guide is not None else None,
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": machine_name(str(device)), "seconds": seconds, **result,
     }
@@ -219,7 +252,10 @@ def print_report(report: dict) -> None:
                   f"{report['maps_arg']}: {report['episodes_per_map']} episodes per map, seed {report['seed']}, "
                   f"goal sampling {report['goal_sampling']} ({report['goal_band_m'][0]:g}-"
                   f"{report['goal_band_m'][1]:g} m)")
-    if report.get("guide_lookahead_m") is not None:
+    if report.get("guide_lookahead_m") is not None and report.get("guide_from") == "scans":
+        console.print(f"mapless guidance: the policy steers at the point {report['guide_lookahead_m']:g} m along a "
+                      "path planned on the walls its own scans have shown (no map)")
+    elif report.get("guide_lookahead_m") is not None:
         console.print(f"path guidance: the policy steers at the point {report['guide_lookahead_m']:g} m along the "
                       "shortest path (a global planner on the known map; not the zero-shot task)")
     table = Table(title="flashnav eval --maps")

@@ -87,11 +87,16 @@ class PathGuide:
     def observe(self, obs: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
         """Observations [k, D] of slots ``idx`` [k] with their goal columns (distance, angle) pointing at
         their carrots instead of their goals."""
-        env = self.env
-        col = env.preset.lidar.sectors
-        pose = env.pose[idx]
-        delta = (self.carrot(idx).double() - pose[:, :2].double())
-        out = obs.clone()
-        out[:, col] = torch.linalg.vector_norm(delta, dim=1).to(obs.dtype)
-        out[:, col + 1] = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2].double()).to(obs.dtype)
-        return out
+        return aim(self.env, obs, idx, self.carrot(idx))
+
+
+def aim(env, obs: torch.Tensor, idx: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Observations ``obs`` [k, D] of slots ``idx`` [k] with their goal columns (distance, angle, as the
+    environment computes them for a goal) pointing at ``points`` [k, 2] (simulator frame) instead."""
+    col = env.preset.lidar.sectors
+    pose = env.pose[idx]
+    delta = points.double() - pose[:, :2].double()
+    out = obs.clone()
+    out[:, col] = torch.linalg.vector_norm(delta, dim=1).to(obs.dtype)
+    out[:, col + 1] = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2].double()).to(obs.dtype)
+    return out

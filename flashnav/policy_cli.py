@@ -39,6 +39,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                    help="with --maps: path guidance, a global planner on the known map (flashnav/guidance.py): "
                         "the policy steers at the point LOOKAHEAD_M metres along the shortest path instead of "
                         "at the goal (e.g. 0.5); a deployment mode, not the zero-shot task")
+    p.add_argument("--guide-from", default=None, choices=("map", "scans"),
+                   help="with --guide: what the planner knows, the map (default) or only the walls each episode's "
+                        "own scans have shown, no map (flashnav/mapless.py: the optimistic mapless planner)")
     p.add_argument("--scenario", default=None, metavar="NAME[,NAME]",
                    help="evaluation scenarios with moving agents: static, wander-4, wander-8, crossing, or all "
                         "(success / collision with an agent / with a wall / timeout per scenario)")
@@ -123,6 +126,8 @@ def run_eval(args) -> int:
         check_output_file(args.json, "--json")
     if args.maps is not None and args.scenario is not None:
         raise ValueError("give either --maps or --scenario, not both")
+    if args.guide_from is not None and args.guide is None:
+        raise ValueError(f"--guide-from {args.guide_from} goes with --guide LOOKAHEAD_M")
     if args.maps is not None:
         from flashnav.eval_maps import run_eval_maps
 

@@ -27,117 +27,33 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.sparse.csgraph import dijkstra
-
-from flashnav.maps.grid import OccupancyMap
+from flashnav.mapless import SENSORS, SeenWalls
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
-from flashnav.sim.oracle import OracleController, grid_graph
+from flashnav.sim.oracle import OracleController
 
 
 class MaplessPlanner(OracleController):
-    """The oracle's steering over distance fields planned on what each slot has seen (one map per env)."""
+    """The oracle's steering over distance fields planned on what each slot has seen
+    (:class:`flashnav.mapless.SeenWalls`; one map per env)."""
 
     def __init__(self, env, lookahead: float = 0.35, margin: float = 0.08, comfort: float = 0.3, *,
                  sensor: str = "raw", memory: bool = True):
-        if sensor not in SENSORS:
-            raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
+        self.walls = SeenWalls(env, margin, comfort, sensor=sensor, memory=memory)
         super().__init__(env, lookahead, margin, comfort)
-        self.sensor, self.memory = sensor, memory
-        if env.num_maps != 1:
-            raise ValueError("MaplessPlanner plans on one map per env (give one map at a time)")
-        self.radius = env.preset.footprint.circumscribed_radius + margin
-        self.comfort = comfort
-        grid = env.frame_maps[0]
-        self.grid = grid
-        self.known = np.zeros((env.num_envs, *grid.shape), dtype=bool)  # walls seen, per slot
-        self.replans = np.zeros(env.num_envs, dtype=np.int64)
+        self.fields = self.walls.fields  # what the oracle's steering descends
 
-    def _field(self, slot: int) -> np.ndarray:
-        """Distance field (metres, inf where unreachable) to the slot's goal over its known walls."""
-        g = self.grid
-        seen = OccupancyMap(occupied=self.known[slot], resolution=g.resolution, origin=g.origin)
-        free = seen.free_space(self.radius).copy()
-        cost = 1.0 + 4.0 * np.clip((self.radius + self.comfort - seen.clearance) / self.comfort, 0.0, 1.0)
-        goal = int(self._cells(self.env.goal[slot:slot + 1].cpu().numpy(), np.zeros(1, dtype=np.int64))[0])
-        free.reshape(-1)[goal] = True  # the goal cell itself is never walled off by a margin
-        self.replans[slot] += 1
-        return dijkstra(grid_graph(free, g.resolution, cost), directed=True, indices=goal).astype(np.float32)
-
-    def observe(self, slots: np.ndarray) -> np.ndarray:
-        """Marks the walls the current scans of ``slots`` hit; returns [len(slots), H, W] the new ones."""
-        g, env = self.grid, self.env
-        ranges = env.scan()[torch.as_tensor(slots)].cpu().numpy()
-        if self.sensor == "pooled":  # what the policy's observation keeps: each sector's minimum, across its arc
-            lidar = env.preset.lidar
-            pooled = ranges.reshape(len(slots), lidar.sectors, lidar.beams_per_sector).min(axis=2)
-            ranges = np.repeat(pooled, lidar.beams_per_sector, axis=1)
-        pose = env.pose[torch.as_tensor(slots)].cpu().numpy().astype(np.float64)
-        angles = env.beam_angles.cpu().numpy()[None, :] + pose[:, 2:3]
-        hit = ranges < env.preset.lidar.max_range - 1e-3
-        # a little beyond the surface, so the end lands in the wall's cell, not the free cell before it
-        r = ranges + 0.5 * g.resolution
-        x, y = pose[:, :1] + r * np.cos(angles), pose[:, 1:2] + r * np.sin(angles)
-        h, w = g.shape
-        j = np.clip(((x - g.origin[0]) / g.resolution).astype(int), 0, w - 1)
-        i = np.clip(((y - g.origin[1]) / g.resolution).astype(int), 0, h - 1)
-        new = np.zeros((len(slots), h, w), dtype=bool)
-        rows = np.broadcast_to(np.arange(len(slots))[:, None], hit.shape)
-        new[rows[hit], i[hit], j[hit]] = True
-        if not self.memory:  # only this scan's walls: every step plans afresh
-            self.known[slots] = new
-            return new
-        new &= ~self.known[slots]
-        self.known[slots] |= new
-        return new
+    @property
+    def replans(self) -> np.ndarray:
+        return self.walls.replans
 
     def plan_all(self) -> None:
-        n = self.env.num_envs
-        self.fields = np.full((n, self.grid.shape[0] * self.grid.shape[1]), np.inf, dtype=np.float32)
-        self.observe(np.arange(n))
-        for k in range(n):
-            self.fields[k] = self._field(k)
-
-    def path_cells(self, slot: int, steps: int = 400) -> np.ndarray:
-        """The cells of the slot's planned path from the robot (steepest descent of its field)."""
-        h, w = self.grid.shape
-        field = self.fields[slot]
-        cell = int(self._cells(self.env.pose[slot:slot + 1, :2].cpu().numpy(), np.zeros(1, dtype=np.int64))[0])
-        out = [cell]
-        for _ in range(steps):
-            i, j = divmod(cell, w)
-            best, best_d = cell, field[cell]
-            for di, dj in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
-                ii, jj = i + di, j + dj
-                if 0 <= ii < h and 0 <= jj < w and field[ii * w + jj] < best_d:
-                    best, best_d = ii * w + jj, field[ii * w + jj]
-            if best == cell:
-                break
-            cell = best
-            out.append(cell)
-        return np.array(out)
+        self.walls.plan(np.arange(self.env.num_envs))
 
     def update(self, slots: np.ndarray) -> None:
         """After a step: new walls of running ``slots``; replan those whose path they block or brush."""
-        new = self.observe(slots)
-        w = self.grid.shape[1]
-        reach = self.radius / self.grid.resolution + 1.0  # cells: a wall this near a path cell blocks it
-        for k, slot in enumerate(slots):
-            if not self.memory:
-                self.fields[slot] = self._field(int(slot))
-                continue
-            walls = np.argwhere(new[k])
-            if not len(walls):
-                continue
-            path = self.path_cells(int(slot))
-            cells = np.stack([path // w, path % w], axis=1)
-            gap = np.hypot(*(cells[:, None, :] - walls[None, :, :]).transpose(2, 0, 1)).min()
-            if gap <= reach or not np.isfinite(self.fields[slot][path[0]]):
-                self.fields[slot] = self._field(int(slot))
-
-
-SENSORS = ("raw", "pooled")
+        self.walls.update(slots)
 
 
 def run_map(preset, map_path: str, episodes: int, seed: int, sensor: str = "raw", memory: bool = True) -> dict:

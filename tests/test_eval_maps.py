@@ -130,6 +130,8 @@ def test_command_line_refuses_map_with_maps_and_sampling_without_maps(capsys):
     assert "either --map or --maps" in capsys.readouterr().err
     assert main(["eval", str(FIXTURE_POLICY), "--goal-sampling", "geodesic"]) == 2
     assert "--goal-sampling goes with --maps" in capsys.readouterr().err
+    assert main(["eval", str(FIXTURE_POLICY), "--maps", "heldout", "--guide-from", "scans"]) == 2
+    assert "--guide-from scans goes with --guide" in capsys.readouterr().err
 
 
 def test_suite_names_resolve_to_the_committed_folders():

@@ -6,10 +6,8 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
-from scipy.ndimage import binary_dilation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
@@ -30,20 +28,15 @@ def maze(tmp_path_factory):
     return save_ros_map(grid, tmp_path_factory.mktemp("maze") / "maze.yaml")
 
 
-def test_the_planner_marks_only_walls_and_starts_knowing_nothing(maze):
-    """It starts with an empty map, and every cell it marks is a wall of the true map or touches one (a
-    beam's end is pushed half a cell past the surface, into the wall it hit; a grazing beam can end in the
-    free cell beside it)."""
+def test_the_planner_plans_on_its_seen_walls(maze):
+    """The script's planner steers on the fields of flashnav.mapless.SeenWalls (tests/test_mapless.py)."""
     env = make_env(TB2, 4, map=str(maze), seed=0)
     env.reset(seed=1)
     planner = mapless_planner.MaplessPlanner(env)
-    assert not planner.known.any()
-    new = planner.observe(np.arange(4))
-    truth = env.frame_maps[0].occupied
-    marked = new.any(axis=0)
-    assert new.any(axis=(1, 2)).all() and truth[marked].mean() > 0.95
-    assert binary_dilation(truth, structure=np.ones((3, 3), bool))[marked].all()
-    assert not planner.observe(np.arange(4)).any()  # the same scans: nothing new
+    assert not planner.walls.known.any() and planner.fields is planner.walls.fields
+    planner.plan_all()
+    assert planner.walls.known.any(axis=(1, 2)).all() and (planner.replans == 1).all()
+    assert planner.act().shape == (4, 2)
     with pytest.raises(ValueError, match="sensor must be one of"):
         mapless_planner.MaplessPlanner(env, sensor="camera")
 

@@ -174,10 +174,12 @@ class NavVecEnv(VectorEnv):
         return observation_bounds(self.preset, self.goal_distance_max)
 
     # ---- observation ------------------------------------------------------------------------------
-    def scan(self) -> torch.Tensor:
+    def scan(self, slots: torch.Tensor | None = None) -> torch.Tensor:
         """Noise-free ranges [N, beams] float32 metres at the current poses (before pooling), moving
-        agents included."""
-        return self._scan(self.pose, slice(None))
+        agents included; of ``slots`` [k] (long) only, if given."""
+        if slots is None:
+            return self._scan(self.pose, slice(None))
+        return self._scan(self.pose[slots], slots)
 
     def _scan(self, pose: torch.Tensor, sel) -> torch.Tensor:
         """Ranges [k, beams] of slots ``sel`` at ``pose`` [k, 3], each on its map: min(static range,

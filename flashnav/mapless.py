@@ -1,0 +1,239 @@
+"""Planning on what a robot's own scans have shown it: the optimistic mapless planner (issue 15).
+
+A robot deployed in a building it has never seen is given the goal's position, not the map. What it
+can know of the building is what its LiDAR has shown it so far. :class:`SeenWalls` keeps that per
+environment slot - every beam's end marks its cell as a wall, and the marks are never forgotten (with
+``memory=False``, only the current scan's) - and plans on it optimistically, through the space it has
+not seen (unknown = free, as D* Lite and frontier navigation do): a shortest grid path to the goal
+through the cells where the robot's disc (plus ``margin``) touches no known wall, with a cost that
+grows within ``comfort`` metres of the walls (the oracle's, :class:`flashnav.sim.oracle.OracleController`).
+It replans a slot when a newly seen wall lies on or beside its path.
+
+Two controllers use it: ``scripts/mapless_planner.py`` steers with the oracle's pure pursuit along its
+fields (the bound of what a controller without the map can do), and :class:`MaplessGuide` hands a
+policy, at every step, a point ``lookahead`` metres along its path as the goal
+(``flashnav eval --maps ... --guide M --guide-from scans``): a deployment mode that, unlike
+:class:`flashnav.guidance.PathGuide`, needs no map - only the scans and odometry a robot has.
+
+One map per environment (evaluate map by map): each slot keeps a wall grid and a distance field of its
+map's size.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from scipy.sparse.csgraph import dijkstra
+
+from flashnav.guidance import LOOKAHEAD_M, aim
+from flashnav.maps.grid import OccupancyMap
+from flashnav.sim.oracle import grid_graph
+
+SENSORS = ("raw", "pooled")
+#: the 8-neighbourhood (row, column) and the centre
+_MOVES = np.array([(0, 0), (-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)], dtype=np.int64)
+
+
+class SeenWalls:
+    """Per slot of ``env`` (one map): the walls its scans have hit and a distance field to its goal over them.
+
+    Args:
+        margin: metres added to the robot's circumscribed radius for the free space of the plan.
+        comfort: metres beyond that in which cells cost more (paths keep clear of walls where they can).
+        sensor: ``raw`` (every beam's end is a wall) or ``pooled`` (only what the policy's observation
+            keeps: each sector's minimum range, taken as a wall across the sector's arc).
+        memory: remember walls across steps (False: plan on the current scan's walls alone).
+    """
+
+    def __init__(self, env, margin: float = 0.08, comfort: float = 0.3, *, sensor: str = "raw", memory: bool = True):
+        if sensor not in SENSORS:
+            raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
+        if env.num_maps != 1:
+            raise ValueError(f"the mapless planner plans on one map per env, got {env.num_maps} maps "
+                             "(evaluate them one at a time)")
+        if not (margin >= 0 and comfort > 0):
+            raise ValueError(f"mapless planner: margin must be >= 0 and comfort > 0 metres, got {margin}, {comfort}")
+        self.env, self.sensor, self.memory = env, sensor, memory
+        self.radius = env.preset.footprint.circumscribed_radius + margin
+        self.comfort = float(comfort)
+        self.grid = env.frame_maps[0]  # the simulator frame, as the env's poses and goals
+        h, w = self.grid.shape
+        self.known = np.zeros((env.num_envs, h, w), dtype=bool)
+        self.fields = np.full((env.num_envs, h * w), np.inf, dtype=np.float32)
+        self.replans = np.zeros(env.num_envs, dtype=np.int64)
+
+    def cells(self, xy: np.ndarray) -> np.ndarray:
+        """Flat cell index of the points ``xy`` [k, 2] (simulator frame, clipped onto the map)."""
+        g = self.grid
+        h, w = g.shape
+        j = np.clip(np.floor((xy[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, w - 1)
+        i = np.clip(np.floor((xy[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, h - 1)
+        return i * w + j
+
+    def _field(self, slot: int) -> np.ndarray:
+        """Distance field (metres, inf where unreachable) to the slot's goal over its known walls."""
+        g = self.grid
+        seen = OccupancyMap(occupied=self.known[slot], resolution=g.resolution, origin=g.origin)
+        free = seen.free_space(self.radius).copy()
+        cost = 1.0 + 4.0 * np.clip((self.radius + self.comfort - seen.clearance) / self.comfort, 0.0, 1.0)
+        goal = int(self.cells(self.env.goal[slot:slot + 1].cpu().numpy().astype(np.float64))[0])
+        free.reshape(-1)[goal] = True  # the goal cell itself is never walled off by a margin
+        self.replans[slot] += 1
+        return dijkstra(grid_graph(free, g.resolution, cost), directed=True, indices=goal).astype(np.float32)
+
+    def observe(self, slots: np.ndarray) -> np.ndarray:
+        """Marks the walls the current scans of ``slots`` hit; returns [len(slots), H, W] the new ones."""
+        g, env = self.grid, self.env
+        sel = torch.as_tensor(slots, device=env.device)
+        ranges = env.scan(sel).cpu().numpy()
+        if self.sensor == "pooled":
+            lidar = env.preset.lidar
+            pooled = ranges.reshape(len(slots), lidar.sectors, lidar.beams_per_sector).min(axis=2)
+            ranges = np.repeat(pooled, lidar.beams_per_sector, axis=1)
+        pose = env.pose[sel].cpu().numpy().astype(np.float64)
+        angles = env.beam_angles.cpu().numpy()[None, :] + pose[:, 2:3]
+        hit = ranges < env.preset.lidar.max_range - 1e-3
+        # a little beyond the surface, so the end lands in the wall's cell, not the free cell before it
+        r = ranges + 0.5 * g.resolution
+        x, y = pose[:, :1] + r * np.cos(angles), pose[:, 1:2] + r * np.sin(angles)
+        h, w = g.shape
+        j = np.clip(np.floor((x - g.origin[0]) / g.resolution).astype(np.int64), 0, w - 1)
+        i = np.clip(np.floor((y - g.origin[1]) / g.resolution).astype(np.int64), 0, h - 1)
+        new = np.zeros((len(slots), h, w), dtype=bool)
+        rows = np.broadcast_to(np.arange(len(slots))[:, None], hit.shape)
+        new[rows[hit], i[hit], j[hit]] = True
+        if not self.memory:
+            self.known[slots] = new
+            return new
+        new &= ~self.known[slots]
+        self.known[slots] |= new
+        return new
+
+    def plan(self, slots: np.ndarray) -> None:
+        """The first plan of ``slots`` (new episodes): their current scans, then their fields."""
+        slots = np.asarray(slots)
+        self.known[slots] = False
+        self.observe(slots)
+        for slot in slots:
+            self.fields[slot] = self._field(int(slot))
+
+    def path_cells(self, slot: int, steps: int = 400) -> np.ndarray:
+        """The cells of the slot's planned path from the robot (steepest descent of its field)."""
+        h, w = self.grid.shape
+        field = self.fields[slot]
+        cell = int(self.cells(self.env.pose[slot:slot + 1, :2].cpu().numpy().astype(np.float64))[0])
+        out = [cell]
+        for _ in range(steps):
+            i, j = divmod(cell, w)
+            best, best_d = cell, field[cell]
+            for di, dj in _MOVES[1:]:
+                ii, jj = i + di, j + dj
+                if 0 <= ii < h and 0 <= jj < w and field[ii * w + jj] < best_d:
+                    best, best_d = ii * w + jj, field[ii * w + jj]
+            if best == cell:
+                break
+            cell = best
+            out.append(cell)
+        return np.array(out)
+
+    def update(self, slots: np.ndarray) -> None:
+        """After a step: the new walls of running ``slots``; replan those whose path they block or brush."""
+        slots = np.asarray(slots)
+        new = self.observe(slots)
+        w = self.grid.shape[1]
+        reach = self.radius / self.grid.resolution + 1.0  # cells: a wall this near a path cell blocks it
+        for k, slot in enumerate(slots):
+            if not self.memory:
+                self.fields[slot] = self._field(int(slot))
+                continue
+            walls = np.argwhere(new[k])
+            if not len(walls):
+                continue
+            path = self.path_cells(int(slot))
+            cells = np.stack([path // w, path % w], axis=1)
+            gap = np.hypot(*(cells[:, None, :] - walls[None, :, :]).transpose(2, 0, 1)).min()
+            if gap <= reach or not np.isfinite(self.fields[slot][path[0]]):
+                self.fields[slot] = self._field(int(slot))
+
+
+class MaplessGuide:
+    """Carrots on paths planned over each slot's own scans (no map): the interface of
+    :class:`flashnav.guidance.PathGuide` (:meth:`observe`), for one-map envs. A slot's memory starts
+    empty at the first :meth:`observe` of its episode (call ``reset``/``set_state`` first, then observe
+    before every step, as :func:`flashnav.evaluate.play_episodes` does).
+
+    Where the robot stands in space the plan counts as blocked (closer than the radius to a seen wall),
+    the descent starts from the lowest cell within ``escape`` metres; where no path is known at all, the
+    carrot is the goal itself."""
+
+    def __init__(self, env, lookahead: float = LOOKAHEAD_M, margin: float = 0.0, comfort: float = 0.3,
+                 escape: float = 0.3):
+        if not (math.isfinite(lookahead) and lookahead > 0):
+            raise ValueError(f"mapless guidance lookahead must be > 0 metres, got {lookahead}")
+        self.env, self.lookahead = env, float(lookahead)
+        self.walls = SeenWalls(env, margin, comfort)
+        self.planned = np.zeros(env.num_envs, dtype=bool)
+        res = self.walls.grid.resolution
+        self.max_moves = int(math.ceil(self.lookahead / res)) + 1
+        reach = max(1, int(math.ceil(escape / res)))
+        di, dj = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1), indexing="ij")
+        self._window = np.stack([di.ravel(), dj.ravel()], axis=1)
+        self._step_m = np.where((_MOVES != 0).all(axis=1), math.sqrt(2.0), 1.0) * res
+        self._step_m[0] = 0.0
+
+    def _values(self, rows: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Field values of rows' cells (i, j) [k, m]; off the map: inf."""
+        h, w = self.walls.grid.shape
+        inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
+        v = self.walls.fields[rows[:, None], np.clip(i, 0, h - 1) * w + np.clip(j, 0, w - 1)]
+        return np.where(inside, v, np.inf)
+
+    def carrot(self, slots: np.ndarray) -> np.ndarray:
+        """[k, 2] metres (simulator frame): the point ``lookahead`` metres down each slot's field from the
+        robot, or the goal where it is nearer than that or no path is known."""
+        g, env = self.walls.grid, self.env
+        w = g.shape[1]
+        sel = torch.as_tensor(slots, device=env.device)
+        pos = env.pose[sel, :2].cpu().numpy().astype(np.float64)
+        goal = env.goal[sel].cpu().numpy().astype(np.float64)
+        cell = self.walls.cells(pos)
+        i, j = cell // w, cell % w
+        # start: the robot's cell, or the lowest cell of the escape window where the robot's is blocked
+        around = self._values(slots, i[:, None] + self._window[:, 0], j[:, None] + self._window[:, 1])
+        best = around.argmin(axis=1)
+        here = self._values(slots, i[:, None], j[:, None])[:, 0]
+        stuck = ~np.isfinite(here)
+        i = np.where(stuck, i + self._window[best, 0], i)
+        j = np.where(stuck, j + self._window[best, 1], j)
+        value = np.where(stuck, around[np.arange(len(slots)), best], here)
+        travelled = np.zeros(len(slots))
+        for _ in range(self.max_moves):
+            nb = self._values(slots, i[:, None] + _MOVES[:, 0], j[:, None] + _MOVES[:, 1])
+            k = nb.argmin(axis=1)
+            lowest = nb[np.arange(len(slots)), k]
+            move = np.isfinite(value) & (lowest < value) & (travelled < self.lookahead)
+            if not move.any():
+                break
+            i, j = np.where(move, i + _MOVES[k, 0], i), np.where(move, j + _MOVES[k, 1], j)
+            travelled += np.where(move, self._step_m[k], 0.0)
+            value = np.where(move, lowest, value)
+        point = np.stack([g.origin[0] + (j + 0.5) * g.resolution, g.origin[1] + (i + 0.5) * g.resolution], axis=1)
+        to_goal = np.linalg.norm(goal - pos, axis=1) <= self.lookahead
+        use_goal = ~np.isfinite(value) | to_goal | (value <= 0)
+        return np.where(use_goal[:, None], goal, point)
+
+    def observe(self, obs: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        """Observations [k, D] of slots ``idx`` [k] with their goal columns pointing at their carrots;
+        first updates the slots' memories with their current scans (and replans where needed)."""
+        slots = idx.cpu().numpy()
+        first = slots[~self.planned[slots]]
+        if len(first):
+            self.walls.plan(first)
+            self.planned[first] = True
+        later = slots[np.isin(slots, first, invert=True)]
+        if len(later):
+            self.walls.update(later)
+        points = torch.as_tensor(self.carrot(slots), device=self.env.device)
+        return aim(self.env, obs, idx, points)
