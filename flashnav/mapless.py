@@ -37,35 +37,32 @@ _MOVES = np.array([(0, 0), (-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1),
 
 
 class SeenWalls:
-    """Per slot of ``env`` (one map): the walls its scans have hit and a distance field to its goal over them.
+    """Per slot: the walls its scans have hit, on a grid of ``geometry``'s shape, resolution and origin
+    (its occupancy is never read), and a distance field to the slot's goal over them.
+
+    Inputs are arrays, so that the simulator (:class:`EnvScans`) and a robot
+    (:class:`flashnav.deploy.controller.Controller`) feed it alike: poses [k, 3] (x, y, yaw) and goals
+    [k, 2] in the grid's frame, ranges [k, B] metres along ``angles`` [B] (radians from the heading).
 
     Args:
-        margin: metres added to the robot's circumscribed radius for the free space of the plan.
+        radius: metres; the plan's free space keeps the robot's centre this far from every known wall
+            (the circumscribed radius plus a margin).
         comfort: metres beyond that in which cells cost more (paths keep clear of walls where they can).
-        sensor: ``raw`` (every beam's end is a wall) or ``pooled`` (only what the policy's observation
-            keeps: each sector's minimum range, taken as a wall across the sector's arc).
         memory: remember walls across steps (False: plan on the current scan's walls alone).
     """
 
-    def __init__(self, env, margin: float = 0.08, comfort: float = 0.3, *, sensor: str = "raw", memory: bool = True):
-        if sensor not in SENSORS:
-            raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
-        if env.num_maps != 1:
-            raise ValueError(f"the mapless planner plans on one map per env, got {env.num_maps} maps "
-                             "(evaluate them one at a time)")
-        if not (margin >= 0 and comfort > 0):
-            raise ValueError(f"mapless planner: margin must be >= 0 and comfort > 0 metres, got {margin}, {comfort}")
-        self.env, self.sensor, self.memory = env, sensor, memory
-        self.radius = env.preset.footprint.circumscribed_radius + margin
-        self.comfort = float(comfort)
-        self.grid = env.frame_maps[0]  # the simulator frame, as the env's poses and goals
-        h, w = self.grid.shape
-        self.known = np.zeros((env.num_envs, h, w), dtype=bool)
-        self.fields = np.full((env.num_envs, h * w), np.inf, dtype=np.float32)
-        self.replans = np.zeros(env.num_envs, dtype=np.int64)
+    def __init__(self, geometry: OccupancyMap, num: int, radius: float, comfort: float = 0.3, *, memory: bool = True):
+        if not (radius > 0 and comfort > 0):
+            raise ValueError(f"mapless planner: radius and comfort must be > 0 metres, got {radius}, {comfort}")
+        self.grid, self.radius, self.comfort, self.memory = geometry, float(radius), float(comfort), memory
+        h, w = geometry.shape
+        self.known = np.zeros((num, h, w), dtype=bool)
+        self.fields = np.full((num, h * w), np.inf, dtype=np.float32)
+        self.goals = np.zeros((num, 2), dtype=np.float64)
+        self.replans = np.zeros(num, dtype=np.int64)
 
     def cells(self, xy: np.ndarray) -> np.ndarray:
-        """Flat cell index of the points ``xy`` [k, 2] (simulator frame, clipped onto the map)."""
+        """Flat cell index of the points ``xy`` [k, 2] (clipped onto the grid)."""
         g = self.grid
         h, w = g.shape
         j = np.clip(np.floor((xy[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, w - 1)
@@ -78,29 +75,27 @@ class SeenWalls:
         seen = OccupancyMap(occupied=self.known[slot], resolution=g.resolution, origin=g.origin)
         free = seen.free_space(self.radius).copy()
         cost = 1.0 + 4.0 * np.clip((self.radius + self.comfort - seen.clearance) / self.comfort, 0.0, 1.0)
-        goal = int(self.cells(self.env.goal[slot:slot + 1].cpu().numpy().astype(np.float64))[0])
+        goal = int(self.cells(self.goals[slot:slot + 1])[0])
         free.reshape(-1)[goal] = True  # the goal cell itself is never walled off by a margin
         self.replans[slot] += 1
         return dijkstra(grid_graph(free, g.resolution, cost), directed=True, indices=goal).astype(np.float32)
 
-    def observe(self, slots: np.ndarray) -> np.ndarray:
-        """Marks the walls the current scans of ``slots`` hit; returns [len(slots), H, W] the new ones."""
-        g, env = self.grid, self.env
-        sel = torch.as_tensor(slots, device=env.device)
-        ranges = env.scan(sel).cpu().numpy()
-        if self.sensor == "pooled":
-            lidar = env.preset.lidar
-            pooled = ranges.reshape(len(slots), lidar.sectors, lidar.beams_per_sector).min(axis=2)
-            ranges = np.repeat(pooled, lidar.beams_per_sector, axis=1)
-        pose = env.pose[sel].cpu().numpy().astype(np.float64)
-        angles = env.beam_angles.cpu().numpy()[None, :] + pose[:, 2:3]
-        hit = ranges < env.preset.lidar.max_range - 1e-3
+    def mark(self, slots: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
+             max_range: float) -> np.ndarray:
+        """Marks the cells where the beams of ``slots`` end (ranges below ``max_range``; NaN = no return)
+        as walls; returns [len(slots), H, W] the new ones."""
+        g = self.grid
+        pose = np.asarray(pose, np.float64)
+        ranges = np.asarray(ranges, np.float64)
+        hit = np.isfinite(ranges) & (ranges < max_range - 1e-3)
         # a little beyond the surface, so the end lands in the wall's cell, not the free cell before it
-        r = ranges + 0.5 * g.resolution
-        x, y = pose[:, :1] + r * np.cos(angles), pose[:, 1:2] + r * np.sin(angles)
+        r = np.where(hit, ranges, 0.0) + 0.5 * g.resolution
+        a = np.asarray(angles, np.float64)[None, :] + pose[:, 2:3]
+        x, y = pose[:, :1] + r * np.cos(a), pose[:, 1:2] + r * np.sin(a)
         h, w = g.shape
-        j = np.clip(np.floor((x - g.origin[0]) / g.resolution).astype(np.int64), 0, w - 1)
-        i = np.clip(np.floor((y - g.origin[1]) / g.resolution).astype(np.int64), 0, h - 1)
+        j = np.floor((x - g.origin[0]) / g.resolution).astype(np.int64)
+        i = np.floor((y - g.origin[1]) / g.resolution).astype(np.int64)
+        hit &= (i >= 0) & (i < h) & (j >= 0) & (j < w)  # ends off the grid are not remembered
         new = np.zeros((len(slots), h, w), dtype=bool)
         rows = np.broadcast_to(np.arange(len(slots))[:, None], hit.shape)
         new[rows[hit], i[hit], j[hit]] = True
@@ -111,19 +106,21 @@ class SeenWalls:
         self.known[slots] |= new
         return new
 
-    def plan(self, slots: np.ndarray) -> None:
-        """The first plan of ``slots`` (new episodes): their current scans, then their fields."""
+    def plan(self, slots: np.ndarray, goals: np.ndarray, scans: tuple) -> None:
+        """New episodes of ``slots``: memories emptied, ``scans`` = (pose, ranges, angles, max_range)
+        marked, then their fields to ``goals`` [k, 2]."""
         slots = np.asarray(slots)
         self.known[slots] = False
-        self.observe(slots)
+        self.goals[slots] = goals
+        self.mark(slots, *scans)
         for slot in slots:
             self.fields[slot] = self._field(int(slot))
 
-    def path_cells(self, slot: int, steps: int = 400) -> np.ndarray:
-        """The cells of the slot's planned path from the robot (steepest descent of its field)."""
+    def path_cells(self, slot: int, xy: np.ndarray, steps: int = 400) -> np.ndarray:
+        """The cells of the slot's planned path from the point ``xy`` [2] (steepest descent of its field)."""
         h, w = self.grid.shape
         field = self.fields[slot]
-        cell = int(self.cells(self.env.pose[slot:slot + 1, :2].cpu().numpy().astype(np.float64))[0])
+        cell = int(self.cells(np.asarray(xy, np.float64).reshape(1, 2))[0])
         out = [cell]
         for _ in range(steps):
             i, j = divmod(cell, w)
@@ -138,10 +135,12 @@ class SeenWalls:
             out.append(cell)
         return np.array(out)
 
-    def update(self, slots: np.ndarray) -> None:
-        """After a step: the new walls of running ``slots``; replan those whose path they block or brush."""
+    def update(self, slots: np.ndarray, scans: tuple) -> None:
+        """After a step: ``scans`` = (pose, ranges, angles, max_range) of running ``slots`` marked; those
+        whose path (from their pose) the new walls block or brush are replanned."""
         slots = np.asarray(slots)
-        new = self.observe(slots)
+        new = self.mark(slots, *scans)
+        pose = np.asarray(scans[0], np.float64)
         w = self.grid.shape[1]
         reach = self.radius / self.grid.resolution + 1.0  # cells: a wall this near a path cell blocks it
         for k, slot in enumerate(slots):
@@ -151,78 +150,114 @@ class SeenWalls:
             walls = np.argwhere(new[k])
             if not len(walls):
                 continue
-            path = self.path_cells(int(slot))
+            path = self.path_cells(int(slot), pose[k, :2])
             cells = np.stack([path // w, path % w], axis=1)
             gap = np.hypot(*(cells[:, None, :] - walls[None, :, :]).transpose(2, 0, 1)).min()
             if gap <= reach or not np.isfinite(self.fields[slot][path[0]]):
                 self.fields[slot] = self._field(int(slot))
+
+    def _values(self, slots: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Field values of the slots' cells (i, j) [k, m]; off the grid: inf."""
+        h, w = self.grid.shape
+        inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
+        v = self.fields[slots[:, None], np.clip(i, 0, h - 1) * w + np.clip(j, 0, w - 1)]
+        return np.where(inside, v, np.inf)
+
+    def carrot(self, slots: np.ndarray, xy: np.ndarray, lookahead: float, escape: float = 0.3) -> np.ndarray:
+        """[k, 2]: the point ``lookahead`` metres down each slot's field from ``xy`` [k, 2], or the slot's
+        goal where it is nearer than that or no path is known. Where ``xy`` lies in space the plan counts
+        as blocked (closer than the radius to a seen wall), the descent starts from the lowest cell within
+        ``escape`` metres."""
+        g = self.grid
+        slots = np.asarray(slots)
+        w = g.shape[1]
+        xy = np.asarray(xy, np.float64)
+        goal = self.goals[slots]
+        cell = self.cells(xy)
+        i, j = cell // w, cell % w
+        reach = max(1, int(math.ceil(escape / g.resolution)))
+        di, dj = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1), indexing="ij")
+        window = np.stack([di.ravel(), dj.ravel()], axis=1)
+        around = self._values(slots, i[:, None] + window[:, 0], j[:, None] + window[:, 1])
+        best = around.argmin(axis=1)
+        here = self._values(slots, i[:, None], j[:, None])[:, 0]
+        stuck = ~np.isfinite(here)
+        i = np.where(stuck, i + window[best, 0], i)
+        j = np.where(stuck, j + window[best, 1], j)
+        value = np.where(stuck, around[np.arange(len(slots)), best], here)
+        step_m = np.where((_MOVES != 0).all(axis=1), math.sqrt(2.0), 1.0) * g.resolution
+        travelled = np.zeros(len(slots))
+        for _ in range(int(math.ceil(lookahead / g.resolution)) + 1):
+            nb = self._values(slots, i[:, None] + _MOVES[:, 0], j[:, None] + _MOVES[:, 1])
+            k = nb.argmin(axis=1)
+            lowest = nb[np.arange(len(slots)), k]
+            move = np.isfinite(value) & (lowest < value) & (travelled < lookahead)
+            if not move.any():
+                break
+            i, j = np.where(move, i + _MOVES[k, 0], i), np.where(move, j + _MOVES[k, 1], j)
+            travelled += np.where(move, step_m[k], 0.0)
+            value = np.where(move, lowest, value)
+        point = np.stack([g.origin[0] + (j + 0.5) * g.resolution, g.origin[1] + (i + 0.5) * g.resolution], axis=1)
+        use_goal = ~np.isfinite(value) | (np.linalg.norm(goal - xy, axis=1) <= lookahead) | (value <= 0)
+        return np.where(use_goal[:, None], goal, point)
+
+
+class EnvScans:
+    """What :class:`SeenWalls` is fed in the simulator: the scans, poses and goals of an env's slots
+    (one map per env: the walls live on its grid). ``sensor``: ``raw`` (every beam) or ``pooled`` (only
+    what the policy's observation keeps: each sector's minimum range, across the sector's arc)."""
+
+    def __init__(self, env, sensor: str = "raw"):
+        if sensor not in SENSORS:
+            raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
+        if env.num_maps != 1:
+            raise ValueError(f"the mapless planner plans on one map per env, got {env.num_maps} maps "
+                             "(evaluate them one at a time)")
+        self.env, self.sensor = env, sensor
+
+    def walls(self, margin: float = 0.08, comfort: float = 0.3, memory: bool = True) -> SeenWalls:
+        """A :class:`SeenWalls` for the env's slots on its map's grid (the simulator frame)."""
+        env = self.env
+        return SeenWalls(env.frame_maps[0], env.num_envs, env.preset.footprint.circumscribed_radius + margin,
+                         comfort, memory=memory)
+
+    def scans(self, slots: np.ndarray) -> tuple:
+        """(pose [k, 3], ranges [k, B], angles [B], max_range) of ``slots`` now."""
+        env = self.env
+        sel = torch.as_tensor(slots, device=env.device)
+        ranges = env.scan(sel).cpu().numpy()
+        lidar = env.preset.lidar
+        if self.sensor == "pooled":
+            pooled = ranges.reshape(len(slots), lidar.sectors, lidar.beams_per_sector).min(axis=2)
+            ranges = np.repeat(pooled, lidar.beams_per_sector, axis=1)
+        return (env.pose[sel].cpu().numpy().astype(np.float64), ranges, env.beam_angles.cpu().numpy(),
+                lidar.max_range)
+
+    def goals(self, slots: np.ndarray) -> np.ndarray:
+        return self.env.goal[torch.as_tensor(slots, device=self.env.device)].cpu().numpy().astype(np.float64)
+
+    def positions(self, slots: np.ndarray) -> np.ndarray:
+        return self.env.pose[torch.as_tensor(slots, device=self.env.device), :2].cpu().numpy().astype(np.float64)
 
 
 class MaplessGuide:
     """Carrots on paths planned over each slot's own scans (no map): the interface of
     :class:`flashnav.guidance.PathGuide` (:meth:`observe`), for one-map envs. A slot's memory starts
     empty at the first :meth:`observe` of its episode (call ``reset``/``set_state`` first, then observe
-    before every step, as :func:`flashnav.evaluate.play_episodes` does).
-
-    Where the robot stands in space the plan counts as blocked (closer than the radius to a seen wall),
-    the descent starts from the lowest cell within ``escape`` metres; where no path is known at all, the
-    carrot is the goal itself."""
+    before every step, as :func:`flashnav.evaluate.play_episodes` does). See :meth:`SeenWalls.carrot`."""
 
     def __init__(self, env, lookahead: float = LOOKAHEAD_M, margin: float = 0.0, comfort: float = 0.3,
                  escape: float = 0.3):
         if not (math.isfinite(lookahead) and lookahead > 0):
             raise ValueError(f"mapless guidance lookahead must be > 0 metres, got {lookahead}")
-        self.env, self.lookahead = env, float(lookahead)
-        self.walls = SeenWalls(env, margin, comfort)
+        self.env, self.lookahead, self.escape = env, float(lookahead), float(escape)
+        self.source = EnvScans(env)
+        self.walls = self.source.walls(margin, comfort)
         self.planned = np.zeros(env.num_envs, dtype=bool)
-        res = self.walls.grid.resolution
-        self.max_moves = int(math.ceil(self.lookahead / res)) + 1
-        reach = max(1, int(math.ceil(escape / res)))
-        di, dj = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1), indexing="ij")
-        self._window = np.stack([di.ravel(), dj.ravel()], axis=1)
-        self._step_m = np.where((_MOVES != 0).all(axis=1), math.sqrt(2.0), 1.0) * res
-        self._step_m[0] = 0.0
-
-    def _values(self, rows: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-        """Field values of rows' cells (i, j) [k, m]; off the map: inf."""
-        h, w = self.walls.grid.shape
-        inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
-        v = self.walls.fields[rows[:, None], np.clip(i, 0, h - 1) * w + np.clip(j, 0, w - 1)]
-        return np.where(inside, v, np.inf)
 
     def carrot(self, slots: np.ndarray) -> np.ndarray:
-        """[k, 2] metres (simulator frame): the point ``lookahead`` metres down each slot's field from the
-        robot, or the goal where it is nearer than that or no path is known."""
-        g, env = self.walls.grid, self.env
-        w = g.shape[1]
-        sel = torch.as_tensor(slots, device=env.device)
-        pos = env.pose[sel, :2].cpu().numpy().astype(np.float64)
-        goal = env.goal[sel].cpu().numpy().astype(np.float64)
-        cell = self.walls.cells(pos)
-        i, j = cell // w, cell % w
-        # start: the robot's cell, or the lowest cell of the escape window where the robot's is blocked
-        around = self._values(slots, i[:, None] + self._window[:, 0], j[:, None] + self._window[:, 1])
-        best = around.argmin(axis=1)
-        here = self._values(slots, i[:, None], j[:, None])[:, 0]
-        stuck = ~np.isfinite(here)
-        i = np.where(stuck, i + self._window[best, 0], i)
-        j = np.where(stuck, j + self._window[best, 1], j)
-        value = np.where(stuck, around[np.arange(len(slots)), best], here)
-        travelled = np.zeros(len(slots))
-        for _ in range(self.max_moves):
-            nb = self._values(slots, i[:, None] + _MOVES[:, 0], j[:, None] + _MOVES[:, 1])
-            k = nb.argmin(axis=1)
-            lowest = nb[np.arange(len(slots)), k]
-            move = np.isfinite(value) & (lowest < value) & (travelled < self.lookahead)
-            if not move.any():
-                break
-            i, j = np.where(move, i + _MOVES[k, 0], i), np.where(move, j + _MOVES[k, 1], j)
-            travelled += np.where(move, self._step_m[k], 0.0)
-            value = np.where(move, lowest, value)
-        point = np.stack([g.origin[0] + (j + 0.5) * g.resolution, g.origin[1] + (i + 0.5) * g.resolution], axis=1)
-        to_goal = np.linalg.norm(goal - pos, axis=1) <= self.lookahead
-        use_goal = ~np.isfinite(value) | to_goal | (value <= 0)
-        return np.where(use_goal[:, None], goal, point)
+        """[k, 2] metres (simulator frame) for ``slots`` at their current positions."""
+        return self.walls.carrot(slots, self.source.positions(slots), self.lookahead, self.escape)
 
     def observe(self, obs: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
         """Observations [k, D] of slots ``idx`` [k] with their goal columns pointing at their carrots;
@@ -230,10 +265,10 @@ class MaplessGuide:
         slots = idx.cpu().numpy()
         first = slots[~self.planned[slots]]
         if len(first):
-            self.walls.plan(first)
+            self.walls.plan(first, self.source.goals(first), self.source.scans(first))
             self.planned[first] = True
         later = slots[np.isin(slots, first, invert=True)]
         if len(later):
-            self.walls.update(later)
+            self.walls.update(later, self.source.scans(later))
         points = torch.as_tensor(self.carrot(slots), device=self.env.device)
         return aim(self.env, obs, idx, points)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from flashnav.mapless import SENSORS, SeenWalls
+from flashnav.mapless import SENSORS, EnvScans
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
@@ -40,7 +40,8 @@ class MaplessPlanner(OracleController):
 
     def __init__(self, env, lookahead: float = 0.35, margin: float = 0.08, comfort: float = 0.3, *,
                  sensor: str = "raw", memory: bool = True):
-        self.walls = SeenWalls(env, margin, comfort, sensor=sensor, memory=memory)
+        self.source = EnvScans(env, sensor)
+        self.walls = self.source.walls(margin, comfort, memory)
         super().__init__(env, lookahead, margin, comfort)
         self.fields = self.walls.fields  # what the oracle's steering descends
 
@@ -49,11 +50,12 @@ class MaplessPlanner(OracleController):
         return self.walls.replans
 
     def plan_all(self) -> None:
-        self.walls.plan(np.arange(self.env.num_envs))
+        slots = np.arange(self.env.num_envs)
+        self.walls.plan(slots, self.source.goals(slots), self.source.scans(slots))
 
     def update(self, slots: np.ndarray) -> None:
         """After a step: new walls of running ``slots``; replan those whose path they block or brush."""
-        self.walls.update(slots)
+        self.walls.update(slots, self.source.scans(slots))
 
 
 def run_map(preset, map_path: str, episodes: int, seed: int, sensor: str = "raw", memory: bool = True) -> dict:

@@ -12,7 +12,7 @@ from scipy.ndimage import binary_dilation
 
 from flashnav.eval_maps import evaluate_maps, fixed_episodes
 from flashnav.evaluate import play_episodes
-from flashnav.mapless import MaplessGuide, SeenWalls
+from flashnav.mapless import EnvScans, MaplessGuide, SeenWalls
 from flashnav.maps.families import generate_family
 from flashnav.sim.env import NavVecEnv, make_env
 from test_goal_fields import blocked_room
@@ -46,27 +46,30 @@ def test_seen_walls_mark_only_walls_and_start_knowing_nothing():
     grid = generate_family("mazes", 7, size=(6.0, 6.0), resolution=0.05)
     env = make_env(TB2, 4, map=grid, seed=0)
     env.reset(seed=1)
-    walls = SeenWalls(env)
+    source = EnvScans(env)
+    walls = source.walls()
     assert not walls.known.any()
-    new = walls.observe(np.arange(4))
+    new = walls.mark(np.arange(4), *source.scans(np.arange(4)))
     truth = env.frame_maps[0].occupied
     marked = new.any(axis=0)
     assert new.any(axis=(1, 2)).all() and truth[marked].mean() > 0.95
     assert binary_dilation(truth, structure=np.ones((3, 3), bool))[marked].all()
-    assert not walls.observe(np.arange(4)).any()  # the same scans: nothing new
+    assert not walls.mark(np.arange(4), *source.scans(np.arange(4))).any()  # the same scans: nothing new
     # elsewhere (new poses, same slots): the walls seen before stay known; forgetful, only the new scan's
     before = walls.known.copy()
-    forgetful = SeenWalls(env, memory=False)
-    forgetful.observe(np.arange(4))
+    forgetful = source.walls(memory=False)
+    forgetful.mark(np.arange(4), *source.scans(np.arange(4)))
     env.set_state(env.world_pose().flip(0), env.world_goal())
-    walls.observe(np.arange(4))
+    walls.mark(np.arange(4), *source.scans(np.arange(4)))
     assert (walls.known >= before).all() and (walls.known > before).any()
-    forgetful.observe(np.arange(4))
+    forgetful.mark(np.arange(4), *source.scans(np.arange(4)))
     assert not (forgetful.known >= before).all() and forgetful.known.any()
     with pytest.raises(ValueError, match="sensor must be one of"):
-        SeenWalls(env, sensor="camera")
+        EnvScans(env, sensor="camera")
     with pytest.raises(ValueError, match="one map per env, got 2 maps"):
-        SeenWalls(make_env(TB2, 2, maps=[grid, blocked_room(0.05)], seed=0))
+        EnvScans(make_env(TB2, 2, maps=[grid, blocked_room(0.05)], seed=0))
+    with pytest.raises(ValueError, match="radius and comfort must be > 0"):
+        SeenWalls(grid, 1, 0.0)
 
 
 def test_the_guide_goes_round_the_wall_it_sees_and_never_reads_the_rest():

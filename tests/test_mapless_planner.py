@@ -37,8 +37,6 @@ def test_the_planner_plans_on_its_seen_walls(maze):
     planner.plan_all()
     assert planner.walls.known.any(axis=(1, 2)).all() and (planner.replans == 1).all()
     assert planner.act().shape == (4, 2)
-    with pytest.raises(ValueError, match="sensor must be one of"):
-        mapless_planner.MaplessPlanner(env, sensor="camera")
 
 
 def test_memory_solves_the_maze_and_forgetting_costs(maze):
