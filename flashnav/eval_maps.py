@@ -114,7 +114,7 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
     ``guide``: path guidance (:mod:`flashnav.guidance`) with this lookahead in metres; None = the task
     as it is (the policy gets the goal). ``guide_from``: what the guide plans on, ``map`` (the known map,
     :class:`~flashnav.guidance.PathGuide`) or ``scans`` (only what each episode's scans have shown,
-    :class:`~flashnav.mapless.MaplessGuide`; maps are then played one at a time, in blocks of slots whose
+    :class:`~flashnav.guidance.MaplessGuide`; maps are then played one at a time, in blocks of slots whose
     per-slot memories fit ``SCANS_GUIDE_CELLS``).
 
     Returns a dict: ``maps`` (one entry per map, in order: label, source, size, resolution, diagonal,
@@ -161,9 +161,9 @@ SCANS_GUIDE_CELLS = 50_000_000
 
 
 def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, lookahead: float) -> dict:
-    """:func:`play_episodes` with a :class:`~flashnav.mapless.MaplessGuide`, map by map (its memories are
+    """:func:`play_episodes` with a :class:`~flashnav.guidance.MaplessGuide`, map by map (its memories are
     per map) and in blocks of slots; the episodes are each map's fixed ones, as in the one-env path."""
-    from flashnav.mapless import MaplessGuide
+    from flashnav.guidance import MaplessGuide
 
     parts = []
     for g in grids:

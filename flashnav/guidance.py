@@ -1,4 +1,6 @@
-"""Path guidance: a global planner in front of the policy on a map it knows (``flashnav eval --guide M``).
+"""Path guidance: a global planner in front of the policy (``flashnav eval --guide M``), on the map it knows
+(:class:`PathGuide`) or on the walls its own scans have shown (:class:`MaplessGuide`, ``--guide-from scans``;
+:mod:`flashnav.mapless`).
 
 A robot in a building it has a map of does not aim its local controller at a goal behind walls: a global
 planner hands it a point a little way along the shortest path (the "carrot" of pure-pursuit controllers
@@ -23,6 +25,7 @@ import math
 import numpy as np
 import torch
 
+from flashnav.mapless import SENSORS, SeenWalls
 from flashnav.sim.goal_fields import WindowFields
 from flashnav.sim.motion import wrap_angle
 
@@ -100,3 +103,75 @@ def aim(env, obs: torch.Tensor, idx: torch.Tensor, points: torch.Tensor) -> torc
     out[:, col] = torch.linalg.vector_norm(delta, dim=1).to(obs.dtype)
     out[:, col + 1] = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2].double()).to(obs.dtype)
     return out
+
+
+class EnvScans:
+    """What :class:`SeenWalls` is fed in the simulator: the scans, poses and goals of an env's slots
+    (one map per env: the walls live on its grid). ``sensor``: ``raw`` (every beam) or ``pooled`` (only
+    what the policy's observation keeps: each sector's minimum range, across the sector's arc)."""
+
+    def __init__(self, env, sensor: str = "raw"):
+        if sensor not in SENSORS:
+            raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
+        if env.num_maps != 1:
+            raise ValueError(f"the mapless planner plans on one map per env, got {env.num_maps} maps "
+                             "(evaluate them one at a time)")
+        self.env, self.sensor = env, sensor
+
+    def walls(self, margin: float = 0.08, comfort: float = 0.3, memory: bool = True) -> SeenWalls:
+        """A :class:`SeenWalls` for the env's slots on its map's grid (the simulator frame)."""
+        env = self.env
+        return SeenWalls(env.frame_maps[0], env.num_envs, env.preset.footprint.circumscribed_radius + margin,
+                         comfort, memory=memory)
+
+    def scans(self, slots: np.ndarray) -> tuple:
+        """(pose [k, 3], ranges [k, B], angles [B], max_range) of ``slots`` now."""
+        env = self.env
+        sel = torch.as_tensor(slots, device=env.device)
+        ranges = env.scan(sel).cpu().numpy()
+        lidar = env.preset.lidar
+        if self.sensor == "pooled":
+            pooled = ranges.reshape(len(slots), lidar.sectors, lidar.beams_per_sector).min(axis=2)
+            ranges = np.repeat(pooled, lidar.beams_per_sector, axis=1)
+        return (env.pose[sel].cpu().numpy().astype(np.float64), ranges, env.beam_angles.cpu().numpy(),
+                lidar.max_range)
+
+    def goals(self, slots: np.ndarray) -> np.ndarray:
+        return self.env.goal[torch.as_tensor(slots, device=self.env.device)].cpu().numpy().astype(np.float64)
+
+    def positions(self, slots: np.ndarray) -> np.ndarray:
+        return self.env.pose[torch.as_tensor(slots, device=self.env.device), :2].cpu().numpy().astype(np.float64)
+
+
+class MaplessGuide:
+    """Carrots on paths planned over each slot's own scans (no map): the interface of
+    :class:`flashnav.guidance.PathGuide` (:meth:`observe`), for one-map envs. A slot's memory starts
+    empty at the first :meth:`observe` of its episode (call ``reset``/``set_state`` first, then observe
+    before every step, as :func:`flashnav.evaluate.play_episodes` does). See :meth:`SeenWalls.carrot`."""
+
+    def __init__(self, env, lookahead: float = LOOKAHEAD_M, margin: float = 0.0, comfort: float = 0.3,
+                 escape: float = 0.3):
+        if not (math.isfinite(lookahead) and lookahead > 0):
+            raise ValueError(f"mapless guidance lookahead must be > 0 metres, got {lookahead}")
+        self.env, self.lookahead, self.escape = env, float(lookahead), float(escape)
+        self.source = EnvScans(env)
+        self.walls = self.source.walls(margin, comfort)
+        self.planned = np.zeros(env.num_envs, dtype=bool)
+
+    def carrot(self, slots: np.ndarray) -> np.ndarray:
+        """[k, 2] metres (simulator frame) for ``slots`` at their current positions."""
+        return self.walls.carrot(slots, self.source.positions(slots), self.lookahead, self.escape)
+
+    def observe(self, obs: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        """Observations [k, D] of slots ``idx`` [k] with their goal columns pointing at their carrots;
+        first updates the slots' memories with their current scans (and replans where needed)."""
+        slots = idx.cpu().numpy()
+        first = slots[~self.planned[slots]]
+        if len(first):
+            self.walls.plan(first, self.source.goals(first), self.source.scans(first))
+            self.planned[first] = True
+        later = slots[np.isin(slots, first, invert=True)]
+        if len(later):
+            self.walls.update(later, self.source.scans(later))
+        points = torch.as_tensor(self.carrot(slots), device=self.env.device)
+        return aim(self.env, obs, idx, points)

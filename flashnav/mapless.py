@@ -9,14 +9,12 @@ through the cells where the robot's disc (plus ``margin``) touches no known wall
 grows within ``comfort`` metres of the walls (the oracle's, :class:`flashnav.sim.oracle.OracleController`).
 It replans a slot when a newly seen wall lies on or beside its path.
 
-Two controllers use it: ``scripts/mapless_planner.py`` steers with the oracle's pure pursuit along its
-fields (the bound of what a controller without the map can do), and :class:`MaplessGuide` hands a
-policy, at every step, a point ``lookahead`` metres along its path as the goal
-(``flashnav eval --maps ... --guide M --guide-from scans``): a deployment mode that, unlike
-:class:`flashnav.guidance.PathGuide`, needs no map - only the scans and odometry a robot has.
-
-One map per environment (evaluate map by map): each slot keeps a wall grid and a distance field of its
-map's size.
+Three controllers use it: ``scripts/mapless_planner.py`` steers with the oracle's pure pursuit along its
+fields (the bound of what a controller without the map can do); :class:`flashnav.guidance.MaplessGuide`
+hands a policy in the simulator, at every step, a point ``lookahead`` metres along its path as the goal
+(``flashnav eval --maps ... --guide M --guide-from scans``); :class:`ScanGuide` does the same for one robot
+from its LaserScan and odometry (``flashnav deploy ros --guide M``): a deployment mode that, unlike
+:class:`flashnav.guidance.PathGuide`, needs no map. numpy and scipy only (the deploy side has no torch).
 """
 
 from __future__ import annotations
@@ -24,12 +22,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 from scipy.sparse.csgraph import dijkstra
 
-from flashnav.guidance import LOOKAHEAD_M, aim
+from flashnav.maps.graph import grid_graph
 from flashnav.maps.grid import OccupancyMap
-from flashnav.sim.oracle import grid_graph
 
 SENSORS = ("raw", "pooled")
 #: the 8-neighbourhood (row, column) and the centre
@@ -202,73 +198,44 @@ class SeenWalls:
         return np.where(use_goal[:, None], goal, point)
 
 
-class EnvScans:
-    """What :class:`SeenWalls` is fed in the simulator: the scans, poses and goals of an env's slots
-    (one map per env: the walls live on its grid). ``sensor``: ``raw`` (every beam) or ``pooled`` (only
-    what the policy's observation keeps: each sector's minimum range, across the sector's arc)."""
+class ScanGuide:
+    """:class:`SeenWalls` for one robot: each goal starts an empty memory on a square grid centred on
+    the robot's pose at the goal's first control step (odometry frame; ``window`` metres a side, or
+    more so that the goal lies well inside), fed with every control step's scan.
 
-    def __init__(self, env, sensor: str = "raw"):
-        if sensor not in SENSORS:
-            raise ValueError(f"sensor must be one of {SENSORS}, got {sensor!r}")
-        if env.num_maps != 1:
-            raise ValueError(f"the mapless planner plans on one map per env, got {env.num_maps} maps "
-                             "(evaluate them one at a time)")
-        self.env, self.sensor = env, sensor
+    ``step(pose, angles, ranges, max_range)`` -> the carrot (x, y), odometry frame: ``angles`` [B]
+    radians from the heading of the beams' directions and ``ranges`` [B] metres from the robot's centre
+    (NaN: no return), as :meth:`flashnav.deploy.scan.ScanAdapter.beams` gives them.
+    """
 
-    def walls(self, margin: float = 0.08, comfort: float = 0.3, memory: bool = True) -> SeenWalls:
-        """A :class:`SeenWalls` for the env's slots on its map's grid (the simulator frame)."""
-        env = self.env
-        return SeenWalls(env.frame_maps[0], env.num_envs, env.preset.footprint.circumscribed_radius + margin,
-                         comfort, memory=memory)
-
-    def scans(self, slots: np.ndarray) -> tuple:
-        """(pose [k, 3], ranges [k, B], angles [B], max_range) of ``slots`` now."""
-        env = self.env
-        sel = torch.as_tensor(slots, device=env.device)
-        ranges = env.scan(sel).cpu().numpy()
-        lidar = env.preset.lidar
-        if self.sensor == "pooled":
-            pooled = ranges.reshape(len(slots), lidar.sectors, lidar.beams_per_sector).min(axis=2)
-            ranges = np.repeat(pooled, lidar.beams_per_sector, axis=1)
-        return (env.pose[sel].cpu().numpy().astype(np.float64), ranges, env.beam_angles.cpu().numpy(),
-                lidar.max_range)
-
-    def goals(self, slots: np.ndarray) -> np.ndarray:
-        return self.env.goal[torch.as_tensor(slots, device=self.env.device)].cpu().numpy().astype(np.float64)
-
-    def positions(self, slots: np.ndarray) -> np.ndarray:
-        return self.env.pose[torch.as_tensor(slots, device=self.env.device), :2].cpu().numpy().astype(np.float64)
-
-
-class MaplessGuide:
-    """Carrots on paths planned over each slot's own scans (no map): the interface of
-    :class:`flashnav.guidance.PathGuide` (:meth:`observe`), for one-map envs. A slot's memory starts
-    empty at the first :meth:`observe` of its episode (call ``reset``/``set_state`` first, then observe
-    before every step, as :func:`flashnav.evaluate.play_episodes` does). See :meth:`SeenWalls.carrot`."""
-
-    def __init__(self, env, lookahead: float = LOOKAHEAD_M, margin: float = 0.0, comfort: float = 0.3,
-                 escape: float = 0.3):
+    def __init__(self, radius: float, lookahead: float = 0.5, resolution: float = 0.05, window: float = 30.0,
+                 comfort: float = 0.3, escape: float = 0.3):
         if not (math.isfinite(lookahead) and lookahead > 0):
             raise ValueError(f"mapless guidance lookahead must be > 0 metres, got {lookahead}")
-        self.env, self.lookahead, self.escape = env, float(lookahead), float(escape)
-        self.source = EnvScans(env)
-        self.walls = self.source.walls(margin, comfort)
-        self.planned = np.zeros(env.num_envs, dtype=bool)
+        if not (resolution > 0 and window > 0):
+            raise ValueError(f"mapless guidance grid: resolution and window must be > 0 m, got {resolution}, {window}")
+        self.radius, self.lookahead, self.resolution = float(radius), float(lookahead), float(resolution)
+        self.window, self.comfort, self.escape = float(window), float(comfort), float(escape)
+        self.goal: tuple[float, float] | None = None
+        self.walls: SeenWalls | None = None
 
-    def carrot(self, slots: np.ndarray) -> np.ndarray:
-        """[k, 2] metres (simulator frame) for ``slots`` at their current positions."""
-        return self.walls.carrot(slots, self.source.positions(slots), self.lookahead, self.escape)
+    def start(self, goal) -> None:
+        """A new goal (odometry frame): the next :meth:`step` starts a new memory."""
+        self.goal, self.walls = (float(goal[0]), float(goal[1])), None
 
-    def observe(self, obs: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-        """Observations [k, D] of slots ``idx`` [k] with their goal columns pointing at their carrots;
-        first updates the slots' memories with their current scans (and replans where needed)."""
-        slots = idx.cpu().numpy()
-        first = slots[~self.planned[slots]]
-        if len(first):
-            self.walls.plan(first, self.source.goals(first), self.source.scans(first))
-            self.planned[first] = True
-        later = slots[np.isin(slots, first, invert=True)]
-        if len(later):
-            self.walls.update(later, self.source.scans(later))
-        points = torch.as_tensor(self.carrot(slots), device=self.env.device)
-        return aim(self.env, obs, idx, points)
+    def step(self, pose, angles, ranges, max_range: float) -> tuple[float, float]:
+        if self.goal is None:
+            raise ValueError("ScanGuide.step before start(goal)")
+        pose = np.asarray(pose, np.float64).reshape(1, 3)
+        scans = (pose, np.asarray(ranges, np.float64).reshape(1, -1), np.asarray(angles, np.float64), float(max_range))
+        if self.walls is None:
+            side = max(self.window, 2.0 * math.dist(pose[0, :2], self.goal) + 4.0)
+            cells = int(math.ceil(side / self.resolution))
+            origin = (pose[0, 0] - 0.5 * cells * self.resolution, pose[0, 1] - 0.5 * cells * self.resolution)
+            geometry = OccupancyMap(np.zeros((cells, cells), dtype=bool), self.resolution, origin=origin)
+            self.walls = SeenWalls(geometry, 1, self.radius, self.comfort)
+            self.walls.plan(np.zeros(1, np.int64), np.asarray([self.goal]), scans)
+        else:
+            self.walls.update(np.zeros(1, np.int64), scans)
+        x, y = self.walls.carrot(np.zeros(1, np.int64), pose[:, :2], self.lookahead, self.escape)[0]
+        return float(x), float(y)

@@ -39,7 +39,7 @@ from flashnav.scenarios import scenario_preset, scenario_rates, scenario_scored
 from flashnav.sim.agent_geometry import footprint_hits_discs
 from flashnav.sim.env import make_env
 from flashnav.sim.motion import action_to_velocity, integrate
-from flashnav.sim.oracle import grid_graph
+from flashnav.maps.graph import grid_graph
 
 
 def agent_tracks(preset, episodes: int, seed: int, still: torch.Tensor):

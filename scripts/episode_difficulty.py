@@ -7,7 +7,7 @@ Evaluates the exported POLICY on the fixed set that ``flashnav train`` evaluates
 pairs drawn with evaluation seed ``--seed``, the robot's bundled map), episode by episode
 (:func:`flashnav.evaluate.evaluate_episodes`), and relates each outcome to the episode's geodesic route:
 the shortest 8-connected grid path from start to goal through the cells where the footprint's circumscribed
-disc is collision-free (the oracle's graph, :func:`flashnav.sim.oracle.grid_graph`). Prints success / collision
+disc is collision-free (the oracle's graph, :func:`flashnav.maps.graph.grid_graph`). Prints success / collision
 / timeout by route length and by detour ratio (route / straight line), and the time the route needs at top speed
 against the horizon. The failed episodes are replayed alone (``set_state`` at their start and goal, the
 deterministic policy gives the same path) to find each one's closest approach to its goal and how far it drove in
@@ -30,7 +30,7 @@ from failure_kinds import drive  # scripts/: the same replay from given starts a
 from flashnav.evaluate import evaluate_episodes
 from flashnav.export import load_policy
 from flashnav.sim.env import make_env
-from flashnav.sim.oracle import grid_graph
+from flashnav.maps.graph import grid_graph
 
 LENGTH_BINS = [0, 2, 3, 4, 5, 6, 8, math.inf]  # metres of route
 DETOUR_BINS = [1.0, 1.1, 1.25, 1.5, 2.0, math.inf]

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from flashnav.mapless import SENSORS, EnvScans
+from flashnav.guidance import EnvScans
+from flashnav.mapless import SENSORS
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset

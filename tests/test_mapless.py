@@ -12,7 +12,8 @@ from scipy.ndimage import binary_dilation
 
 from flashnav.eval_maps import evaluate_maps, fixed_episodes
 from flashnav.evaluate import play_episodes
-from flashnav.mapless import EnvScans, MaplessGuide, SeenWalls
+from flashnav.guidance import EnvScans, MaplessGuide
+from flashnav.mapless import SeenWalls
 from flashnav.maps.families import generate_family
 from flashnav.sim.env import NavVecEnv, make_env
 from test_goal_fields import blocked_room
@@ -130,3 +131,67 @@ def test_scans_guided_evaluation_plays_each_maps_fixed_episodes(monkeypatch):
     torch.testing.assert_close(torch.cat([p for p, _ in seen[:3]]), start, atol=1e-5, rtol=0)
     with pytest.raises(ValueError, match="guide_from must be one of"):
         evaluate_maps(goal_seeker(env), TB2, grids, 2, 7, goal_distance_scale=20.0, guide=0.5, guide_from="slam")
+
+
+def test_the_deploy_controller_with_a_scan_guide_finds_the_way_round_the_wall():
+    """The robot stack without a map: the simulator's scans and poses through a ROS-shaped Controller whose
+    runtime steers straight at whatever its observation's goal columns point to. Aimed at the goal it
+    drives into the wall; with a ScanGuide it goes round, and the goal radius is still the goal's."""
+    from flashnav.deploy.controller import Controller
+    from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.deploy.scan import simulator_scan_fields
+    from flashnav.mapless import ScanGuide
+    from test_deploy_runtime import POLICY
+
+    grid = blocked_room(0.05)
+    outcome = {}
+    for guided in (False, True):
+        env = placed(grid, [[3.0, 3.5, 0.0]], [[5.0, 3.5]])
+        rt = PolicyRuntime.load(POLICY)
+        seek = goal_seeker(env)
+
+        def act(obs, seek=seek, rt=rt):  # the goal seeker in place of the network, the runtime's units
+            a = seek(torch.as_tensor(obs)[None])[0].numpy()
+            lo_v, hi_v = env.preset.motion.v_bounds
+            lo_w, hi_w = env.preset.motion.w_bounds
+            return a, lo_v + (a[0] + 1) * 0.5 * (hi_v - lo_v), lo_w + (a[1] + 1) * 0.5 * (hi_w - lo_w)
+        rt.act = act
+        guide = ScanGuide(env.preset.footprint.circumscribed_radius, lookahead=0.5) if guided else None
+        ctl = Controller(rt, timeout=1.0, guide=guide)
+        scan = simulator_scan_fields(env.preset.lidar)
+        t, dt, result = 0.0, env.preset.episode.dt, None
+        ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
+        for _ in range(env.preset.episode.horizon):
+            ctl.on_odom(*env.world_pose()[0].tolist(), now=t)
+            command = ctl.on_scan(ranges=env.scan()[0].numpy(), stamp=t, now=t, **scan)
+            if command.state == "reached":
+                result = "reached"
+                break
+            if guided:  # the carrot: within the lookahead of the robot, off the straight line at first
+                assert math.dist(ctl.carrot, env.world_pose()[0, :2].tolist()) <= 0.5 + 0.3 + 1e-6
+            _, _, terminated, truncated, info = env.step(torch.tensor([ctl.last_action], dtype=torch.float32))
+            t += dt
+            if bool(terminated[0] | truncated[0]):
+                result = "success" if bool(info["success"][0]) else "collision" if bool(info["collision"][0]) else "timeout"
+                break
+        outcome[guided] = result
+        assert ctl.status(t)["carrot"] is None if not guided else ctl.status(t)["carrot"] is not None
+    # the env ends an episode inside the goal radius; the controller says reached at the same radius
+    assert outcome[False] == "collision" and outcome[True] in ("success", "reached")
+    with pytest.raises(ValueError, match="lookahead must be > 0"):
+        ScanGuide(0.2, lookahead=0.0)
+
+
+def test_deploy_guide_flag_builds_the_scan_guide_or_names_the_bad_value():
+    import argparse
+
+    from flashnav.deploy.cli import make_controller
+    from test_deploy_runtime import POLICY
+
+    args = argparse.Namespace(policy=str(POLICY), lidar_pose=[0.0, 0.0, 0.0], lidar_flipped=False, fill=None,
+                              timeout=0.3, rate=None, guide=0.5)
+    ctl = make_controller(args)
+    assert ctl.guide is not None and ctl.guide.lookahead == 0.5 and ctl.guide.radius == pytest.approx(0.2)
+    assert make_controller(argparse.Namespace(**{**vars(args), "guide": None})).guide is None
+    with pytest.raises(ValueError, match="--guide must be > 0 metres, got -1"):
+        make_controller(argparse.Namespace(**{**vars(args), "guide": -1.0}))

@@ -46,6 +46,9 @@ def _runtime_args(p: argparse.ArgumentParser) -> None:
                    help="seconds after which a missing scan or odometry stops the robot (default 0.3)")
     p.add_argument("--rate", type=float, default=None,
                    help="control rate, Hz (default: the policy's, 1 / control_period_s = 10 for the presets)")
+    p.add_argument("--guide", type=float, default=None, metavar="LOOKAHEAD_M",
+                   help="mapless guidance (flashnav/mapless.py): aim the policy at the point LOOKAHEAD_M metres along "
+                        "a path planned on the walls this goal's scans have shown, not at the goal (e.g. 0.5; no map)")
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -97,9 +100,25 @@ def make_controller(args):
         raise ValueError(f"--rate must be > 0 Hz, got {args.rate}")
     if not args.timeout > 0:
         raise ValueError(f"--timeout must be > 0 s, got {args.timeout}")
+    if args.guide is not None and not (math.isfinite(args.guide) and args.guide > 0):
+        raise ValueError(f"--guide must be > 0 metres, got {args.guide}")
     x, y, yaw = args.lidar_pose
     rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)
-    return Controller(rt, timeout=args.timeout, period=None if args.rate is None else 1.0 / args.rate)
+    guide = None
+    if args.guide is not None:
+        from flashnav.mapless import ScanGuide
+
+        guide = ScanGuide(footprint_radius(rt.meta), lookahead=args.guide)
+    return Controller(rt, timeout=args.timeout, period=None if args.rate is None else 1.0 / args.rate, guide=guide)
+
+
+def footprint_radius(meta: dict) -> float:
+    """The circumscribed radius (m) of the robot in a policy's metadata (its preset's footprint)."""
+    try:
+        f = meta["preset"]["footprint"]
+        return float(f["radius"]) if f["kind"] == "disc" else 0.5 * math.hypot(float(f["length"]), float(f["width"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"--guide needs the robot's footprint in the policy's metadata (preset.footprint: {exc})") from None
 
 
 def run_ros(args) -> int:
@@ -109,8 +128,9 @@ def run_ros(args) -> int:
     node = DeployNode(ctl, scan=args.scan, odom=args.odom, goal=args.goal, cmd=args.cmd, status=args.status,
                       people=args.people)
     people = f" + {args.people}" if ctl.rt.agent_tracks else ""
+    guided = "" if ctl.guide is None else f"; mapless guidance, carrots {args.guide:g} m along the path"
     print(f"flashnav deploy ros: {args.policy} ({ctl.rt.meta.get('robot')}) at {1 / ctl.period:g} Hz: "
-          f"{args.scan} + {args.odom} + {args.goal}{people} -> {args.cmd}", file=sys.stderr, flush=True)
+          f"{args.scan} + {args.odom} + {args.goal}{people} -> {args.cmd}{guided}", file=sys.stderr, flush=True)
     node.spin()
     return 0
 

@@ -31,6 +31,10 @@ own earlier positions from the odometry pose: every breadcrumb is the goal's fir
 first, and after every ``trail_every``-th control step since the goal that step's pose becomes the newest
 (as the simulator's episode steps). Only a new goal restarts the trail: a stop (stale) does not change
 where the robot has been.
+With a ``guide`` (:class:`flashnav.mapless.ScanGuide`: mapless guidance, ``flashnav deploy ros --guide M``)
+the policy is not aimed at the goal but, at every control step, at a point M metres along a path planned
+on the walls this goal's scans have shown so far (its memory starts afresh with every goal; no map); the
+goal radius and the status are still about the goal itself.
 Times are seconds on one clock (ROS time: wall or simulated).
 """
 
@@ -42,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flashnav.deploy.runtime import PolicyRuntime, robot_frame
+from flashnav.mapless import ScanGuide
 
 #: a scan triggers a control step when its stamp is at least this fraction of the period after the
 #: last one: a 10 Hz policy on a 40 Hz scanner acts on every 4th scan despite stamp jitter
@@ -60,10 +65,12 @@ class Command:
 class Controller:
     """See the module docstring. ``timeout`` seconds: the largest input age that still drives."""
 
-    def __init__(self, runtime: PolicyRuntime, timeout: float = 0.5, period: float | None = None):
+    def __init__(self, runtime: PolicyRuntime, timeout: float = 0.5, period: float | None = None,
+                 guide: ScanGuide | None = None):
         if not timeout > 0:
             raise ValueError(f"timeout must be > 0 s, got {timeout}")
-        self.rt, self.timeout = runtime, float(timeout)
+        self.rt, self.timeout, self.guide = runtime, float(timeout), guide
+        self.carrot: tuple[float, float] | None = None  # the guide's latest point
         self.period = runtime.control_period if period is None else float(period)
         if not self.period > 0:
             raise ValueError(f"period must be > 0 s, got {period}")
@@ -91,6 +98,9 @@ class Controller:
             return
         self.goal, self.velocity, self.last_step_stamp = (float(x), float(y)), (0.0, 0.0), -math.inf
         self.state, self.frames, self.crumbs, self.goal_steps = "driving", [], [], 0
+        if self.guide is not None:
+            self.guide.start(self.goal)
+            self.carrot = None
 
     def on_odom(self, x: float, y: float, yaw: float, now: float) -> None:
         self.pose, self.odom_time = (float(x), float(y), float(yaw)), float(now)
@@ -116,10 +126,19 @@ class Controller:
         if self._stale(now):
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
-        d = self.rt.decide(sectors, self.pose, self.goal, self.velocity, self._history(sectors), self._tracks(),
+        target = self.goal
+        if self.guide is not None:
+            if self.rt.goal_in_robot_frame(self.pose, self.goal)[0] < self.rt.goal_threshold:
+                return self._stop("reached")  # the goal itself, whatever the carrot
+            angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
+            self.carrot = self.guide.step(self.pose, angles, beams, self.rt.layout.max_range)
+            if self.rt.goal_in_robot_frame(self.pose, self.carrot)[0] >= self.rt.goal_threshold:
+                target = self.carrot  # (a carrot inside the goal radius would read as arrived: aim at the goal)
+        d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
                            self._trail())
         self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1
-        self.distance, self.last_obs = d.distance, d.obs
+        self.last_obs = d.obs
+        self.distance = d.distance if target is self.goal else self.rt.goal_in_robot_frame(self.pose, self.goal)[0]
         self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
         if d.state == "reached":
             return self._stop("reached")
@@ -185,6 +204,7 @@ class Controller:
             dist, _ = self.rt.goal_in_robot_frame(self.pose, self.goal)
         return {"state": self.state, "distance": None if math.isnan(dist) else round(dist, 4),
                 "goal": None if self.goal is None else list(self.goal),
+                "carrot": None if self.carrot is None else [round(c, 4) for c in self.carrot],
                 "command": list(self.velocity), "action": self.last_action, "steps": self.steps,
                 "scan_age": _age(now, self.scan_time), "odom_age": _age(now, self.odom_time),
                 "people_age": _age(now, self.people_time),

@@ -95,6 +95,23 @@ class ScanAdapter:
 
     def __call__(self, angle_min: float, angle_increment: float, ranges, range_min: float,
                  range_max: float) -> np.ndarray:
+        r, angle, valid, _ = self._base_frame(angle_min, angle_increment, ranges, range_min, range_max)
+        idx = sector_of(angle, self.layout)
+        keep = valid & (idx >= 0)
+        out = np.full(self.layout.sectors, np.inf)
+        np.minimum.at(out, idx[keep], r[keep])
+        out = np.where(np.isinf(out), self.fill, np.minimum(out, self.layout.max_range))
+        return out.astype(np.float32)
+
+    def beams(self, angle_min: float, angle_increment: float, ranges, range_min: float,
+              range_max: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every beam in the base frame: (direction [B] radians from the heading, range [B] metres from the
+        base's origin, NaN where the beam has no valid return), with the conventions of ``__call__``."""
+        r, angle, valid, no_return = self._base_frame(angle_min, angle_increment, ranges, range_min, range_max)
+        return angle, np.where(valid & ~no_return, r, np.nan)
+
+    def _base_frame(self, angle_min, angle_increment, ranges, range_min, range_max):
+        """(range, direction, valid, no_return) [B] per beam in the base frame; no return reads max_range."""
         r = np.asarray(ranges, dtype=np.float64).reshape(-1)
         if r.size == 0:
             raise ValueError("scan has no ranges")
@@ -115,12 +132,7 @@ class ScanAdapter:
             px, py = m.x + r * np.cos(direction), m.y + r * np.sin(direction)
             angle = np.where(no_return, direction, np.arctan2(py, px))
             r = np.where(no_return, max_range, np.hypot(px, py))
-        idx = sector_of(angle, self.layout)
-        keep = valid & (idx >= 0)
-        out = np.full(self.layout.sectors, np.inf)
-        np.minimum.at(out, idx[keep], r[keep])
-        out = np.where(np.isinf(out), self.fill, np.minimum(out, max_range))
-        return out.astype(np.float32)
+        return r, angle, valid, no_return
 
     def _check_coverage(self, direction: np.ndarray, key) -> None:
         """Warn once per scan geometry about the sectors no beam falls in (the sensor's blind side)."""
