@@ -195,3 +195,17 @@ def test_deploy_guide_flag_builds_the_scan_guide_or_names_the_bad_value():
     assert make_controller(argparse.Namespace(**{**vars(args), "guide": None})).guide is None
     with pytest.raises(ValueError, match="--guide must be > 0 metres, got -1"):
         make_controller(argparse.Namespace(**{**vars(args), "guide": -1.0}))
+
+
+def test_sim_robot_episodes_take_the_goal_sampling_asked_for():
+    from flashnav.deploy.sim_robot import episodes_of
+    from flashnav.sim.goal_fields import evaluation_preset
+
+    grid = generate_family("mazes", 5, size=(6.0, 6.0), resolution=0.05)
+    euclid = episodes_of("turtlebot2", grid, 8, 3)
+    geo = episodes_of("turtlebot2", grid, 8, 3, "geodesic")
+    assert not np.allclose(euclid[1], geo[1])
+    env = NavVecEnv(evaluation_preset(TB2), 8, grid=grid, seed=3)  # what flashnav eval --maps plays
+    pose, goal = fixed_episodes(env, 0, 8, 3)
+    np.testing.assert_allclose(geo[0], pose.numpy(), atol=1e-5)
+    np.testing.assert_allclose(geo[1], goal.numpy(), atol=1e-5)

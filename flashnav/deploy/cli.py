@@ -8,6 +8,7 @@ import math
 import sys
 
 from flashnav.deploy.scan import Mount
+from flashnav.names import GOAL_SAMPLINGS
 
 
 def _floats(n: int, name: str):
@@ -67,6 +68,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--episodes", type=int, default=0,
                    help="play the start/goal pairs of `flashnav eval --episodes N --seed S` (default 0: free running)")
     q.add_argument("--seed", type=int, default=12345, help="start/goal sampling seed (default 12345, as flashnav eval)")
+    q.add_argument("--goal-sampling", default=None, choices=GOAL_SAMPLINGS,
+                   help="goal band as straight line or path length (default: the robot preset's; geodesic is what "
+                        "`flashnav eval --maps` plays, every goal reachable within the horizon)")
     q.add_argument("--start", type=_floats(3, "--start"), default=None, metavar="X,Y,YAW",
                    help="free running: the start pose (default: the first sampled start)")
     q.add_argument("--goal-at", type=_floats(2, "--goal-at"), default=None, metavar="X,Y",

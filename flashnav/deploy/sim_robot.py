@@ -36,10 +36,14 @@ from flashnav.deploy.ros1 import import_rospy
 from flashnav.deploy.scan import simulator_scan_fields
 
 
-def episodes_of(robot, map_, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """The (pose [n, 3], goal [n, 2]) world-frame pairs of ``flashnav eval --episodes n --seed seed``."""
+def episodes_of(robot, map_, n: int, seed: int, goal_sampling: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The (pose [n, 3], goal [n, 2]) world-frame pairs of ``flashnav eval --episodes n --seed seed``;
+    ``goal_sampling`` (euclidean / geodesic) replaces the robot preset's."""
+    from flashnav.presets import load_robot
     from flashnav.sim.env import make_env
 
+    if goal_sampling is not None:
+        robot = load_robot(robot, **{"episode.goal_sampling": goal_sampling})
     env = make_env(robot, n, map=map_, seed=seed)
     env.reset(seed=seed)
     return env.world_pose().numpy(), env.world_goal().numpy()
@@ -262,7 +266,7 @@ def run(args) -> dict:
     report: dict = {"clock": "real" if args.real_time else "simulated", "robot": robot.preset.name,
                     "map": robot.env.map.name}
     if args.episodes:
-        poses, goals = episodes_of(args.robot, args.map, args.episodes, args.seed)
+        poses, goals = episodes_of(args.robot, args.map, args.episodes, args.seed, args.goal_sampling)
         results = []
         for pose, goal in zip(poses, goals):
             results.append(robot.run_episode(pose, goal))
@@ -271,7 +275,7 @@ def run(args) -> dict:
         report |= {"episodes": results, "seed": args.seed,
                    "success_rate": sum(r["outcome"] == "success" for r in results) / len(results)}
     else:
-        pose = args.start or [float(v) for v in episodes_of(args.robot, args.map, 1, args.seed)[0][0]]
+        pose = args.start or [float(v) for v in episodes_of(args.robot, args.map, 1, args.seed, args.goal_sampling)[0][0]]
         goal = args.goal_at if args.goal_at is not None else pose[:2]
         robot.env.set_state(torch.tensor([pose], dtype=torch.float64), torch.tensor([goal], dtype=torch.float64))
         robot.publish_clock()
