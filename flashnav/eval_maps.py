@@ -162,7 +162,8 @@ SCANS_GUIDE_CELLS = 50_000_000
 
 def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, lookahead: float) -> dict:
     """:func:`play_episodes` with a :class:`~flashnav.guidance.MaplessGuide`, map by map (its memories are
-    per map) and in blocks of slots; the episodes are each map's fixed ones, as in the one-env path."""
+    per map) and in blocks of slots; the starts and goals are each map's fixed ones, as in the one-env path
+    (what an env draws while stepping - moving agents, sensor noise - comes from each block's own generator)."""
     from flashnav.guidance import MaplessGuide
 
     parts = []
@@ -173,7 +174,7 @@ def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, 
         for s in range(0, episodes, block):
             e = min(episodes, s + block)
             sub = NavVecEnv(preset, e - s, grid=g, device=device, seed=seed)
-            obs = sub.set_state(pose[s:e].float(), goal[s:e].float())
+            obs = sub.set_state(pose[s:e], goal[s:e])  # float64: far maps' frames stay exact
             parts.append(play_episodes(policy, sub, obs, guide=MaplessGuide(sub, lookahead=lookahead)))
     return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
 

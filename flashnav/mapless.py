@@ -161,7 +161,7 @@ class SeenWalls:
 
     def carrot(self, slots: np.ndarray, xy: np.ndarray, lookahead: float, escape: float = 0.3) -> np.ndarray:
         """[k, 2]: the point ``lookahead`` metres down each slot's field from ``xy`` [k, 2], or the slot's
-        goal where it is nearer than that or no path is known. Where ``xy`` lies in space the plan counts
+        goal where the path to it is shorter than that or no path is known. Where ``xy`` lies in space the plan counts
         as blocked (closer than the radius to a seen wall), the descent starts from the lowest cell within
         ``escape`` metres."""
         g = self.grid
@@ -181,6 +181,7 @@ class SeenWalls:
         i = np.where(stuck, i + window[best, 0], i)
         j = np.where(stuck, j + window[best, 1], j)
         value = np.where(stuck, around[np.arange(len(slots)), best], here)
+        start = value.copy()  # the path still to go (metres, weighted by the wall cost: never below the length)
         step_m = np.where((_MOVES != 0).all(axis=1), math.sqrt(2.0), 1.0) * g.resolution
         travelled = np.zeros(len(slots))
         for _ in range(int(math.ceil(lookahead / g.resolution)) + 1):
@@ -194,7 +195,9 @@ class SeenWalls:
             travelled += np.where(move, step_m[k], 0.0)
             value = np.where(move, lowest, value)
         point = np.stack([g.origin[0] + (j + 0.5) * g.resolution, g.origin[1] + (i + 0.5) * g.resolution], axis=1)
-        use_goal = ~np.isfinite(value) | (np.linalg.norm(goal - xy, axis=1) <= lookahead) | (value <= 0)
+        # the goal itself once the path to it (not the straight line: a wall may stand between) is within the
+        # lookahead, or where no path is known
+        use_goal = ~np.isfinite(start) | (start <= lookahead) | (value <= 0)
         return np.where(use_goal[:, None], goal, point)
 
 

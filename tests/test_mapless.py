@@ -76,10 +76,12 @@ def test_seen_walls_mark_only_walls_and_start_knowing_nothing():
 def test_the_guide_goes_round_the_wall_it_sees_and_never_reads_the_rest():
     grid = blocked_room(0.05)
     # left of the wall (x = 4 m, up to y = 5 m), facing it; goal across it at the same height
-    env = placed(grid, [[3.0, 3.5, 0.0], [5.5, 3.5, 0.0]], [[5.0, 3.5], [5.0, 3.5]])
+    env = placed(grid, [[3.0, 3.5, 0.0], [5.5, 3.5, 0.0], [3.6, 3.5, 0.0]], [[5.0, 3.5], [5.0, 3.5], [4.4, 3.5]])
     guide = MaplessGuide(env, lookahead=1.0)
-    obs = guide.observe(env.obs.clone(), torch.arange(2))
-    carrot = torch.as_tensor(guide.carrot(np.arange(2)))
+    obs = guide.observe(env.obs.clone(), torch.arange(3))
+    carrot = torch.as_tensor(guide.carrot(np.arange(3)))
+    # slot 2: the goal 0.8 m away in a straight line, but behind the wall: the carrot is on the path round it
+    assert carrot[2, 1] > 3.5 + 0.6 and carrot[2, 0] < 4.0
     # slot 0: the wall it sees blocks the straight line: the path goes up towards the wall's end
     assert carrot[0, 1] > 3.5 + 0.6 and carrot[0, 0] < 4.0
     assert math.dist(carrot[0].tolist(), [3.0, 3.5]) == pytest.approx(1.0, abs=0.15)

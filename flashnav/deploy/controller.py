@@ -132,8 +132,8 @@ class Controller:
                 return self._stop("reached")  # the goal itself, whatever the carrot
             angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
             self.carrot = self.guide.step(self.pose, angles, beams, self.rt.layout.max_range)
-            if self.rt.goal_in_robot_frame(self.pose, self.carrot)[0] >= self.rt.goal_threshold:
-                target = self.carrot  # (a carrot inside the goal radius would read as arrived: aim at the goal)
+            if self.rt.goal_in_robot_frame(self.pose, self.carrot)[0] > self.rt.goal_threshold + 1e-3:
+                target = self.carrot  # (a carrot at the goal radius would read as arrived: aim at the goal)
         d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
                            self._trail())
         self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1

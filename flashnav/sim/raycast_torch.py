@@ -174,8 +174,7 @@ class TorchExactRaycaster(Raycaster):
         res = torch.full_like(u, maxc) if geo.single else maxc.clone()
         inside = (u > 0) & (u < geo.w) & (v > 0) & (v < geo.h)
         # an origin touching an occupied cell ends the ray before any jump could skip past it
-        start = torch.zeros_like(inside)
-        start[inside] = self._touches(u[inside], v[inside], geo.take(inside))
+        start = inside & self._touches(u, v, geo)  # (indices clamp: safe on every ray)
         res = torch.where(inside & ~start, res, torch.zeros_like(res))
         ids = torch.nonzero(inside & ~start).squeeze(1)
         u, v, dx, dy, plane = (a.index_select(0, ids) for a in (u, v, dx, dy, plane))
