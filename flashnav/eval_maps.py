@@ -168,8 +168,7 @@ def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, 
 
     parts = []
     for g in grids:
-        env = NavVecEnv(preset, episodes, grid=g, device=device, seed=seed)
-        pose, goal = fixed_episodes(env, 0, episodes, seed)
+        pose, goal = fixed_episodes(NavVecEnv(preset, 1, grid=g, device=device, seed=seed), 0, episodes, seed)
         block = max(1, min(episodes, SCANS_GUIDE_CELLS // (g.shape[0] * g.shape[1])))
         for s in range(0, episodes, block):
             e = min(episodes, s + block)

@@ -166,11 +166,11 @@ class MaplessGuide:
         """Observations [k, D] of slots ``idx`` [k] with their goal columns pointing at their carrots;
         first updates the slots' memories with their current scans (and replans where needed)."""
         slots = idx.cpu().numpy()
-        first = slots[~self.planned[slots]]
+        fresh = ~self.planned[slots]
+        first, later = slots[fresh], slots[~fresh]
         if len(first):
             self.walls.plan(first, self.source.goals(first), self.source.scans(first))
             self.planned[first] = True
-        later = slots[np.isin(slots, first, invert=True)]
         if len(later):
             self.walls.update(later, self.source.scans(later))
         points = torch.as_tensor(self.carrot(slots), device=self.env.device)

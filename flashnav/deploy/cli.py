@@ -118,9 +118,10 @@ def make_controller(args):
 
 def footprint_radius(meta: dict) -> float:
     """The circumscribed radius (m) of the robot in a policy's metadata (its preset's footprint)."""
+    from flashnav.config import Footprint
+
     try:
-        f = meta["preset"]["footprint"]
-        return float(f["radius"]) if f["kind"] == "disc" else 0.5 * math.hypot(float(f["length"]), float(f["width"]))
+        return Footprint.model_validate(meta["preset"]["footprint"]).circumscribed_radius
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"--guide needs the robot's footprint in the policy's metadata (preset.footprint: {exc})") from None
 

@@ -126,9 +126,10 @@ class Controller:
         if self._stale(now):
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
-        target = self.goal
+        target, goal_distance = self.goal, None
         if self.guide is not None:
-            if self.rt.goal_in_robot_frame(self.pose, self.goal)[0] < self.rt.goal_threshold:
+            goal_distance = self.rt.goal_in_robot_frame(self.pose, self.goal)[0]
+            if goal_distance < self.rt.goal_threshold:
                 return self._stop("reached")  # the goal itself, whatever the carrot
             angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
             self.carrot = self.guide.step(self.pose, angles, beams, self.rt.layout.max_range)
@@ -138,7 +139,7 @@ class Controller:
                            self._trail())
         self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1
         self.last_obs = d.obs
-        self.distance = d.distance if target is self.goal else self.rt.goal_in_robot_frame(self.pose, self.goal)[0]
+        self.distance = d.distance if target is self.goal else goal_distance
         self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
         if d.state == "reached":
             return self._stop("reached")
