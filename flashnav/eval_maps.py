@@ -107,7 +107,7 @@ def map_labels(grids: list[OccupancyMap]) -> list[str]:
 @torch.no_grad()
 def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed: int, *,
                   goal_distance_scale: float, device: str = "cpu", guide: float | None = None,
-                  guide_from: str = "map") -> dict:
+                  guide_from: str = "map", guide_carve: bool = True) -> dict:
     """Evaluate the deterministic ``policy`` (obs [k, D] -> action [k, 2]) on ``episodes`` fixed episodes
     per map of ``grids`` (see the module docstring).
 
@@ -115,7 +115,7 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
     as it is (the policy gets the goal). ``guide_from``: what the guide plans on, ``map`` (the known map,
     :class:`~flashnav.guidance.PathGuide`) or ``scans`` (only what each episode's scans have shown,
     :class:`~flashnav.guidance.MaplessGuide`; maps are then played one at a time, in blocks of slots whose
-    per-slot memories fit ``SCANS_GUIDE_CELLS``).
+    per-slot memories fit ``SCANS_GUIDE_CELLS``; ``guide_carve=False``: its wall marks are never forgotten).
 
     Returns a dict: ``maps`` (one entry per map, in order: label, source, size, resolution, diagonal,
     ``beyond_scale`` = diagonal > ``goal_distance_scale``, ``episodes_beyond_scale`` = episodes whose goal
@@ -128,7 +128,7 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
         raise ValueError(f"guide_from must be one of {GUIDE_SOURCES}, got {guide_from!r}")
     m = len(grids)
     if guide is not None and guide_from == "scans":
-        e = _play_scans_guided(policy, evaluation_preset(preset), grids, episodes, seed, device, guide)
+        e = _play_scans_guided(policy, evaluation_preset(preset), grids, episodes, seed, device, guide, guide_carve)
     else:
         env = NavVecEnv(evaluation_preset(preset), m * episodes, grid=grids[0] if m == 1 else grids, device=device,
                         seed=seed)
@@ -160,7 +160,8 @@ GUIDE_SOURCES = ("map", "scans")
 SCANS_GUIDE_CELLS = 50_000_000
 
 
-def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, lookahead: float) -> dict:
+def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, lookahead: float,
+                       carve: bool = True) -> dict:
     """:func:`play_episodes` with a :class:`~flashnav.guidance.MaplessGuide`, map by map (its memories are
     per map) and in blocks of slots; the starts and goals are each map's fixed ones, as in the one-env path
     (what an env draws while stepping - moving agents, sensor noise - comes from each block's own generator)."""
@@ -174,7 +175,7 @@ def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, 
             e = min(episodes, s + block)
             sub = NavVecEnv(preset, e - s, grid=g, device=device, seed=seed)
             obs = sub.set_state(pose[s:e], goal[s:e])  # float64: far maps' frames stay exact
-            parts.append(play_episodes(policy, sub, obs, guide=MaplessGuide(sub, lookahead=lookahead)))
+            parts.append(play_episodes(policy, sub, obs, guide=MaplessGuide(sub, lookahead=lookahead, carve=carve)))
     return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
 
 
@@ -219,8 +220,9 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     start = time.perf_counter()
     guide = getattr(args, "guide", None)
     guide_from = getattr(args, "guide_from", None) or "map"
+    keep_walls = bool(getattr(args, "guide_keep_walls", False))
     result = evaluate_maps(policy, preset, grids, args.episodes, args.seed, goal_distance_scale=scale, device=device,
-                           guide=guide, guide_from=guide_from)
+                           guide=guide, guide_from=guide_from, guide_carve=not keep_walls)
     seconds = time.perf_counter() - start
     report = {
         "kind": EVAL_MAPS_KIND, "format_version": EVAL_MAPS_FORMAT,
@@ -229,6 +231,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
         "goal_sampling": sampling, "goal_band_m": [preset.episode.min_goal_distance, preset.episode.max_goal_distance],
         "episodes_per_map": args.episodes, "seed": args.seed, "goal_distance_scale": scale,
         "guide_lookahead_m": guide, "guide_from": guide_from if guide is not None else None,
+        "guide_keep_walls": keep_walls,
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": machine_name(str(device)), "seconds": seconds, **result,
     }

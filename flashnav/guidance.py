@@ -118,11 +118,11 @@ class EnvScans:
                              "(evaluate them one at a time)")
         self.env, self.sensor = env, sensor
 
-    def walls(self, margin: float = 0.08, comfort: float = 0.3, memory: bool = True) -> SeenWalls:
+    def walls(self, margin: float = 0.08, comfort: float = 0.3, memory: bool = True, carve: bool = True) -> SeenWalls:
         """A :class:`SeenWalls` for the env's slots on its map's grid (the simulator frame)."""
         env = self.env
         return SeenWalls(env.frame_maps[0], env.num_envs, env.preset.footprint.circumscribed_radius + margin,
-                         comfort, memory=memory)
+                         comfort, memory=memory, carve=carve)
 
     def scans(self, slots: np.ndarray) -> tuple:
         """(pose [k, 3], ranges [k, B], angles [B], max_range) of ``slots`` now."""
@@ -147,15 +147,16 @@ class MaplessGuide:
     """Carrots on paths planned over each slot's own scans (no map): the interface of
     :class:`flashnav.guidance.PathGuide` (:meth:`observe`), for one-map envs. A slot's memory starts
     empty at the first :meth:`observe` of its episode (call ``reset``/``set_state`` first, then observe
-    before every step, as :func:`flashnav.evaluate.play_episodes` does). See :meth:`SeenWalls.carrot`."""
+    before every step, as :func:`flashnav.evaluate.play_episodes` does). See :meth:`SeenWalls.carrot`;
+    ``carve=False``: wall marks are never forgotten (moving agents leave trails of walls)."""
 
     def __init__(self, env, lookahead: float = LOOKAHEAD_M, margin: float = 0.0, comfort: float = 0.3,
-                 escape: float = 0.3):
+                 escape: float = 0.3, carve: bool = True):
         if not (math.isfinite(lookahead) and lookahead > 0):
             raise ValueError(f"mapless guidance lookahead must be > 0 metres, got {lookahead}")
         self.env, self.lookahead, self.escape = env, float(lookahead), float(escape)
         self.source = EnvScans(env)
-        self.walls = self.source.walls(margin, comfort)
+        self.walls = self.source.walls(margin, comfort, carve=carve)
         self.planned = np.zeros(env.num_envs, dtype=bool)
 
     def carrot(self, slots: np.ndarray) -> np.ndarray:

@@ -2,8 +2,9 @@
 
 A robot deployed in a building it has never seen is given the goal's position, not the map. What it
 can know of the building is what its LiDAR has shown it so far. :class:`SeenWalls` keeps that per
-environment slot - every beam's end marks its cell as a wall, and the marks are never forgotten (with
-``memory=False``, only the current scan's) - and plans on it optimistically, through the space it has
+environment slot - every beam's end marks its cell as a wall, and a mark stays until a later beam passes
+through its cell (so a person who walked by leaves no trail; ``carve=False``: marks are never forgotten;
+``memory=False``: only the current scan's) - and plans on it optimistically, through the space it has
 not seen (unknown = free, as D* Lite and frontier navigation do): a shortest grid path to the goal
 through the cells where the robot's disc (plus ``margin``) touches no known wall, with a cost that
 grows within ``comfort`` metres of the walls (the oracle's, :class:`flashnav.sim.oracle.OracleController`).
@@ -22,6 +23,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.ndimage import binary_dilation, maximum_filter, minimum_filter
 from scipy.sparse.csgraph import dijkstra
 
 from flashnav.maps.graph import grid_graph
@@ -30,6 +32,14 @@ from flashnav.maps.grid import OccupancyMap
 SENSORS = ("raw", "pooled")
 #: the 8-neighbourhood (row, column) and the centre
 _MOVES = np.array([(0, 0), (-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)], dtype=np.int64)
+#: beams on each side of a remembered cell's bearing that :meth:`SeenWalls._carve` tests against it
+_CARVE_BEAMS = 4
+#: the most a metre of path costs (:meth:`SeenWalls._field`'s cost beside a wall)
+_MAX_COST = 5.0
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class SeenWalls:
@@ -38,24 +48,36 @@ class SeenWalls:
 
     Inputs are arrays, so that the simulator (:class:`EnvScans`) and a robot
     (:class:`flashnav.deploy.controller.Controller`) feed it alike: poses [k, 3] (x, y, yaw) and goals
-    [k, 2] in the grid's frame, ranges [k, B] metres along ``angles`` [B] (radians from the heading).
+    [k, 2] in the grid's frame, ranges [k, B] metres along ``angles`` [B] (radians from the heading). A
+    range below ``max_range`` is a return; ``max_range`` or more (``inf`` included) is a beam that met
+    nothing within ``max_range``; NaN is a beam that says nothing (an invalid reading).
 
     Args:
         radius: metres; the plan's free space keeps the robot's centre this far from every known wall
             (the circumscribed radius plus a margin).
         comfort: metres beyond that in which cells cost more (paths keep clear of walls where they can).
         memory: remember walls across steps (False: plan on the current scan's walls alone).
+        carve: with memory, forget a remembered wall when a later beam passes through its cell (free-space
+            evidence: what moved away - a person, a door - stops blocking the plan). A cell is carved when
+            a beam's line passes within half a cell of its centre and the beam's return (or its
+            ``max_range``, for a beam that met nothing) lies more than a cell beyond it, and no return of
+            the same scan ended in it or beside it (so the cells beside a wall the robot sees now stay, and
+            a walking person's trail is carved a step behind them). False: marks are never forgotten.
     """
 
-    def __init__(self, geometry: OccupancyMap, num: int, radius: float, comfort: float = 0.3, *, memory: bool = True):
+    def __init__(self, geometry: OccupancyMap, num: int, radius: float, comfort: float = 0.3, *, memory: bool = True,
+                 carve: bool = True):
         if not (radius > 0 and comfort > 0):
             raise ValueError(f"mapless planner: radius and comfort must be > 0 metres, got {radius}, {comfort}")
         self.grid, self.radius, self.comfort, self.memory = geometry, float(radius), float(comfort), memory
+        self.carve_walls = bool(carve and memory)
         h, w = geometry.shape
         self.known = np.zeros((num, h, w), dtype=bool)
         self.fields = np.full((num, h * w), np.inf, dtype=np.float32)
         self.goals = np.zeros((num, 2), dtype=np.float64)
         self.replans = np.zeros(num, dtype=np.int64)
+        self.carved = np.zeros(num, dtype=np.int64)  # cells forgotten per slot, over its episodes
+        self.last_carved = np.zeros((0, h, w), dtype=bool)  # those of the last mark(), per slot marked
 
     def cells(self, xy: np.ndarray) -> np.ndarray:
         """Flat cell index of the points ``xy`` [k, 2] (clipped onto the grid)."""
@@ -70,7 +92,7 @@ class SeenWalls:
         g = self.grid
         seen = OccupancyMap(occupied=self.known[slot], resolution=g.resolution, origin=g.origin)
         free = seen.free_space(self.radius).copy()
-        cost = 1.0 + 4.0 * np.clip((self.radius + self.comfort - seen.clearance) / self.comfort, 0.0, 1.0)
+        cost = 1.0 + (_MAX_COST - 1.0) * np.clip((self.radius + self.comfort - seen.clearance) / self.comfort, 0.0, 1.0)
         goal = int(self.cells(self.goals[slot:slot + 1])[0])
         free.reshape(-1)[goal] = True  # the goal cell itself is never walled off by a margin
         self.replans[slot] += 1
@@ -78,8 +100,22 @@ class SeenWalls:
 
     def mark(self, slots: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
              max_range: float) -> np.ndarray:
-        """Marks the cells where the beams of ``slots`` end (ranges below ``max_range``; NaN = no return)
-        as walls; returns [len(slots), H, W] the new ones."""
+        """Marks the cells where the beams of ``slots`` end (ranges below ``max_range``) as walls, after
+        carving (``carve``) the remembered ones that the beams pass through; returns [len(slots), H, W] the
+        new ones (also in :attr:`last_carved`, the carved ones)."""
+        seen = self._ends(pose, ranges, angles, max_range)
+        self.last_carved = np.zeros_like(seen)
+        if not self.memory:
+            self.known[slots] = seen
+            return seen
+        if self.carve_walls:
+            self.last_carved = self._carve(slots, pose, ranges, angles, max_range, seen)
+        new = seen & ~self.known[slots]
+        self.known[slots] |= new
+        return new
+
+    def _ends(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> np.ndarray:
+        """[k, H, W]: the cells where the beams' returns end."""
         g = self.grid
         pose = np.asarray(pose, np.float64)
         ranges = np.asarray(ranges, np.float64)
@@ -92,15 +128,44 @@ class SeenWalls:
         j = np.floor((x - g.origin[0]) / g.resolution).astype(np.int64)
         i = np.floor((y - g.origin[1]) / g.resolution).astype(np.int64)
         hit &= (i >= 0) & (i < h) & (j >= 0) & (j < w)  # ends off the grid are not remembered
-        new = np.zeros((len(slots), h, w), dtype=bool)
-        rows = np.broadcast_to(np.arange(len(slots))[:, None], hit.shape)
-        new[rows[hit], i[hit], j[hit]] = True
-        if not self.memory:
-            self.known[slots] = new
-            return new
-        new &= ~self.known[slots]
-        self.known[slots] |= new
-        return new
+        seen = np.zeros((len(pose), h, w), dtype=bool)
+        rows = np.broadcast_to(np.arange(len(pose))[:, None], hit.shape)
+        seen[rows[hit], i[hit], j[hit]] = True
+        return seen
+
+    def _carve(self, slots: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
+               max_range: float, seen: np.ndarray) -> np.ndarray:
+        """Forgets the remembered walls of ``slots`` that the beams pass through (see ``carve``); returns
+        [k, H, W] the cells forgotten. Each remembered cell is tested against the ``2 * _CARVE_BEAMS`` beams
+        nearest its bearing, so the cost grows with the walls remembered, not with the beams."""
+        g = self.grid
+        res = g.resolution
+        candidate = self.known[slots] & ~binary_dilation(seen, structure=np.ones((1, 3, 3), dtype=bool))
+        kk, ii, jj = np.nonzero(candidate)
+        carved = np.zeros_like(seen)
+        if not len(kk):
+            return carved
+        pose = np.asarray(pose, np.float64)
+        dx = g.origin[0] + (jj + 0.5) * res - pose[kk, 0]
+        dy = g.origin[1] + (ii + 0.5) * res - pose[kk, 1]
+        dist = np.hypot(dx, dy)
+        bearing = _wrap(np.arctan2(dy, dx) - pose[kk, 2])
+        beam_angle = _wrap(np.asarray(angles, np.float64))
+        order = np.argsort(beam_angle)
+        ranges = np.asarray(ranges, np.float64)
+        # how far each beam is known to be free: to its return, to max_range where it met nothing, nowhere if NaN
+        free = np.where(np.isnan(ranges), -np.inf, np.minimum(ranges, max_range))
+        at = np.searchsorted(beam_angle[order], bearing)
+        hit = np.zeros(len(kk), dtype=bool)
+        for offset in range(-_CARVE_BEAMS, _CARVE_BEAMS):
+            b = order[(at + offset) % len(order)]
+            delta = bearing - beam_angle[b]
+            along, across = dist * np.cos(delta), np.abs(dist * np.sin(delta))
+            hit |= (along > 0) & (across < 0.5 * res) & (along + res < free[kk, b])
+        carved[kk[hit], ii[hit], jj[hit]] = True
+        self.known[slots] &= ~carved
+        self.carved[slots] += carved.sum(axis=(1, 2))
+        return carved
 
     def plan(self, slots: np.ndarray, goals: np.ndarray, scans: tuple) -> None:
         """New episodes of ``slots``: memories emptied, ``scans`` = (pose, ranges, angles, max_range)
@@ -112,45 +177,77 @@ class SeenWalls:
         for slot in slots:
             self.fields[slot] = self._field(int(slot))
 
-    def path_cells(self, slot: int, xy: np.ndarray, steps: int = 400) -> np.ndarray:
-        """The cells of the slot's planned path from the point ``xy`` [2] (steepest descent of its field)."""
-        h, w = self.grid.shape
-        field = self.fields[slot]
-        cell = int(self.cells(np.asarray(xy, np.float64).reshape(1, 2))[0])
-        out = [cell]
+    def path_cells(self, slots: np.ndarray, xy: np.ndarray, steps: int = 400) -> np.ndarray:
+        """[k, L] the cells (flat indices) of each slot's planned path from the points ``xy`` [k, 2]: the
+        steepest descent of its field, all slots at once; a path that ends early repeats its last cell."""
+        slots = np.asarray(slots)
+        w = self.grid.shape[1]
+        cell = self.cells(np.asarray(xy, np.float64).reshape(-1, 2))
+        i, j = cell // w, cell % w
+        value = self._values(slots, i[:, None], j[:, None])[:, 0]
+        out = [i * w + j]
         for _ in range(steps):
-            i, j = divmod(cell, w)
-            best, best_d = cell, field[cell]
-            for di, dj in _MOVES[1:]:
-                ii, jj = i + di, j + dj
-                if 0 <= ii < h and 0 <= jj < w and field[ii * w + jj] < best_d:
-                    best, best_d = ii * w + jj, field[ii * w + jj]
-            if best == cell:
+            nb = self._values(slots, i[:, None] + _MOVES[:, 0], j[:, None] + _MOVES[:, 1])
+            k = nb.argmin(axis=1)  # the first lowest neighbour, as a loop over them in order would take
+            lowest = nb[np.arange(len(slots)), k]
+            move = lowest < value
+            if not move.any():
                 break
-            cell = best
-            out.append(cell)
-        return np.array(out)
+            i, j = np.where(move, i + _MOVES[k, 0], i), np.where(move, j + _MOVES[k, 1], j)
+            value = np.where(move, lowest, value)
+            out.append(i * w + j)
+        return np.stack(out, axis=1)
 
     def update(self, slots: np.ndarray, scans: tuple) -> None:
-        """After a step: ``scans`` = (pose, ranges, angles, max_range) of running ``slots`` marked; those
-        whose path (from their pose) the new walls block or brush are replanned."""
+        """After a step: ``scans`` = (pose, ranges, angles, max_range) of running ``slots`` marked (and
+        carved); replanned are the slots whose path (from their pose) the new walls block or brush, and
+        those where a carved wall may open a shorter way (:meth:`_opens`) or no path was known."""
         slots = np.asarray(slots)
         new = self.mark(slots, *scans)
+        if not self.memory:
+            for slot in slots:
+                self.fields[slot] = self._field(int(slot))
+            return
         pose = np.asarray(scans[0], np.float64)
         w = self.grid.shape[1]
         reach = self.radius / self.grid.resolution + 1.0  # cells: a wall this near a path cell blocks it
-        for k, slot in enumerate(slots):
-            if not self.memory:
-                self.fields[slot] = self._field(int(slot))
-                continue
+        walled = np.flatnonzero(new.any(axis=(1, 2)))
+        paths = self.path_cells(slots[walled], pose[walled, :2]) if len(walled) else None
+        replan = np.zeros(len(slots), dtype=bool)
+        for row, k in enumerate(walled):
             walls = np.argwhere(new[k])
-            if not len(walls):
-                continue
-            path = self.path_cells(int(slot), pose[k, :2])
+            path = paths[row]
             cells = np.stack([path // w, path % w], axis=1)
             gap = np.hypot(*(cells[:, None, :] - walls[None, :, :]).transpose(2, 0, 1)).min()
-            if gap <= reach or not np.isfinite(self.fields[slot][path[0]]):
-                self.fields[slot] = self._field(int(slot))
+            replan[k] = gap <= reach or not np.isfinite(self.fields[slots[k]][path[0]])
+        for k in np.flatnonzero(~replan & self.last_carved.any(axis=(1, 2))):
+            replan[k] = self._opens(int(slots[k]), self.last_carved[k], pose[k, :2])
+        for slot in slots[replan]:
+            self.fields[slot] = self._field(int(slot))
+
+    def _opens(self, slot: int, carved: np.ndarray, xy: np.ndarray) -> bool:
+        """Whether forgetting the ``carved`` [H, W] cells may shorten the slot's path: no path was known
+        from ``xy``, or around some carved cell two reachable cells differ in their path length by more
+        than any way between them within the window (a radius and two cells a side) can cost - the wall
+        stood between them."""
+        h, w = self.grid.shape
+        res = self.grid.resolution
+        field = self.fields[slot].reshape(h, w)
+        if not np.isfinite(field.reshape(-1)[self.cells(np.asarray(xy, np.float64).reshape(1, 2))[0]]):
+            return True
+        half = int(math.ceil(self.radius / res)) + 2
+        ci, cj = np.nonzero(carved)
+        i0, i1 = max(0, ci.min() - 2 * half), min(h, ci.max() + 2 * half + 1)
+        j0, j1 = max(0, cj.min() - 2 * half), min(w, cj.max() + 2 * half + 1)
+        box = field[i0:i1, j0:j1]
+        finite = np.isfinite(box)
+        if not finite.any():
+            return False
+        size = 2 * half + 1
+        top = maximum_filter(np.where(finite, box, -np.inf), size=size, mode="constant", cval=-np.inf)
+        low = minimum_filter(np.where(finite, box, np.inf), size=size, mode="constant", cval=np.inf)
+        span = (top - low)[ci - i0, cj - j0]
+        return bool((span > _MAX_COST * math.sqrt(2.0) * (size - 1) * res).any())
 
     def _values(self, slots: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Field values of the slots' cells (i, j) [k, m]; off the grid: inf."""

@@ -36,12 +36,16 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                    help="goal band measured as path length (geodesic; the default with --maps) or straight line")
     p.add_argument("--label", default=None, help="with --maps: the policy's name in the JSON and the report")
     p.add_argument("--guide", type=float, default=None, metavar="LOOKAHEAD_M",
-                   help="with --maps: path guidance, a global planner on the known map (flashnav/guidance.py): "
-                        "the policy steers at the point LOOKAHEAD_M metres along the shortest path instead of "
-                        "at the goal (e.g. 0.5); a deployment mode, not the zero-shot task")
+                   help="with --maps or --scenario: path guidance, a global planner on the known map "
+                        "(flashnav/guidance.py): the policy steers at the point LOOKAHEAD_M metres along the "
+                        "shortest path instead of at the goal (e.g. 0.5); a deployment mode, not the zero-shot task")
     p.add_argument("--guide-from", default=None, choices=("map", "scans"),
-                   help="with --guide: what the planner knows, the map (default) or only the walls each episode's "
-                        "own scans have shown, no map (flashnav/mapless.py: the optimistic mapless planner)")
+                   help="with --guide: what the planner knows, the map (default; not the moving agents) or only "
+                        "the walls each episode's own scans have shown, no map (flashnav/mapless.py: the "
+                        "optimistic mapless planner; a wall mark is forgotten when a later beam passes through it)")
+    p.add_argument("--guide-keep-walls", action="store_true",
+                   help="with --guide-from scans: never forget a wall mark (no carving by later beams): an "
+                        "ablation - moving agents then leave trails of walls in the planner's memory")
     p.add_argument("--scenario", default=None, metavar="NAME[,NAME]",
                    help="evaluation scenarios with moving agents: static, wander-4, wander-8, crossing, or all "
                         "(success / collision with an agent / with a wall / timeout per scenario)")
@@ -128,16 +132,18 @@ def run_eval(args) -> int:
         raise ValueError("give either --maps or --scenario, not both")
     if args.guide_from is not None and args.guide is None:
         raise ValueError(f"--guide-from {args.guide_from} goes with --guide LOOKAHEAD_M")
+    if args.guide_keep_walls and args.guide_from != "scans":
+        raise ValueError("--guide-keep-walls goes with --guide LOOKAHEAD_M --guide-from scans")
     if args.maps is not None:
         from flashnav.eval_maps import run_eval_maps
 
         return run_eval_maps(args, *load_policy_for(args, args.device))
     if args.goal_sampling is not None:
         raise ValueError("--goal-sampling goes with --maps (for one map: --maps FILE.yaml)")
-    if args.guide is not None:
-        raise ValueError("--guide goes with --maps (for one map: --maps FILE.yaml)")
     if args.scenario is not None:
         return run_scenarios(args)
+    if args.guide is not None:
+        raise ValueError("--guide goes with --maps or --scenario (for one map: --maps FILE.yaml)")
     policy, meta, env = load_policy_and_env(args, args.device)
     start = time.perf_counter()
     result = evaluate(policy, env, seed=args.seed)
@@ -184,14 +190,17 @@ def run_scenarios(args) -> int:
     names = scenario_names(args.scenario)
     policy, meta, robot, device = load_policy_for(args, args.device)  # no env here: each scenario makes its own
     preset = load_robot(robot)
+    guide = _scenario_guide(args)
+    how = "" if args.guide is None else f", guided from the {args.guide_from or 'map'} ({args.guide} m)"
     table = Table(title=f"flashnav eval --scenario: {args.policy} on {preset.name} / {_map_label(args, preset)}, "
-                        f"seed {args.seed}")
+                        f"seed {args.seed}{how}")
     for col in ("scenario", "scored / drawn", "success", "agent collision", "wall collision", "timeout"):
         table.add_column(col, justify="right")
     report = {"robot": preset.name, "map": _map_label(args, preset), "policy": str(args.policy), "seed": args.seed,
-              "scenarios": {}}
+              "guide_lookahead_m": args.guide, "guide_from": None if args.guide is None else args.guide_from or "map",
+              "guide_keep_walls": bool(args.guide_keep_walls), "scenarios": {}}
     for name in names:
-        r = run_scenario(policy, _scenario_env(args, preset, name, device), args.seed)
+        r = run_scenario(policy, _scenario_env(args, preset, name, device), args.seed, guide=guide)
         report["scenarios"][name] = r
         table.add_row(name, f"{r['scored']} / {r['episodes']}", *(f"{100 * r[k]:.1f} %" for k in (
             "success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate")))
@@ -199,6 +208,27 @@ def run_scenarios(args) -> int:
     if args.json:
         write_json_report(args.json, report)
     return 0
+
+
+def _scenario_guide(args):
+    """``--guide`` for ``--scenario``: a callable env -> guide, or None."""
+    if args.guide is None:
+        return None
+    from flashnav.eval_maps import SCANS_GUIDE_CELLS
+    from flashnav.guidance import MaplessGuide, PathGuide
+
+    if not (math.isfinite(args.guide) and args.guide > 0):
+        raise ValueError(f"--guide must be > 0 metres, got {args.guide}")
+    if args.guide_from == "scans":
+        def scans(env):
+            cells = env.frame_maps[0].shape[0] * env.frame_maps[0].shape[1] * env.num_envs
+            if cells > SCANS_GUIDE_CELLS:
+                raise ValueError(f"--guide-from scans keeps a memory of the map per episode: {env.num_envs} "
+                                 f"episodes x {cells // env.num_envs:,} cells is over {SCANS_GUIDE_CELLS:,}; "
+                                 "give fewer --episodes")
+            return MaplessGuide(env, lookahead=args.guide, carve=not args.guide_keep_walls)
+        return scans
+    return lambda env: PathGuide(env, lookahead=args.guide)
 
 
 @torch.no_grad()

@@ -46,14 +46,15 @@ def scenario_names(text: str) -> list[str]:
 
 
 @torch.no_grad()
-def run_scenario(policy: Callable[[torch.Tensor], torch.Tensor], env, seed: int) -> dict:
+def run_scenario(policy: Callable[[torch.Tensor], torch.Tensor], env, seed: int, guide=None) -> dict:
     """One episode per slot of ``env`` (made from a :func:`scenario_preset`) with the deterministic
     ``policy``, played by :func:`flashnav.evaluate.play_episodes` (only running slots are simulated).
+    ``guide``: a callable env -> a guide (:mod:`flashnav.guidance`) whose carrots the policy steers at.
     Returns the rates over the scored episodes (success, agent_collision, wall_collision, timeout; a
     collision with both counts as an agent collision), ``episodes`` drawn and ``scored``."""
     obs, _ = env.reset(seed=seed)
     scored = scenario_scored(env)
-    return scenario_rates(play_episodes(policy, env, obs), scored)
+    return scenario_rates(play_episodes(policy, env, obs, guide=None if guide is None else guide(env)), scored)
 
 
 def scenario_scored(env) -> torch.Tensor:

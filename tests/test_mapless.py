@@ -211,3 +211,142 @@ def test_sim_robot_episodes_take_the_goal_sampling_asked_for():
     pose, goal = fixed_episodes(env, 0, 8, 3)
     np.testing.assert_allclose(geo[0], pose.numpy(), atol=1e-5)
     np.testing.assert_allclose(geo[1], goal.numpy(), atol=1e-5)
+
+
+def descend_one_by_one(field: np.ndarray, shape: tuple, cell: int, steps: int = 400) -> list[int]:
+    """The obviously-correct descent: from ``cell``, step to the first of the 8 neighbours (in the planner's
+    order) that is lower than every other and than the cell itself, until none is."""
+    h, w = shape
+    moves = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+    out = [cell]
+    for _ in range(steps):
+        i, j = divmod(cell, w)
+        best, best_d = cell, field[cell]
+        for di, dj in moves:
+            ii, jj = i + di, j + dj
+            if 0 <= ii < h and 0 <= jj < w and field[ii * w + jj] < best_d:
+                best, best_d = ii * w + jj, field[ii * w + jj]
+        if best == cell:
+            break
+        cell = best
+        out.append(cell)
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_path_cells_descend_all_slots_at_once_as_one_by_one(seed):
+    """The batched descent equals a loop over each slot's neighbours, on planned fields (a maze's walls) and
+    on random ones with ties and unreachable cells; a path that ends early repeats its last cell."""
+    rng = np.random.default_rng(seed)
+    grid = generate_family("mazes", seed, size=(6.0, 6.0), resolution=0.1)
+    h, w = grid.shape
+    walls = SeenWalls(grid, 6, 0.15)
+    walls.known[:3] = grid.occupied
+    free = np.flatnonzero(grid.free_space(0.15))
+    goal = rng.choice(free, 3)
+    walls.goals[:3] = np.stack([(goal % w + 0.5) * grid.resolution, (goal // w + 0.5) * grid.resolution], axis=1)
+    for slot in range(3):
+        walls.fields[slot] = walls._field(slot)
+    noise = np.round(rng.random((3, h * w)) * 20.0)  # rounded: many equal neighbours
+    walls.fields[3:] = np.where(rng.random((3, h * w)) < 0.1, np.inf, noise)
+    xy = rng.uniform(0.0, 6.0, (6, 2))
+    for slot in range(3):  # planned fields: start where the goal is reachable
+        c = rng.choice(np.flatnonzero(np.isfinite(walls.fields[slot])))
+        xy[slot] = (c % w + 0.5) * grid.resolution, (c // w + 0.5) * grid.resolution
+    got = walls.path_cells(np.arange(6), xy, steps=50)
+    assert got.shape[0] == 6
+    for k in range(6):
+        ref = descend_one_by_one(walls.fields[k], (h, w), int(walls.cells(xy[k:k + 1])[0]), steps=50)
+        assert got[k, :len(ref)].tolist() == ref and (got[k, len(ref):] == ref[-1]).all()
+    assert max(len(descend_one_by_one(walls.fields[k], (h, w), int(walls.cells(xy[k:k + 1])[0]))) for k in range(3)) > 5
+
+
+def beams_pass_through(walls: SeenWalls, candidate: np.ndarray, pose, ranges, angles, max_range) -> np.ndarray:
+    """The obviously-correct carving rule, every beam against every candidate cell: a beam whose line passes
+    within half a cell of the cell's centre and whose free part (to its return, or max_range) reaches a cell
+    beyond it."""
+    g, res = walls.grid, walls.grid.resolution
+    out = np.zeros_like(candidate)
+    for k, i, j in zip(*np.nonzero(candidate)):
+        dx, dy = g.origin[0] + (j + 0.5) * res - pose[k, 0], g.origin[1] + (i + 0.5) * res - pose[k, 1]
+        delta = math.atan2(dy, dx) - pose[k, 2] - angles
+        dist = math.hypot(dx, dy)
+        free = np.where(np.isnan(ranges[k]), -np.inf, np.minimum(ranges[k], max_range))
+        out[k, i, j] = ((dist * np.cos(delta) > 0) & (np.abs(dist * np.sin(delta)) < 0.5 * res)
+                        & (dist * np.cos(delta) + res < free)).any()
+    return out
+
+
+def test_carving_forgets_the_agents_trails_and_never_a_wall():
+    """Eight wandering agents walk through the scans of eight robots: remembered for good (``carve=False``),
+    their trails pile up as walls; carved by the beams that later pass through them, fewer stay (the rest
+    lie behind the field of view or behind what the scan hit) - and no cell of the true map's walls is ever
+    carved, so both memories hold the same true walls. Each step's carving is a subset of what a check of
+    every beam against every remembered cell would carve, and most of it."""
+    from flashnav.scenarios import scenario_preset
+
+    grid = generate_family("offices", 3, size=(10.0, 10.0), resolution=0.05)
+    env = make_env(scenario_preset(TB2, "wander-8"), 8, map=grid, seed=0)
+    env.reset(seed=2)
+    source = EnvScans(env)
+    kept, carved = source.walls(carve=False), source.walls()
+    slots = np.arange(8)
+    ever_carved = np.zeros_like(carved.known)
+    gen = torch.Generator().manual_seed(0)
+    for step in range(40):
+        scans = source.scans(slots)
+        kept.mark(slots, *scans)
+        before = carved.known.copy()
+        carved.mark(slots, *scans)
+        ever_carved |= carved.last_carved
+        if step in (20, 39):
+            seen = carved._ends(*scans)
+            candidate = before & ~binary_dilation(seen, structure=np.ones((1, 3, 3), bool))
+            reference = beams_pass_through(carved, candidate, *scans)
+            assert (carved.last_carved <= reference).all() and carved.last_carved.sum() >= 0.9 * reference.sum()
+        env.step(torch.rand(8, 2, generator=gen) * 2 - 1)  # slots that end restart elsewhere on the same map
+    occupied = env.frame_maps[0].occupied
+    assert ever_carved.sum() > 100 and not (ever_carved & occupied).any()
+    assert (carved.known <= kept.known).all()
+    assert ((carved.known & occupied) == (kept.known & occupied)).all()
+    beside_walls = binary_dilation(occupied, structure=np.ones((3, 3), bool))
+    trails_kept, trails_carved = (kept.known & ~beside_walls).sum(), (carved.known & ~beside_walls).sum()
+    assert trails_kept > 100 and trails_carved < 0.7 * trails_kept
+    assert carved.carved.sum() >= ever_carved.sum() and not kept.carved.any()  # a cell can be carved twice
+
+
+def test_a_person_in_the_only_gap_blocks_the_plan_until_a_beam_passes_through():
+    """The blocked room's only way round is the gap above its middle wall. A person stood in it (their disc
+    marked as walls): no path. Seen empty from the left, the marks are carved and the slot replanned; with
+    ``carve=False`` the person stays a wall for good."""
+    grid = blocked_room(0.05)
+    env = placed(grid, [[3.0, 5.5, 0.0]], [[5.0, 3.5]])
+    source = EnvScans(env)
+    res = grid.resolution
+    yy, xx = np.mgrid[0:grid.shape[0], 0:grid.shape[1]]
+    person = np.hypot((xx + 0.5) * res - 4.0, (yy + 0.5) * res - 5.5) < 0.25
+    person &= ~grid.occupied
+    cell = int(source.walls().cells(np.array([[3.0, 5.5]]))[0])
+    for carve in (True, False):
+        walls = source.walls(carve=carve)
+        walls.plan(np.zeros(1, np.int64), source.goals(np.zeros(1, np.int64)), source.scans(np.zeros(1, np.int64)))
+        assert np.isfinite(walls.fields[0, cell])
+        walls.known[0] |= person
+        walls.fields[0] = walls._field(0)
+        assert not np.isfinite(walls.fields[0, cell])  # no way round: the carrot is the goal itself
+        np.testing.assert_allclose(walls.carrot(np.zeros(1, np.int64), np.array([[3.0, 5.5]]), 0.5), [[5.0, 3.5]])
+        walls.update(np.zeros(1, np.int64), source.scans(np.zeros(1, np.int64)))
+        assert np.isfinite(walls.fields[0, cell]) == carve
+        assert (walls.known[0] & person).sum() == (0 if carve else person.sum())
+
+
+def test_deploy_beams_say_which_beams_met_nothing_and_which_said_nothing():
+    from flashnav.deploy.scan import ScanAdapter, SectorLayout
+
+    adapter = ScanAdapter(SectorLayout(sectors=30, fov_deg=270.0, max_range=20.0))
+    ranges = np.full(1080, 3.0)
+    ranges[[0, 1, 2, 3]] = [np.inf, np.nan, 99.0, 0.001]  # no return, invalid, beyond range_max, below range_min
+    fov = math.radians(270.0)
+    angles, r = adapter.beams(-fov / 2 + fov / 1080 / 2, fov / 1080, ranges, 0.05, 20.0)
+    assert r[0] == np.inf and np.isnan(r[1]) and r[2] == np.inf and np.isnan(r[3]) and (r[4:] == 3.0).all()
+    assert len(angles) == 1080

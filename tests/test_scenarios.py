@@ -89,3 +89,37 @@ def test_eval_scenario_command_writes_a_row_per_scenario(tmp_path):
     assert report["scenarios"]["static"]["agent_collision_rate"] == 0.0
     with pytest.raises(ValueError, match="unknown scenario"):
         run_cli("eval", str(paths["torchscript"]), "--scenario", "rush-hour", "--episodes", "2")
+
+
+def test_eval_scenario_with_a_guide_records_it_and_refuses_bad_guides(tmp_path, monkeypatch):
+    """``--scenario`` with ``--guide``: every scenario's env gets the guide asked for (mapless from the scans,
+    carving unless ``--guide-keep-walls``), the report and title say so; bad combinations are named."""
+    import json
+
+    import flashnav.guidance as guidance
+    from test_export import random_actor, run_cli
+
+    from flashnav.export import export_policy
+    from flashnav.presets import load_robot
+
+    made = []
+    real = guidance.MaplessGuide
+
+    def spy(env, **kw):
+        made.append((env.num_envs, env.agents is not None, kw))
+        return real(env, **kw)
+    monkeypatch.setattr(guidance, "MaplessGuide", spy)
+    paths = export_policy(random_actor(load_robot("turtlebot2")), load_robot("turtlebot2"), tmp_path / "policy")
+    policy = str(paths["torchscript"])
+    out = tmp_path / "guided.json"
+    assert run_cli("eval", policy, "--scenario", "static,wander-4", "--episodes", "4", "--guide", "0.5",
+                   "--guide-from", "scans", "--guide-keep-walls", "--json", str(out)) == 0
+    assert made == [(4, False, {"lookahead": 0.5, "carve": False}), (4, True, {"lookahead": 0.5, "carve": False})]
+    report = json.loads(out.read_text())
+    assert (report["guide_lookahead_m"], report["guide_from"], report["guide_keep_walls"]) == (0.5, "scans", True)
+    with pytest.raises(ValueError, match="--guide-keep-walls goes with --guide LOOKAHEAD_M --guide-from scans"):
+        run_cli("eval", policy, "--scenario", "static", "--episodes", "2", "--guide", "0.5", "--guide-keep-walls")
+    with pytest.raises(ValueError, match="--guide must be > 0 metres, got 0.0"):
+        run_cli("eval", policy, "--scenario", "static", "--episodes", "2", "--guide", "0")
+    with pytest.raises(ValueError, match="--guide goes with --maps or --scenario"):
+        run_cli("eval", policy, "--episodes", "2", "--guide", "0.5")

@@ -106,9 +106,10 @@ class ScanAdapter:
     def beams(self, angle_min: float, angle_increment: float, ranges, range_min: float,
               range_max: float) -> tuple[np.ndarray, np.ndarray]:
         """Every beam in the base frame: (direction [B] radians from the heading, range [B] metres from the
-        base's origin, NaN where the beam has no valid return), with the conventions of ``__call__``."""
+        base's origin: ``inf`` where the beam met nothing within the sensor's range, NaN where its reading is
+        not valid), with the conventions of ``__call__``."""
         r, angle, valid, no_return = self._base_frame(angle_min, angle_increment, ranges, range_min, range_max)
-        return angle, np.where(valid & ~no_return, r, np.nan)
+        return angle, np.where(valid, np.where(no_return, np.inf, r), np.nan)
 
     def _base_frame(self, angle_min, angle_increment, ranges, range_min, range_max):
         """(range, direction, valid, no_return) [B] per beam in the base frame; no return reads max_range."""
