@@ -15,7 +15,8 @@ fields (the bound of what a controller without the map can do); :class:`flashnav
 hands a policy in the simulator, at every step, a point ``lookahead`` metres along its path as the goal
 (``flashnav eval --maps ... --guide M --guide-from scans``); :class:`ScanGuide` does the same for one robot
 from its LaserScan and odometry (``flashnav deploy ros --guide M``): a deployment mode that, unlike
-:class:`flashnav.guidance.PathGuide`, needs no map. numpy and scipy only (the deploy side has no torch).
+:class:`flashnav.guidance.PathGuide`, needs no map. numpy, scipy and numba only (the deploy side has no
+torch); the plans are :func:`flashnav.maps.grid_dijkstra.grid_distances`.
 """
 
 from __future__ import annotations
@@ -24,10 +25,9 @@ import math
 
 import numpy as np
 from scipy.ndimage import binary_dilation, maximum_filter, minimum_filter
-from scipy.sparse.csgraph import dijkstra
 
-from flashnav.maps.graph import grid_graph
 from flashnav.maps.grid import OccupancyMap
+from flashnav.maps.grid_dijkstra import grid_distances
 
 SENSORS = ("raw", "pooled")
 #: the 8-neighbourhood (row, column) and the centre
@@ -96,7 +96,7 @@ class SeenWalls:
         goal = int(self.cells(self.goals[slot:slot + 1])[0])
         free.reshape(-1)[goal] = True  # the goal cell itself is never walled off by a margin
         self.replans[slot] += 1
-        return dijkstra(grid_graph(free, g.resolution, cost), directed=True, indices=goal).astype(np.float32)
+        return grid_distances(free, g.resolution, cost, goal).astype(np.float32)
 
     def mark(self, slots: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
              max_range: float) -> np.ndarray:

@@ -50,6 +50,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     from flashnav.bench import cycle as bench_cycle
 
     bench_cycle.register_cli(bsub)
+    from flashnav.bench import plan as bench_plan
+
+    bench_plan.register_cli(bsub)
 
 
 def _csv(text: str, cast=str) -> list:
