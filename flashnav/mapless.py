@@ -187,9 +187,7 @@ class SeenWalls:
         value = self._values(slots, i[:, None], j[:, None])[:, 0]
         out = [i * w + j]
         for _ in range(steps):
-            nb = self._values(slots, i[:, None] + _MOVES[:, 0], j[:, None] + _MOVES[:, 1])
-            k = nb.argmin(axis=1)  # the first lowest neighbour, as a loop over them in order would take
-            lowest = nb[np.arange(len(slots)), k]
+            k, lowest = self._lowest(slots, i, j)
             move = lowest < value
             if not move.any():
                 break
@@ -256,6 +254,14 @@ class SeenWalls:
         v = self.fields[slots[:, None], np.clip(i, 0, h - 1) * w + np.clip(j, 0, w - 1)]
         return np.where(inside, v, np.inf)
 
+    def _lowest(self, slots: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One step of steepest descent for each slot's cell (i, j): the index into ``_MOVES`` of the lowest
+        of the cell and its 8 neighbours (the first of equals, as a loop over them in order would take; 0 =
+        stay) and its field value."""
+        nb = self._values(slots, i[:, None] + _MOVES[:, 0], j[:, None] + _MOVES[:, 1])
+        k = nb.argmin(axis=1)
+        return k, nb[np.arange(len(slots)), k]
+
     def carrot(self, slots: np.ndarray, xy: np.ndarray, lookahead: float, escape: float = 0.3) -> np.ndarray:
         """[k, 2]: the point ``lookahead`` metres down each slot's field from ``xy`` [k, 2], or the slot's
         goal where the path to it is shorter than that or no path is known. Where ``xy`` lies in space the plan counts
@@ -282,9 +288,7 @@ class SeenWalls:
         step_m = np.where((_MOVES != 0).all(axis=1), math.sqrt(2.0), 1.0) * g.resolution
         travelled = np.zeros(len(slots))
         for _ in range(int(math.ceil(lookahead / g.resolution)) + 1):
-            nb = self._values(slots, i[:, None] + _MOVES[:, 0], j[:, None] + _MOVES[:, 1])
-            k = nb.argmin(axis=1)
-            lowest = nb[np.arange(len(slots)), k]
+            k, lowest = self._lowest(slots, i, j)
             move = np.isfinite(value) & (lowest < value) & (travelled < lookahead)
             if not move.any():
                 break
