@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import binary_dilation, maximum_filter, minimum_filter
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.grid_dijkstra import grid_distances
@@ -140,11 +140,19 @@ class SeenWalls:
         nearest its bearing, so the cost grows with the walls remembered, not with the beams."""
         g = self.grid
         res = g.resolution
-        candidate = self.known[slots] & ~binary_dilation(seen, structure=np.ones((1, 3, 3), dtype=bool))
-        kk, ii, jj = np.nonzero(candidate)
         carved = np.zeros_like(seen)
+        kk, ii, jj = np.nonzero(self.known[slots])
         if not len(kk):
             return carved
+        # no cell in or beside a return of this scan: the returns' 3 x 3 blocks, scattered (cheaper than a
+        # dilation of the whole grid, which costs as much as the memory, not as the scan)
+        near = np.zeros_like(seen)
+        h, w = seen.shape[1:]
+        sk, si, sj = np.nonzero(seen)
+        for di, dj in _MOVES:
+            near[sk, np.clip(si + di, 0, h - 1), np.clip(sj + dj, 0, w - 1)] = True
+        keep = ~near[kk, ii, jj]
+        kk, ii, jj = kk[keep], ii[keep], jj[keep]
         pose = np.asarray(pose, np.float64)
         dx = g.origin[0] + (jj + 0.5) * res - pose[kk, 0]
         dy = g.origin[1] + (ii + 0.5) * res - pose[kk, 1]
