@@ -42,6 +42,18 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def _nonzero(a: np.ndarray) -> tuple:
+    """``np.nonzero`` of a sparse bool array, read 8 cells at a time (a remembered-walls memory is mostly
+    empty, and a plain nonzero costs as much as the whole array)."""
+    flat = np.ascontiguousarray(a).reshape(-1)
+    pad = (-flat.size) % 8
+    if pad:
+        flat = np.concatenate([flat, np.zeros(pad, dtype=bool)])
+    words = np.flatnonzero(flat.view(np.uint64))
+    sub = np.nonzero(flat.reshape(-1, 8)[words])
+    return np.unravel_index(words[sub[0]] * 8 + sub[1], a.shape)
+
+
 class SeenWalls:
     """Per slot: the walls its scans have hit, on a grid of ``geometry``'s shape, resolution and origin
     (its occupancy is never read), and a distance field to the slot's goal over them.
@@ -77,7 +89,8 @@ class SeenWalls:
         self.goals = np.zeros((num, 2), dtype=np.float64)
         self.replans = np.zeros(num, dtype=np.int64)
         self.carved = np.zeros(num, dtype=np.int64)  # cells forgotten per slot, over its episodes
-        self.last_carved = np.zeros((0, h, w), dtype=bool)  # those of the last mark(), per slot marked
+        self._carved_at = (np.zeros(0, np.int64),) * 3  # (row, i, j) of the cells the last mark() carved
+        self._marked = 0
 
     def cells(self, xy: np.ndarray) -> np.ndarray:
         """Flat cell index of the points ``xy`` [k, 2] (clipped onto the grid)."""
@@ -103,19 +116,30 @@ class SeenWalls:
         """Marks the cells where the beams of ``slots`` end (ranges below ``max_range``) as walls, after
         carving (``carve``) the remembered ones that the beams pass through; returns [len(slots), H, W] the
         new ones (also in :attr:`last_carved`, the carved ones)."""
-        seen = self._ends(pose, ranges, angles, max_range)
-        self.last_carved = np.zeros_like(seen)
+        seen, ends = self._ends(pose, ranges, angles, max_range)
+        self._carved_at = (np.zeros(0, np.int64),) * 3
         if not self.memory:
             self.known[slots] = seen
             return seen
         if self.carve_walls:
-            self.last_carved = self._carve(slots, pose, ranges, angles, max_range, seen)
-        new = seen & ~self.known[slots]
-        self.known[slots] |= new
+            self._carved_at = self._carve(slots, pose, ranges, angles, max_range, ends)
+        fresh = ~self.known[slots[ends[0]], ends[1], ends[2]]  # returns in cells not remembered (yet)
+        self._new_at = tuple(e[fresh] for e in ends)  # (row, i, j), a cell once per return that ended in it
+        new = np.zeros_like(seen)
+        new[self._new_at] = True
+        self.known[slots[self._new_at[0]], self._new_at[1], self._new_at[2]] = True
         return new
 
-    def _ends(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> np.ndarray:
-        """[k, H, W]: the cells where the beams' returns end."""
+    @property
+    def last_carved(self) -> np.ndarray:
+        """[k, H, W]: the cells the last :meth:`mark` carved, per slot it marked."""
+        kk, ii, jj = self._carved_at
+        out = np.zeros((self._marked, *self.grid.shape), dtype=bool)
+        out[kk, ii, jj] = True
+        return out
+
+    def _ends(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> tuple:
+        """([k, H, W] the cells where the beams' returns end, (row, i, j) of each return's cell)."""
         g = self.grid
         pose = np.asarray(pose, np.float64)
         ranges = np.asarray(ranges, np.float64)
@@ -128,27 +152,29 @@ class SeenWalls:
         j = np.floor((x - g.origin[0]) / g.resolution).astype(np.int64)
         i = np.floor((y - g.origin[1]) / g.resolution).astype(np.int64)
         hit &= (i >= 0) & (i < h) & (j >= 0) & (j < w)  # ends off the grid are not remembered
+        self._marked = len(pose)
         seen = np.zeros((len(pose), h, w), dtype=bool)
         rows = np.broadcast_to(np.arange(len(pose))[:, None], hit.shape)
-        seen[rows[hit], i[hit], j[hit]] = True
-        return seen
+        ends = rows[hit], i[hit], j[hit]
+        seen[ends] = True
+        return seen, ends
 
     def _carve(self, slots: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
-               max_range: float, seen: np.ndarray) -> np.ndarray:
-        """Forgets the remembered walls of ``slots`` that the beams pass through (see ``carve``); returns
-        [k, H, W] the cells forgotten. Each remembered cell is tested against the ``2 * _CARVE_BEAMS`` beams
-        nearest its bearing, so the cost grows with the walls remembered, not with the beams."""
+               max_range: float, ends: tuple) -> tuple:
+        """Forgets the remembered walls of ``slots`` that the beams pass through (see ``carve``), ``ends`` =
+        (row, i, j) of this scan's returns; returns (row, i, j) of the cells forgotten. Each remembered cell
+        is tested against the ``2 * _CARVE_BEAMS`` beams nearest its bearing, so the cost grows with the
+        walls remembered, not with the beams."""
         g = self.grid
         res = g.resolution
-        carved = np.zeros_like(seen)
-        kk, ii, jj = np.nonzero(self.known[slots])
+        h, w = g.shape
+        kk, ii, jj = _nonzero(self.known[slots])
         if not len(kk):
-            return carved
+            return kk, ii, jj
         # no cell in or beside a return of this scan: the returns' 3 x 3 blocks, scattered (cheaper than a
         # dilation of the whole grid, which costs as much as the memory, not as the scan)
-        near = np.zeros_like(seen)
-        h, w = seen.shape[1:]
-        sk, si, sj = np.nonzero(seen)
+        near = np.zeros((len(slots), h, w), dtype=bool)
+        sk, si, sj = ends
         for di, dj in _MOVES:
             near[sk, np.clip(si + di, 0, h - 1), np.clip(sj + dj, 0, w - 1)] = True
         keep = ~near[kk, ii, jj]
@@ -170,10 +196,10 @@ class SeenWalls:
             delta = bearing - beam_angle[b]
             along, across = dist * np.cos(delta), np.abs(dist * np.sin(delta))
             hit |= (along > 0) & (across < 0.5 * res) & (along + res < free[kk, b])
-        carved[kk[hit], ii[hit], jj[hit]] = True
-        self.known[slots] &= ~carved
-        self.carved[slots] += carved.sum(axis=(1, 2))
-        return carved
+        kk, ii, jj = kk[hit], ii[hit], jj[hit]
+        self.known[slots[kk], ii, jj] = False
+        self.carved[slots] += np.bincount(kk, minlength=len(slots))
+        return kk, ii, jj
 
     def plan(self, slots: np.ndarray, goals: np.ndarray, scans: tuple) -> None:
         """New episodes of ``slots``: memories emptied, ``scans`` = (pose, ranges, angles, max_range)
@@ -217,22 +243,27 @@ class SeenWalls:
         pose = np.asarray(scans[0], np.float64)
         w = self.grid.shape[1]
         reach = self.radius / self.grid.resolution + 1.0  # cells: a wall this near a path cell blocks it
-        walled = np.flatnonzero(new.any(axis=(1, 2)))
+        nk, ni, nj = self._new_at
+        walled = np.unique(nk)
         paths = self.path_cells(slots[walled], pose[walled, :2]) if len(walled) else None
         replan = np.zeros(len(slots), dtype=bool)
         for row, k in enumerate(walled):
-            walls = np.argwhere(new[k])
+            sel = nk == k
+            walls = np.stack([ni[sel], nj[sel]], axis=1)
             path = paths[row]
             cells = np.stack([path // w, path % w], axis=1)
             gap = np.hypot(*(cells[:, None, :] - walls[None, :, :]).transpose(2, 0, 1)).min()
             replan[k] = gap <= reach or not np.isfinite(self.fields[slots[k]][path[0]])
-        for k in np.flatnonzero(~replan & self.last_carved.any(axis=(1, 2))):
-            replan[k] = self._opens(int(slots[k]), self.last_carved[k], pose[k, :2])
+        ck, ci, cj = self._carved_at
+        for k in np.unique(ck):
+            if not replan[k]:
+                sel = ck == k
+                replan[k] = self._opens(int(slots[k]), ci[sel], cj[sel], pose[k, :2])
         for slot in slots[replan]:
             self.fields[slot] = self._field(int(slot))
 
-    def _opens(self, slot: int, carved: np.ndarray, xy: np.ndarray) -> bool:
-        """Whether forgetting the ``carved`` [H, W] cells may shorten the slot's path: no path was known
+    def _opens(self, slot: int, ci: np.ndarray, cj: np.ndarray, xy: np.ndarray) -> bool:
+        """Whether forgetting the cells (``ci``, ``cj``) may shorten the slot's path: no path was known
         from ``xy``, or around some carved cell two reachable cells differ in their path length by more
         than any way between them within the window (a radius and two cells a side) can cost - the wall
         stood between them."""
@@ -242,7 +273,6 @@ class SeenWalls:
         if not np.isfinite(field.reshape(-1)[self.cells(np.asarray(xy, np.float64).reshape(1, 2))[0]]):
             return True
         half = int(math.ceil(self.radius / res)) + 2
-        ci, cj = np.nonzero(carved)
         i0, i1 = max(0, ci.min() - 2 * half), min(h, ci.max() + 2 * half + 1)
         j0, j1 = max(0, cj.min() - 2 * half), min(w, cj.max() + 2 * half + 1)
         box = field[i0:i1, j0:j1]

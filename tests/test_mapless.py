@@ -300,7 +300,7 @@ def test_carving_forgets_the_agents_trails_and_never_a_wall():
         carved.mark(slots, *scans)
         ever_carved |= carved.last_carved
         if step in (20, 39):
-            seen = carved._ends(*scans)
+            seen, _ = carved._ends(*scans)
             candidate = before & ~binary_dilation(seen, structure=np.ones((1, 3, 3), bool))
             reference = beams_pass_through(carved, candidate, *scans)
             assert (carved.last_carved <= reference).all() and carved.last_carved.sum() >= 0.9 * reference.sum()
@@ -313,6 +313,17 @@ def test_carving_forgets_the_agents_trails_and_never_a_wall():
     trails_kept, trails_carved = (kept.known & ~beside_walls).sum(), (carved.known & ~beside_walls).sum()
     assert trails_kept > 100 and trails_carved < 0.7 * trails_kept
     assert carved.carved.sum() >= ever_carved.sum() and not kept.carved.any()  # a cell can be carved twice
+
+
+def test_sparse_nonzero_equals_numpy():
+    from flashnav.mapless import _nonzero
+
+    rng = np.random.default_rng(0)
+    for shape in [(3, 17, 29), (1, 8, 8), (2, 5, 3)]:
+        for p in (0.0, 0.01, 0.3, 1.0):
+            a = rng.random(shape) < p
+            for got, want in zip(_nonzero(a), np.nonzero(a)):
+                np.testing.assert_array_equal(got, want)
 
 
 def test_a_person_in_the_only_gap_blocks_the_plan_until_a_beam_passes_through():
