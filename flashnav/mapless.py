@@ -26,6 +26,7 @@ import math
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from flashnav.maps.graph import MAX_WALL_COST, wall_cost
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.grid_dijkstra import grid_distances
 
@@ -34,8 +35,6 @@ SENSORS = ("raw", "pooled")
 _MOVES = np.array([(0, 0), (-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)], dtype=np.int64)
 #: beams on each side of a remembered cell's bearing that :meth:`SeenWalls._carve` tests against it
 _CARVE_BEAMS = 4
-#: the most a metre of path costs (:meth:`SeenWalls._field`'s cost beside a wall)
-_MAX_COST = 5.0
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -89,7 +88,9 @@ class SeenWalls:
         self.goals = np.zeros((num, 2), dtype=np.float64)
         self.replans = np.zeros(num, dtype=np.int64)
         self.carved = np.zeros(num, dtype=np.int64)  # cells forgotten per slot, over its episodes
-        self._carved_at = (np.zeros(0, np.int64),) * 3  # (row, i, j) of the cells the last mark() carved
+        # what the last mark() did, per row of the slots it marked: (row, i, j) of the cells it carved and of
+        # the returns in cells it had not remembered (update() reads them), and how many slots it marked
+        self._carved_at = self._new_at = (np.zeros(0, np.int64),) * 3
         self._marked = 0
 
     def cells(self, xy: np.ndarray) -> np.ndarray:
@@ -105,7 +106,7 @@ class SeenWalls:
         g = self.grid
         seen = OccupancyMap(occupied=self.known[slot], resolution=g.resolution, origin=g.origin)
         free = seen.free_space(self.radius).copy()
-        cost = 1.0 + (_MAX_COST - 1.0) * np.clip((self.radius + self.comfort - seen.clearance) / self.comfort, 0.0, 1.0)
+        cost = wall_cost(seen.clearance, self.radius, self.comfort)
         goal = int(self.cells(self.goals[slot:slot + 1])[0])
         free.reshape(-1)[goal] = True  # the goal cell itself is never walled off by a margin
         self.replans[slot] += 1
@@ -116,16 +117,18 @@ class SeenWalls:
         """Marks the cells where the beams of ``slots`` end (ranges below ``max_range``) as walls, after
         carving (``carve``) the remembered ones that the beams pass through; returns [len(slots), H, W] the
         new ones (also in :attr:`last_carved`, the carved ones)."""
-        seen, ends = self._ends(pose, ranges, angles, max_range)
+        ends = self._ends(pose, ranges, angles, max_range)
+        self._marked = len(pose)
         self._carved_at = (np.zeros(0, np.int64),) * 3
+        new = np.zeros((len(pose), *self.grid.shape), dtype=bool)
         if not self.memory:
-            self.known[slots] = seen
-            return seen
+            new[ends] = True
+            self.known[slots] = new
+            return new
         if self.carve_walls:
             self._carved_at = self._carve(slots, pose, ranges, angles, max_range, ends)
         fresh = ~self.known[slots[ends[0]], ends[1], ends[2]]  # returns in cells not remembered (yet)
         self._new_at = tuple(e[fresh] for e in ends)  # (row, i, j), a cell once per return that ended in it
-        new = np.zeros_like(seen)
         new[self._new_at] = True
         self.known[slots[self._new_at[0]], self._new_at[1], self._new_at[2]] = True
         return new
@@ -139,7 +142,7 @@ class SeenWalls:
         return out
 
     def _ends(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> tuple:
-        """([k, H, W] the cells where the beams' returns end, (row, i, j) of each return's cell)."""
+        """(row, i, j) of the cell where each return of the beams ends (rows: the scans' order)."""
         g = self.grid
         pose = np.asarray(pose, np.float64)
         ranges = np.asarray(ranges, np.float64)
@@ -152,12 +155,8 @@ class SeenWalls:
         j = np.floor((x - g.origin[0]) / g.resolution).astype(np.int64)
         i = np.floor((y - g.origin[1]) / g.resolution).astype(np.int64)
         hit &= (i >= 0) & (i < h) & (j >= 0) & (j < w)  # ends off the grid are not remembered
-        self._marked = len(pose)
-        seen = np.zeros((len(pose), h, w), dtype=bool)
         rows = np.broadcast_to(np.arange(len(pose))[:, None], hit.shape)
-        ends = rows[hit], i[hit], j[hit]
-        seen[ends] = True
-        return seen, ends
+        return rows[hit], i[hit], j[hit]
 
     def _carve(self, slots: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
                max_range: float, ends: tuple) -> tuple:
@@ -283,7 +282,7 @@ class SeenWalls:
         top = maximum_filter(np.where(finite, box, -np.inf), size=size, mode="constant", cval=-np.inf)
         low = minimum_filter(np.where(finite, box, np.inf), size=size, mode="constant", cval=np.inf)
         span = (top - low)[ci - i0, cj - j0]
-        return bool((span > _MAX_COST * math.sqrt(2.0) * (size - 1) * res).any())
+        return bool((span > MAX_WALL_COST * math.sqrt(2.0) * (size - 1) * res).any())
 
     def _values(self, slots: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Field values of the slots' cells (i, j) [k, m]; off the grid: inf."""

@@ -33,7 +33,7 @@ def run_bench_plan(args) -> int:
 
     from flashnav.machine import machine_name
     from flashnav.maps.bundled import resolve_map
-    from flashnav.maps.graph import grid_graph
+    from flashnav.maps.graph import grid_graph, wall_cost
     from flashnav.maps.grid_dijkstra import grid_distances
 
     if args.goals < 1 or args.repeats < 1 or not args.radius > 0:
@@ -44,8 +44,7 @@ def run_bench_plan(args) -> int:
     cells = np.flatnonzero(free)
     if not len(cells):
         raise ValueError(f"map {grid.name!r} has no cell {args.radius} m from every wall")
-    # the planner's cost: up to 5x within 0.3 m of the radius (flashnav.mapless.SeenWalls._field)
-    cost = 1.0 + 4.0 * np.clip((args.radius + 0.3 - grid.clearance) / 0.3, 0.0, 1.0)
+    cost = wall_cost(grid.clearance, args.radius, 0.3)  # the planner's (flashnav.mapless.SeenWalls, comfort 0.3)
     goals = np.random.default_rng(args.seed).choice(cells, args.goals)
     ways = {
         "scipy (graph + dijkstra)": lambda g: dijkstra(grid_graph(free, grid.resolution, cost), directed=True, indices=g),

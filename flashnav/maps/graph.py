@@ -10,6 +10,15 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+#: the most a metre of path costs: beside a wall (:func:`wall_cost`)
+MAX_WALL_COST = 5.0
+
+
+def wall_cost(clearance: np.ndarray, radius: float, comfort: float) -> np.ndarray:
+    """Per-cell cost of a metre of path [H, W]: 1 where the cell is at least ``radius + comfort`` metres
+    from every wall (``clearance`` [H, W] metres), rising linearly to :data:`MAX_WALL_COST` at ``radius``:
+    the planners' paths keep clear of walls where they can."""
+    return 1.0 + (MAX_WALL_COST - 1.0) * np.clip((radius + comfort - clearance) / comfort, 0.0, 1.0)
 
 
 def grid_graph(free: np.ndarray, resolution: float, cost: np.ndarray | None = None) -> csr_matrix:

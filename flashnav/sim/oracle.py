@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from scipy.sparse.csgraph import dijkstra
 
-from flashnav.maps.graph import NEIGHBOURS as _NEIGHBOURS, grid_graph
+from flashnav.maps.graph import NEIGHBOURS as _NEIGHBOURS, grid_graph, wall_cost
 from flashnav.sim.env import NavVecEnv
 
 class OracleController:
@@ -29,7 +29,7 @@ class OracleController:
         for grid in env.maps:
             free = grid.free_space(radius)
             # paths keep away from walls where they can: cells within `comfort` of the margin cost more
-            cost = 1.0 + 4.0 * np.clip((radius + comfort - grid.clearance) / comfort, 0.0, 1.0)
+            cost = wall_cost(grid.clearance, radius, comfort)
             self.graphs.append(grid_graph(free, grid.resolution, cost))
         self.free = env.map.free_space(radius)  # the (first) map's, as before
         # per map: resolution, frame origin (the env's pose and goal are in each map's simulator
