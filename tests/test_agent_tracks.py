@@ -159,9 +159,9 @@ def test_tracks_see_through_nothing_and_only_inside_the_field_of_view():
     a.radius[0] = 0.25
     a.active[0] = True
     ranges = env.scan()
-    seen = env.tracks.seen_by(env.pose, a.pos, a.radius, a.active, ranges)
+    seen = env.extras.tracks.seen_by(env.pose, a.pos, a.radius, a.active, ranges)
     assert seen[0].tolist() == [True, False, False, False]
-    feats = env.tracks.observe(torch.tensor([0]), a, env.pose, ranges, fresh=True)
+    feats = env.extras.tracks.observe(torch.tensor([0]), a, env.pose, ranges, fresh=True)
     assert feats[0, :W].tolist() == pytest.approx([1.0, 1.0, 0.0, 0.0, 0.0, 0.25], abs=1e-5)
     assert feats[0, W:].abs().sum() == 0
 
@@ -174,7 +174,7 @@ def test_without_agents_every_track_is_absent_and_zero_tracks_change_nothing():
     assert env.agents is None and obs[:, env.preset.history_end:].abs().sum() == 0
     plain = tracked_env(n=4, seed=1, tracks=0, agents=4)
     wide = tracked_env(n=4, seed=1, tracks=3, agents=4, **{"observation.scan_history": 2})
-    assert plain.tracks is None and plain.obs_dim == plain.preset.base_obs_dim
+    assert plain.extras.tracks is None and plain.obs_dim == plain.preset.base_obs_dim
     o0, _ = plain.reset(seed=1)
     o1, _ = wide.reset(seed=1)
     gen = torch.Generator().manual_seed(1)
@@ -190,11 +190,11 @@ def test_a_slot_reset_leaves_the_other_slots_tracks_bit_identical():
     env.reset(seed=2)
     for _ in range(6):
         obs, *_ = env.step(torch.zeros(8, 2))
-    before = (env.obs.clone(), env.tracks.prev.clone(), env.tracks.seen.clone())
+    before = (env.obs.clone(), env.extras.tracks.prev.clone(), env.extras.tracks.seen.clone())
     mask = torch.zeros(8, dtype=torch.bool)
     mask[[0, 6]] = True
     env.reset(options={"reset_mask": mask})
-    after = (env.obs, env.tracks.prev, env.tracks.seen)
+    after = (env.obs, env.extras.tracks.prev, env.extras.tracks.seen)
     for b, now in zip(before, after):
         assert torch.equal(b[~mask], now[~mask])
 

@@ -33,7 +33,7 @@ def test_zero_history_gives_exactly_the_saved_transitions():
     scan_history 0 given explicitly."""
     saved = np.load(FIXTURE)
     env = make_env(load_robot("turtlebot2", **{"observation.scan_history": 0}), 6, seed=5)
-    assert env.history is None and env.obs_dim == 34
+    assert env.extras.history is None and env.obs_dim == 34
     obs, _ = env.reset(seed=5)
     gen = torch.Generator().manual_seed(5)
     got = {"obs": [obs], "reward": [], "terminated": [], "final_obs": []}
@@ -103,24 +103,24 @@ def test_a_slot_reset_and_a_partial_step_leave_other_histories_bit_identical():
     env.reset(seed=2)
     for _ in range(4):
         env.step(torch.full((8, 2), 0.3))
-    frames, obs = env.history.frames.clone(), env.obs.clone()
+    frames, obs = env.extras.history.frames.clone(), env.obs.clone()
     mask = torch.zeros(8, dtype=torch.bool)
     mask[[1, 5]] = True
     new, _ = env.reset(options={"reset_mask": mask})
-    assert torch.equal(env.history.frames[~mask], frames[~mask]) and torch.equal(new[~mask], obs[~mask])
+    assert torch.equal(env.extras.history.frames[~mask], frames[~mask]) and torch.equal(new[~mask], obs[~mask])
     for i in (1, 5):  # the reset slots: every frame is the new first scan
-        assert torch.equal(env.history.frames[i], new[i, :30].expand(3, -1))
+        assert torch.equal(env.extras.history.frames[i], new[i, :30].expand(3, -1))
         assert torch.equal(new[i, 34:], new[i, :30].repeat(3))
 
-    frames = env.history.frames.clone()
+    frames = env.extras.history.frames.clone()
     idx = torch.tensor([0, 6])
     out = env.step_slots(idx, torch.full((2, 2), 0.3))
     others = torch.ones(8, dtype=torch.bool)
     others[idx] = False
-    assert torch.equal(env.history.frames[others], frames[others])
+    assert torch.equal(env.extras.history.frames[others], frames[others])
     for j, i in enumerate(idx.tolist()):
         assert torch.equal(out["obs"][j, 34:], frames[i].flatten())
-        assert torch.equal(env.history.frames[i], torch.cat([out["obs"][j, None, :30], frames[i, :2]]))
+        assert torch.equal(env.extras.history.frames[i], torch.cat([out["obs"][j, None, :30], frames[i, :2]]))
 
 
 def test_set_state_starts_every_history_afresh():

@@ -60,7 +60,7 @@ def test_trail_columns_equal_a_list_of_past_positions_per_slot(case):
 
     plain, trail = env(0), env(m)
     base = plain.obs_dim
-    assert plain.trail is None and trail.obs_dim == base + 2 * m
+    assert plain.extras.trail is None and trail.obs_dim == base + 2 * m
     assert trail.single_observation_space.shape == (base + 2 * m,)
     bound = trail_bound(trail.preset)
     assert bound == pytest.approx(max(abs(b) for b in trail.preset.motion.v_bounds) * trail.preset.episode.dt * m * every)
@@ -104,7 +104,7 @@ def test_breadcrumbs_of_a_straight_drive():
     for _ in range(2):  # 5 cm straight ahead per step: breadcrumbs here, 5 cm back, at the start
         obs, *_ = env.step(torch.tensor([[1.0, 0.0]]))
     assert torch.allclose(obs[0, -6:], torch.tensor([0.0, 0.0, -0.05, 0.0, -0.1, 0.0]), atol=1e-5)
-    assert torch.equal(env.trail.crumbs[0, 2], start)
+    assert torch.equal(env.extras.trail.crumbs[0, 2], start)
 
 
 def test_a_slot_reset_and_a_partial_step_leave_other_trails_bit_identical():
@@ -113,21 +113,21 @@ def test_a_slot_reset_and_a_partial_step_leave_other_trails_bit_identical():
     env.reset(seed=2)
     for _ in range(5):
         env.step(torch.full((8, 2), 0.3))
-    crumbs, obs = env.trail.crumbs.clone(), env.obs.clone()
+    crumbs, obs = env.extras.trail.crumbs.clone(), env.obs.clone()
     mask = torch.zeros(8, dtype=torch.bool)
     mask[[1, 5]] = True
     new, _ = env.reset(options={"reset_mask": mask})
-    assert torch.equal(env.trail.crumbs[~mask], crumbs[~mask]) and torch.equal(new[~mask], obs[~mask])
+    assert torch.equal(env.extras.trail.crumbs[~mask], crumbs[~mask]) and torch.equal(new[~mask], obs[~mask])
     for i in (1, 5):  # the reset slots: every breadcrumb is the start, seen from there (0, 0)
-        assert torch.equal(env.trail.crumbs[i], env.pose[i, :2].expand(3, -1))
+        assert torch.equal(env.extras.trail.crumbs[i], env.pose[i, :2].expand(3, -1))
         assert torch.equal(new[i, 34:], torch.zeros(6))
 
-    crumbs = env.trail.crumbs.clone()
+    crumbs = env.extras.trail.crumbs.clone()
     idx = torch.tensor([0, 6])
     env.step_slots(idx, torch.full((2, 2), 0.3))
     others = torch.ones(8, dtype=torch.bool)
     others[idx] = False
-    assert torch.equal(env.trail.crumbs[others], crumbs[others])
+    assert torch.equal(env.extras.trail.crumbs[others], crumbs[others])
 
 
 def test_set_state_starts_every_trail_afresh():

@@ -62,7 +62,7 @@ from flashnav.names import DEFAULT_RAYCASTER
 from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
-from flashnav.sim.history import ScanHistory
+from flashnav.sim.extras import ObservationExtras
 from flashnav.sim.inputs import as_batch, check_finite
 from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
                                   sim_frame)
@@ -71,8 +71,6 @@ from flashnav.sim.observation import beam_angles, observation_bounds, observe  #
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.reward import Shaping, outcome
 from flashnav.sim.sampling import EpisodeSampler, MapSetSampler
-from flashnav.sim.tracks import AgentTracks
-from flashnav.sim.trail import PoseTrail
 
 
 class NavVecEnv(VectorEnv):
@@ -115,13 +113,7 @@ class NavVecEnv(VectorEnv):
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
-        k = preset.observation.scan_history  # k = 0: no history at all, the step is exactly the paper's
-        self.history = ScanHistory(n, k, preset.lidar.sectors, self.device) if k else None
-        # observation.agent_tracks M = 0: no tracks at all, the step is exactly the paper's
-        self.tracks = (AgentTracks(preset, n, self.beam_angles, self.device)
-                       if preset.observation.agent_tracks else None)
-        p = preset.observation.pose_trail  # P = 0: no trail at all, the step is exactly the paper's
-        self.trail = PoseTrail(n, p, preset.observation.trail_every, self.device) if p else None
+        self.extras = ObservationExtras(preset, n, self.beam_angles, self.device)  # all off: the paper's step
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
@@ -198,17 +190,9 @@ class NavVecEnv(VectorEnv):
     def _observe(self, sel, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, velocity: torch.Tensor,
                  start: bool, steps: torch.Tensor | None = None) -> torch.Tensor:
         """Observations [k, obs_dim] of slots ``sel`` from ranges [k, beams] and their state: the paper's,
-        then the opt-in extras - the scan history (a new episode, ``start``, fills it; a step gives the
-        frames before it, then this scan joins them), the agents seen, as a tracker reports them, and the
-        pose trail (``steps`` [k]: the slots' episode steps after this step; not needed at a start)."""
+        then the opt-in extras (:meth:`ObservationExtras.append`; ``start``: new episodes)."""
         obs = observe(self.preset, ranges, pose, goal, velocity, self._gen)
-        if self.history is not None:
-            obs = (self.history.start if start else self.history.push)(sel, obs)
-        if self.tracks is not None:
-            obs = torch.cat([obs, self.tracks.observe(sel, self.agents, pose, ranges, fresh=start)], dim=1)
-        if self.trail is not None:
-            obs = torch.cat([obs, self.trail.start(sel, pose) if start else self.trail.push(sel, pose, steps)], dim=1)
-        return obs
+        return self.extras.append(obs, sel, self.agents, pose, ranges, start, steps)
 
     # ---- episode control --------------------------------------------------------------------------
     def _reset_slots(self, idx: torch.Tensor) -> None:
