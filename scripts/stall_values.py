@@ -1,6 +1,6 @@
 """What does the critic think of a parked robot? (issue 16, items 3 and 4)
 
-    .venv/bin/python scripts/stall_values.py RUN_DIR [--episodes 1024] [--seed 12345] [--step 100]
+    .venv/bin/python scripts/stall_values.py RUN_DIR [--episodes 1024] [--seed 12345] [--step 100] [--samples K]
 
 Loads a FastDSAC run's final learner (``RUN_DIR/checkpoint.pt`` with its ``config.yaml``), evaluates its final
 deterministic actor on the fixed set ``flashnav train`` evaluates on (``--episodes`` start/goal pairs, evaluation
@@ -9,6 +9,11 @@ prints the critic's value (the smaller of the twin critics' means, the target th
 action, of the best action on a 21 x 21 grid over [-1, 1]^2, of driving straight at top speed, and of turning in
 place at full rate either way, beside the goal distance and bearing. A parked robot whose critic rates turning and
 driving no better than staying put is a value problem (how far the discount sees), not an actor stuck on a slope.
+
+``--samples K`` also replays each failed episode K times with the *stochastic* policy (the tanh-Gaussian the learner
+trains and collects with, DEM scale 1) and prints how often it succeeds, beside the actor's mean action and spread
+at the start: a start the stochastic policy solves almost always, but its mean action does not, is a deterministic
+actor that sits between two ways round (a mode-averaging mean), not a start the policy cannot solve.
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ import torch
 import yaml
 
 from flashnav.checkpoint import load_checkpoint
-from flashnav.evaluate import evaluate_episodes
+from flashnav.evaluate import evaluate_episodes, play_episodes
+from flashnav.learn.fastdsac import policy_log_std, sample
 from flashnav.learn.loop import run_learner
 from flashnav.sim.env import make_env
 from flashnav.spec import RunSpec
@@ -33,6 +39,7 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=1024)
     p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
     p.add_argument("--step", type=int, default=100, help="the replay step at which the critic is read")
+    p.add_argument("--samples", type=int, default=0, help="stochastic replays of each failed episode (0: none)")
     args = p.parse_args()
     run = Path(args.run)
     spec = RunSpec.from_dict(yaml.safe_load((run / "config.yaml").read_text()))
@@ -56,6 +63,8 @@ def main() -> None:
               f"failed: {', '.join(f'#{k}' for k in failed) or 'none'}")
         if not len(failed):
             return
+        if args.samples > 0:
+            stochastic(actor, learner.state.hp, spec.robot.name, e, failed, args.samples)
         replay = make_env(spec.robot.name, len(failed), seed=0)
         replay.reset(seed=0)
         obs = replay.set_state(torch.as_tensor(e["start_pose"][failed]), torch.as_tensor(e["goal"][failed]))
@@ -74,6 +83,23 @@ def main() -> None:
                   f"Q(actor's ({action[j, 0]:+.2f}, {action[j, 1]:+.2f})) {value(obs[j:j + 1], action[j:j + 1]).item():.3f}, "
                   f"best on the grid {q[best]:.3f} at ({grid[best, 0]:+.1f}, {grid[best, 1]:+.1f}), "
                   + ", ".join(f"{name} {v:.3f}" for name, v in fixed.items()))
+
+
+
+def stochastic(actor, hp, robot: str, e: dict, failed: np.ndarray, k: int) -> None:
+    """Replay each failed episode ``k`` times with sampled actions; print the success rate per episode."""
+    env = make_env(robot, len(failed) * k, seed=0)
+    env.reset(seed=0)
+    rep = np.repeat(failed, k)
+    obs = env.set_state(torch.as_tensor(e["start_pose"][rep]), torch.as_tensor(e["goal"][rep]))
+    mu, log_std = policy_log_std(actor(obs[::k]), hp)
+    gen = torch.Generator().manual_seed(0)
+    out = play_episodes(lambda o: sample(actor, o, hp, gen)[0], env, obs)
+    won = out["success"].view(len(failed), k).float().mean(1)
+    print(f"stochastic replays ({k} per failed episode; start: the actor's tanh(mean) and pre-tanh std per action):")
+    for j, ep in enumerate(failed):
+        a, sd = torch.tanh(mu[j]), log_std[j].exp()
+        print(f"  #{ep}: success {won[j]:.0%}; start action ({a[0]:+.2f}, {a[1]:+.2f}), std ({sd[0]:.2f}, {sd[1]:.2f})")
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ class LearnerHParams(Strict):
     precision: Literal[PRECISIONS] = Field(  # type: ignore[valid-type]
         "float32", description="the learner updates' arithmetic: float32; bf16 = each update under torch.autocast(bfloat16) (matrix products in bf16, weights, state and targets float32), which pays only where the hardware multiplies bf16 natively (AVX-512 BF16 / AMX CPUs, GPUs); auto = bf16 there, float32 elsewhere, resolved and recorded when a run is set up (docs/learners.md S9)")
     lr_final_ratio: float = Field(1.0, ge=0, le=1, description="actor and critic learning rates at the end of the run's env-step budget, as a fraction of actor_lr / critic_lr: a cosine decay over the budget (1 = constant, the paper and the references' default; docs/learners.md S12)")
+    mirror: float = Field(0.0, ge=0, le=1, description="share of each replay batch reflected left-right (the scan reversed, goal angle, turn rates and robot-frame y negated; the twin transition of the mirrored map: flashnav/learn/mirror.py); 0 = off, the paper and the references")
     actor_out_init_std: float = Field(0.01, ge=0, description="std of the normal draw of the actor's output-layer weights (bias 0); 0 = the hidden layers' PyTorch-default uniform draw, as the FastDSAC reference (docs/learners.md D1)")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")

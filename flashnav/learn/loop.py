@@ -36,6 +36,7 @@ from flashnav.evaluate import ThresholdTracker, TrainingEpisodes, evaluate
 from flashnav.finetune import load_learner
 from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
+from flashnav.learn.mirror import mirror_for
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.learn.precision import update_precision
@@ -151,7 +152,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     maps = _map_stream(spec, cycles)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed,
-                    n_step=hp.n_step, gamma=hp.gamma)
+                    n_step=hp.n_step, gamma=hp.gamma, mirror=mirror_for(preset, hp.mirror, dev))
     updates = (CycleUpdates(learner, preset.obs_dim, 2, hp.batch_size, hp.updates_per_step, capture=dev.type == "cuda")
                if spec.cuda_graph else None)
 

@@ -49,10 +49,13 @@ class Replay:
     ``obs_dim`` D, ``action_dim`` A; tensors live on ``device``; ``seed`` drives a private
     ``torch.Generator`` so sampling is reproducible and independent of the global RNG. ``n_step`` > 1
     samples n-step returns discounted by ``gamma`` (module docstring); ``add`` then needs ``ended``.
+    ``mirror``: a :class:`flashnav.learn.mirror.Mirror` that reflects a share of every sampled batch's
+    rows left-right (``algo.mirror``; its draws come from the same generator, after the rows').
     """
 
     def __init__(self, num_envs: int, obs_dim: int, action_dim: int, capacity: int,
-                 device: torch.device | str = "cpu", seed: int = 0, n_step: int = 1, gamma: float | None = None):
+                 device: torch.device | str = "cpu", seed: int = 0, n_step: int = 1, gamma: float | None = None,
+                 mirror=None):
         if num_envs <= 0 or capacity <= 0:
             raise ValueError(f"Replay needs num_envs > 0 and capacity > 0, got {num_envs}, {capacity}")
         if not isinstance(n_step, int) or n_step < 1:
@@ -60,6 +63,10 @@ class Replay:
         if n_step > 1 and (gamma is None or not 0 < gamma <= 1):
             raise ValueError(f"Replay with n_step={n_step} needs the discount gamma in (0, 1], got {gamma!r}")
         self.n_step, self.gamma = n_step, gamma
+        if mirror is not None and (mirror.obs_index.numel() != obs_dim or mirror.action_sign.numel() != action_dim):
+            raise ValueError(f"Replay mirror is for {mirror.obs_index.numel()} observation and {mirror.action_sign.numel()} "
+                             f"action columns, the buffer holds {obs_dim} and {action_dim}")
+        self.mirror = mirror
         self.num_envs = num_envs
         self.rows_per_env = math.ceil(capacity / num_envs)
         self.device = torch.device(device)
@@ -125,6 +132,11 @@ class Replay:
         if out is not None:
             self._check_out(out, batch_size, n_batches)
         rows = torch.randint(self.size, (n_batches, batch_size), generator=self.generator, device=self.device)
+        batch = self._gather(rows, n_batches, batch_size, out)
+        return batch if self.mirror is None else self.mirror.apply(batch, self.generator)
+
+    def _gather(self, rows: torch.Tensor, n_batches: int, batch_size: int, out: Transition | None) -> Transition:
+        """The transitions of ``rows`` [U, B] (into ``out`` where given)."""
         if self.n_step > 1:
             fields = self._n_step_fields(rows.view(-1))
             if out is None:
