@@ -125,3 +125,17 @@ def test_mirror_off_keeps_batches_bit_identical():
     for x, y in zip(a.sample(128, 3), b.sample(128, 3)):
         assert torch.equal(x, y)
     assert np.isclose(load_hparams("fastdsac", "turtlebot2", "paper", {}).mirror, 0.0)
+
+
+def test_training_with_mirror_reaches_the_updates_and_is_recorded():
+    from flashnav import train
+    from tests.test_train import TINY, tiny
+
+    mirrored = train(tiny(overrides={**TINY, "algo.mirror": 0.5}))
+    assert mirrored.spec.hparams.mirror == 0.5
+    plain = train(tiny())
+    a = torch.cat([p.detach().flatten() for p in mirrored.learner.policy.parameters()])
+    b = torch.cat([p.detach().flatten() for p in plain.learner.policy.parameters()])
+    assert not torch.equal(a, b)  # the reflected rows reached the updates
+    again = train(tiny(overrides={**TINY, "algo.mirror": 0.5}))
+    assert torch.equal(a, torch.cat([p.detach().flatten() for p in again.learner.policy.parameters()]))  # seeded
