@@ -117,28 +117,36 @@ class SeenWalls:
         """Marks the cells where the beams of ``slots`` end (ranges below ``max_range``) as walls, after
         carving (``carve``) the remembered ones that the beams pass through; returns [len(slots), H, W] the
         new ones (also in :attr:`last_carved`, the carved ones)."""
+        self._mark(slots, pose, ranges, angles, max_range)
+        return self._mask(self._new_at)
+
+    def _mark(self, slots: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray,
+              max_range: float) -> None:
+        """:meth:`mark` without the [k, H, W] mask: what it did is in ``_new_at`` / ``_carved_at`` as (row, i, j)
+        (:meth:`update` reads those; a full-grid mask per step would cost as much as the memory)."""
         ends = self._ends(pose, ranges, angles, max_range)
         self._marked = len(pose)
         self._carved_at = (np.zeros(0, np.int64),) * 3
-        new = np.zeros((len(pose), *self.grid.shape), dtype=bool)
         if not self.memory:
-            new[ends] = True
-            self.known[slots] = new
-            return new
+            self._new_at = ends
+            self.known[slots] = False
+            self.known[slots[ends[0]], ends[1], ends[2]] = True
+            return
         if self.carve_walls:
             self._carved_at = self._carve(slots, pose, ranges, angles, max_range, ends)
         fresh = ~self.known[slots[ends[0]], ends[1], ends[2]]  # returns in cells not remembered (yet)
         self._new_at = tuple(e[fresh] for e in ends)  # (row, i, j), a cell once per return that ended in it
-        new[self._new_at] = True
         self.known[slots[self._new_at[0]], self._new_at[1], self._new_at[2]] = True
-        return new
 
     @property
     def last_carved(self) -> np.ndarray:
         """[k, H, W]: the cells the last :meth:`mark` carved, per slot it marked."""
-        kk, ii, jj = self._carved_at
+        return self._mask(self._carved_at)
+
+    def _mask(self, at: tuple) -> np.ndarray:
+        """[k, H, W] bool, True at the (row, i, j) ``at`` of the last :meth:`mark`'s k slots."""
         out = np.zeros((self._marked, *self.grid.shape), dtype=bool)
-        out[kk, ii, jj] = True
+        out[at] = True
         return out
 
     def _ends(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> tuple:
@@ -206,7 +214,7 @@ class SeenWalls:
         slots = np.asarray(slots)
         self.known[slots] = False
         self.goals[slots] = goals
-        self.mark(slots, *scans)
+        self._mark(slots, *scans)
         for slot in slots:
             self.fields[slot] = self._field(int(slot))
 
@@ -234,7 +242,7 @@ class SeenWalls:
         carved); replanned are the slots whose path (from their pose) the new walls block or brush, and
         those where a carved wall may open a shorter way (:meth:`_opens`) or no path was known."""
         slots = np.asarray(slots)
-        new = self.mark(slots, *scans)
+        self._mark(slots, *scans)
         if not self.memory:
             for slot in slots:
                 self.fields[slot] = self._field(int(slot))
