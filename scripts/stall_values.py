@@ -65,9 +65,7 @@ def main() -> None:
             return
         if args.samples > 0:
             stochastic(actor, learner.state.hp, spec.robot.name, e, failed, args.samples)
-        replay = make_env(spec.robot.name, len(failed), seed=0)
-        replay.reset(seed=0)
-        obs = replay.set_state(torch.as_tensor(e["start_pose"][failed]), torch.as_tensor(e["goal"][failed]))
+        replay, obs = placed(spec.robot.name, e, failed)
         axis = torch.linspace(-1, 1, 21)
         grid = torch.stack(torch.meshgrid(axis, axis, indexing="ij"), -1).reshape(-1, 2)
         named = {"drive straight": (1.0, 0.0), "turn left in place": (-1.0, 1.0), "turn right in place": (-1.0, -1.0)}
@@ -85,13 +83,17 @@ def main() -> None:
                   + ", ".join(f"{name} {v:.3f}" for name, v in fixed.items()))
 
 
+def placed(robot: str, e: dict, episodes: np.ndarray):
+    """An env with one slot per entry of ``episodes`` (indices into the evaluation ``e``), each placed at
+    that episode's start and goal; returns (env, observations)."""
+    env = make_env(robot, len(episodes), seed=0)
+    env.reset(seed=0)
+    return env, env.set_state(torch.as_tensor(e["start_pose"][episodes]), torch.as_tensor(e["goal"][episodes]))
+
 
 def stochastic(actor, hp, robot: str, e: dict, failed: np.ndarray, k: int) -> None:
     """Replay each failed episode ``k`` times with sampled actions; print the success rate per episode."""
-    env = make_env(robot, len(failed) * k, seed=0)
-    env.reset(seed=0)
-    rep = np.repeat(failed, k)
-    obs = env.set_state(torch.as_tensor(e["start_pose"][rep]), torch.as_tensor(e["goal"][rep]))
+    env, obs = placed(robot, e, np.repeat(failed, k))
     mu, log_std = policy_log_std(actor(obs[::k]), hp)
     gen = torch.Generator().manual_seed(0)
     out = play_episodes(lambda o: sample(actor, o, hp, gen)[0], env, obs)

@@ -15,9 +15,12 @@ observation; ``n_step = 1`` is the one-step transition, gathered exactly as stor
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
+
+if TYPE_CHECKING:
+    from flashnav.learn.mirror import Mirror
 
 
 class Transition(NamedTuple):
@@ -55,7 +58,7 @@ class Replay:
 
     def __init__(self, num_envs: int, obs_dim: int, action_dim: int, capacity: int,
                  device: torch.device | str = "cpu", seed: int = 0, n_step: int = 1, gamma: float | None = None,
-                 mirror=None):
+                 mirror: "Mirror | None" = None):
         if num_envs <= 0 or capacity <= 0:
             raise ValueError(f"Replay needs num_envs > 0 and capacity > 0, got {num_envs}, {capacity}")
         if not isinstance(n_step, int) or n_step < 1:
