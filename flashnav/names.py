@@ -15,9 +15,11 @@ ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
 #: Display names of the learners (tables, figures).
 ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
 #: Hyperparameter recipes in ``flashnav/presets/<algorithm>.yaml``: ``paper`` is appendix A (GPU),
-#: ``cpu`` the departures measured for a 2-core CPU, ``generalist`` (FastDSAC, TurtleBot2) training for
-#: unseen buildings, with its training setup (maps, evaluation, task) in ``presets/setups.yaml``.
-RECIPES = ("paper", "cpu", "generalist")
+#: ``cpu`` the departures measured for a 2-core CPU, ``paper-mirror`` (FastDSAC) the paper recipe with
+#: 5-step returns, gamma 0.99 and mirrored replay (the departures that reach 100 % within the paper's
+#: budget), ``generalist`` (FastDSAC, TurtleBot2) training for unseen buildings, with its training setup
+#: (maps, evaluation, task) in ``presets/setups.yaml``.
+RECIPES = ("paper", "cpu", "paper-mirror", "generalist")
 #: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
 RECIPE_CHOICES = ("auto", *RECIPES)
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.

@@ -71,6 +71,7 @@ class TrainConfig(KnownKeys):
     algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
     recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
         "auto", description="hyperparameter recipe: paper (appendix A, GPU), cpu (2 CPU cores), auto by device, "
+                            "paper-mirror (FastDSAC: paper + 5-step returns, gamma 0.99, mirrored replay), "
                             "generalist (unseen buildings; also sets the maps, evaluation and task: presets/setups.yaml)")
     seed: int = Field(0, description="training seed")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import yaml
 
 from services import optuna_search
 from services.sweep_cli import main as sweep_main
-from services.sweep import make_plan
+from services.sweep import make_plan, validate_train_configs
 from services.paths import resolve_db_url, resolve_storage, resolve_tracking_uri, runs_dir
 from services.sweep_schema import SweepError, apply_sets, load_sweep, parse_sweep, sweep_to_yaml
 
@@ -164,7 +165,9 @@ def test_yaml_round_trip():
 def test_shipped_sweeps_validate(path):
     sweep = load_sweep(path)
     assert sweep.name == path.stem
-    assert sweep.base.recipe in ("paper", "cpu")
+    assert sweep.base.recipe in ("paper", "cpu", "paper-mirror")
+    # every (robot, algorithm) trial resolves through the library's resolver, as `sweep run` checks first
+    validate_train_configs(SimpleNamespace(sweep=sweep, source=str(path)))
 
 
 def test_shipped_sweeps_content():

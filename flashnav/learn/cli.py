@@ -23,7 +23,8 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robot", help="turtlebot2 (default), go2, or a preset YAML")
     p.add_argument("--algo", dest="algorithm", choices=ALGORITHMS, help="learner (default fastdsac)")
     p.add_argument("--recipe", choices=RECIPE_CHOICES,
-                   help="hyperparameters: paper (GPU), cpu, auto (by device), generalist (FastDSAC TurtleBot2 on "
+                   help="hyperparameters: paper (GPU), cpu, auto (by device), paper-mirror (FastDSAC: the paper's with "
+                        "5-step returns, gamma 0.99 and mirrored replay), generalist (FastDSAC TurtleBot2 on "
                         "many maps; also its maps, evaluation and task: presets/setups.yaml)")
     p.add_argument("--device", help="auto (default), cpu, cuda, cuda:N")
     p.add_argument("--map", help="ROS map YAML (default: the preset's bundled map)")

@@ -142,8 +142,9 @@ def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
                  overrides: dict[str, Any] | None = None) -> AnyHParams:
     """Validated hyperparameters for ``algorithm`` / ``robot`` / ``recipe`` with dotted-key overrides.
 
-    ``recipe``: ``paper`` (appendix A, GPU), ``cpu`` (a 2-core CPU recipe) or ``generalist`` (based on
-    ``cpu``: a recipe's ``base`` is laid first). The values are the
+    ``recipe``: ``paper`` (appendix A, GPU), ``cpu`` (a 2-core CPU recipe), ``paper-mirror`` (``paper`` with
+    5-step returns, gamma 0.99 and mirrored replay) or ``generalist`` (based on ``cpu``: a recipe's
+    ``base`` is laid first). The values are the
     layers of ``flashnav/presets/pipeline.yaml`` and ``<algorithm>.yaml`` (order written in
     pipeline.yaml). Override keys name fields of the algorithm's model (``{"batch_size": 512,
     "betas": [0.9, 0.99]}``); an unknown key is an error that suggests the closest names.
