@@ -385,6 +385,11 @@ def test_policy_averaging_evaluates_a_polyak_average_of_the_actor(algorithm):
     copy.load_state_dict(lrn.state_dict())
     assert all(torch.equal(a, b) for a, b in zip(got, params(copy.state.averaged_actor)))
     assert learner(algorithm).state.averaged_actor is None  # off: the policy is the trained actor
+    # averaging moves only the evaluated copy: the same batches train the same actor without it
+    plain = learner(algorithm, obs_norm=True)
+    for i in range(3 * plain.hp.policy_frequency):
+        plain.update(random_batch(i))
+    assert all(torch.equal(a, b) for a, b in zip(params(plain.state.actor), params(lrn.state.actor)))
 
 
 def test_lr_decay_is_a_cosine_from_the_recipe_rates_to_their_final_fraction():

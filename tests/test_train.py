@@ -70,6 +70,19 @@ def test_same_seed_same_result():
     assert overlapped[0] == a[0] and torch.allclose(overlapped[1], a[1], atol=1e-6, rtol=0)
 
 
+def test_an_averaged_policy_leaves_the_training_as_it_was():
+    # the averaged actor is only evaluated and exported: the collector and the updates are the same step for
+    # step, so an arm with it is paired exactly with the same seed's run without it (docs/benchmarks.md)
+    def actor(run):
+        return torch.cat([p.detach().flatten() for p in run.learner.state.actor.parameters()])
+
+    plain, averaged = train(tiny()), train(tiny(overrides={**TINY, "algo.policy_averaging": 0.01}))
+    assert torch.equal(actor(plain), actor(averaged))
+    assert [c["train_episodes"] for c in plain.curve] == [c["train_episodes"] for c in averaged.curve]
+    evaluated = torch.cat([p.detach().flatten() for p in averaged.learner.policy.parameters()])
+    assert not torch.equal(evaluated, actor(averaged))
+
+
 def test_callback_stops_and_thresholds_are_recorded():
     result = train(tiny(), on_eval=lambda m: True)
     assert result.stop_reason == "callback" and len(result.curve) == 1
