@@ -34,6 +34,7 @@ from flashnav.maps.graph import grid_graph
 
 LENGTH_BINS = [0, 2, 3, 4, 5, 6, 8, math.inf]  # metres of route
 DETOUR_BINS = [1.0, 1.1, 1.25, 1.5, 2.0, math.inf]
+BEARING_BINS = [0, 45, 90, 135, 180.001]  # |deg| between the start heading and the goal
 
 
 def route_lengths(grid, radius: float, start_xy: np.ndarray, goal_xy: np.ndarray) -> np.ndarray:
@@ -134,13 +135,17 @@ def main() -> None:
     straight = np.linalg.norm(goal - start, axis=1)
     route = route_lengths(env.map, env.preset.footprint.circumscribed_radius, start, goal)
     detour = route / np.maximum(straight, 1e-9)
+    # where the goal lies from the start heading, |deg|: 0 ahead, 180 right behind
+    to_goal = np.arctan2(goal[:, 1] - start[:, 1], goal[:, 0] - start[:, 0]) - e["start_pose"][:, 2]
+    bearing = np.degrees(np.abs((to_goal + np.pi) % (2 * np.pi) - np.pi))
     m, ep = env.preset.motion, env.preset.episode
     reach = max(m.v_bounds) * ep.horizon * ep.dt
     print(f"{args.policy}: {args.episodes} episodes (eval seed {args.seed}), success {np.mean(e['success']):.2%}; "
           f"route at top speed fits the horizon up to {reach:.1f} m; longest route {np.nanmax(route):.2f} m, "
           f"unreachable on the grid: {int(np.isinf(route).sum())}")
     out = {"by_route_length": table("route length (m)", route, LENGTH_BINS, outcome),
-           "by_detour": table("detour ratio (route / straight line)", detour, DETOUR_BINS, outcome)}
+           "by_detour": table("detour ratio (route / straight line)", detour, DETOUR_BINS, outcome),
+           "by_bearing": table("goal bearing from the start heading (|deg|)", bearing, BEARING_BINS, outcome)}
     failed = np.nonzero(outcome != "success")[0]
     paths, closest = replay_failures(policy, meta["robot"], e["start_pose"][failed], goal[failed])
     near = closest < ep.goal_threshold + 0.1
@@ -149,8 +154,10 @@ def main() -> None:
     print(f"\nfailed episodes ({len(failed)}; {int(near.sum())} came within 0.1 m of the {ep.goal_threshold:g} m "
           f"goal radius; {int(stalled.sum())} stalled: under {STALL_M:g} m driven in their last {ep.horizon // 2} "
           "steps): " + ", ".join(f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f} "
-                                 f"closest {c:.2f} m late {m:.2f} m" for k, c, m in zip(failed[:40], closest, late)))
-    out["failed"] = [{"index": int(k), "outcome": str(outcome[k]), "closest_m": float(c), "late_m": float(m),
+                                 f"bearing {bearing[k]:.0f} deg closest {c:.2f} m late {m:.2f} m"
+                                 for k, c, m in zip(failed[:40], closest, late)))
+    out["failed"] = [{"index": int(k), "outcome": str(outcome[k]), "bearing_deg": float(bearing[k]),
+                      "closest_m": float(c), "late_m": float(m),
                       "kind": "near miss" if n else "stalled" if st else "wandered" if outcome[k] == "timeout" else "collision"}
                      for k, c, m, n, st in zip(failed, closest, late, near, stalled)]
     if args.failures:
@@ -159,7 +166,8 @@ def main() -> None:
         print(f"failures: {args.failures}")
     if args.json:
         out["episodes"] = [{"index": int(k), "outcome": str(outcome[k]), "straight_m": float(straight[k]),
-                            "route_m": float(route[k]), "steps": float(e["episode_steps"][k])} for k in range(len(route))]
+                            "route_m": float(route[k]), "bearing_deg": float(bearing[k]),
+                            "steps": float(e["episode_steps"][k])} for k in range(len(route))]
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(out, f, indent=1)
     if args.plot:
