@@ -17,8 +17,8 @@ ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "Fa
 #: Hyperparameter recipes in ``flashnav/presets/<algorithm>.yaml``: ``paper`` is appendix A (GPU),
 #: ``cpu`` the departures measured for a 2-core CPU, ``paper-mirror`` (FastDSAC) the paper recipe with
 #: 5-step returns, gamma 0.99 and mirrored replay (the departures with which TurtleBot2 reaches 100 % within
-#: the paper's budget in 6 of 10 seeds), ``generalist`` (FastDSAC, TurtleBot2) training for unseen buildings, with its training setup
-#: (maps, evaluation, task) in ``presets/setups.yaml``.
+#: the paper's budget in 6 of 10 seeds), ``generalist`` (FastDSAC, TurtleBot2) training for unseen
+#: buildings, with its training setup (maps, evaluation, task) in ``presets/setups.yaml``.
 RECIPES = ("paper", "cpu", "paper-mirror", "generalist")
 #: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
 RECIPE_CHOICES = ("auto", *RECIPES)

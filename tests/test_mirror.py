@@ -129,13 +129,13 @@ def test_mirror_off_keeps_batches_bit_identical():
 
 def test_training_with_mirror_reaches_the_updates_and_is_recorded():
     from flashnav import train
-    from tests.test_train import TINY, tiny
+    from tests.test_train import TINY, flat, tiny
 
     mirrored = train(tiny(overrides={**TINY, "algo.mirror": 0.5}))
     assert mirrored.spec.hparams.mirror == 0.5
     plain = train(tiny())
-    a = torch.cat([p.detach().flatten() for p in mirrored.learner.policy.parameters()])
-    b = torch.cat([p.detach().flatten() for p in plain.learner.policy.parameters()])
+    a = flat(mirrored.learner.policy)
+    b = flat(plain.learner.policy)
     assert not torch.equal(a, b)  # the reflected rows reached the updates
     again = train(tiny(overrides={**TINY, "algo.mirror": 0.5}))
-    assert torch.equal(a, torch.cat([p.detach().flatten() for p in again.learner.policy.parameters()]))  # seeded
+    assert torch.equal(a, flat(again.learner.policy))  # seeded

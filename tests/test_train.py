@@ -30,6 +30,11 @@ def tiny(**kw) -> TrainConfig:
     return tiny_config(TINY, 32 * 8, 16, **kw)
 
 
+def flat(module: torch.nn.Module) -> torch.Tensor:
+    """A module's parameters as one vector (to compare trained networks exactly)."""
+    return torch.cat([p.detach().flatten() for p in module.parameters()])
+
+
 @pytest.fixture(scope="module")
 def easy_map(tmp_path_factory):
     """A small 6 x 6 m cluttered map (the learning test's arena)."""
@@ -59,7 +64,7 @@ def test_clock_excludes_evaluation_and_callback():
 def test_same_seed_same_result():
     def run(seed, overlap="auto"):
         r = train(tiny(seed=seed, overlap=overlap))
-        params = torch.cat([p.detach().flatten() for p in r.learner.policy.parameters()])
+        params = flat(r.learner.policy)
         return [(c["success_rate"], c["mean_return"]) for c in r.curve], params
 
     a, b, c = run(3), run(3), run(4)
@@ -73,14 +78,10 @@ def test_same_seed_same_result():
 def test_an_averaged_policy_leaves_the_training_as_it_was():
     # the averaged actor is only evaluated and exported: the collector and the updates are the same step for
     # step, so an arm with it is paired exactly with the same seed's run without it (docs/benchmarks.md)
-    def actor(run):
-        return torch.cat([p.detach().flatten() for p in run.learner.state.actor.parameters()])
-
     plain, averaged = train(tiny()), train(tiny(overrides={**TINY, "algo.policy_averaging": 0.01}))
-    assert torch.equal(actor(plain), actor(averaged))
+    assert torch.equal(flat(plain.learner.state.actor), flat(averaged.learner.state.actor))
     assert [c["train_episodes"] for c in plain.curve] == [c["train_episodes"] for c in averaged.curve]
-    evaluated = torch.cat([p.detach().flatten() for p in averaged.learner.policy.parameters()])
-    assert not torch.equal(evaluated, actor(averaged))
+    assert not torch.equal(flat(averaged.learner.policy), flat(averaged.learner.state.actor))
 
 
 def test_callback_stops_and_thresholds_are_recorded():
@@ -222,6 +223,6 @@ def test_lr_decay_runs_the_cosine_over_the_env_step_budget():
     assert decayed.learner.state.actor_opt.param_groups[0]["lr"] < 0.3 * hp.actor_lr
     constant = train(tiny())
     assert constant.learner.state.actor_opt.param_groups[0]["lr"] == hp.actor_lr
-    a = torch.cat([p.detach().flatten() for p in decayed.learner.policy.parameters()])
-    b = torch.cat([p.detach().flatten() for p in constant.learner.policy.parameters()])
+    a = flat(decayed.learner.policy)
+    b = flat(constant.learner.policy)
     assert not torch.equal(a, b)  # the schedule reached the updates
