@@ -22,6 +22,10 @@ ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "Fa
 RECIPES = ("paper", "cpu", "paper-mirror", "generalist")
 #: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
 RECIPE_CHOICES = ("auto", *RECIPES)
+#: The choices in one line, for help texts (``--recipe``, ``TrainConfig.recipe``).
+RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC: paper + 5-step "
+               "returns, gamma 0.99, mirrored replay), generalist (FastDSAC TurtleBot2 on many maps; also sets its maps, "
+               "evaluation and task: presets/setups.yaml)")
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
 RAYCASTERS = ("exact", "exact-torch", "march")
 DEFAULT_RAYCASTER = RAYCASTERS[0]

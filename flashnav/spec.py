@@ -27,7 +27,8 @@ from flashnav.machine import check_device_name, resolve_cuda_graph, resolve_devi
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
-from flashnav.names import ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, ROBOTS, check_robot
+from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, RECIPE_HELP, ROBOTS,
+                            check_robot)
 from flashnav.presets import load_robot, with_recipe_setup
 from flashnav.yamlio import load_yaml, parse_assignment, set_dotted
 
@@ -70,9 +71,7 @@ class TrainConfig(KnownKeys):
     robot: str = Field("turtlebot2", description=f"preset name ({', '.join(ROBOTS)}) or a preset YAML path")
     algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
     recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
-        "auto", description="hyperparameter recipe: paper (appendix A, GPU), cpu (2 CPU cores), auto by device, "
-                            "paper-mirror (FastDSAC: paper + 5-step returns, gamma 0.99, mirrored replay), "
-                            "generalist (unseen buildings; also sets the maps, evaluation and task: presets/setups.yaml)")
+        "auto", description="hyperparameter recipe: " + RECIPE_HELP)
     seed: int = Field(0, description="training seed")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
     map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")

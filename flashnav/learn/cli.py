@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from flashnav.learn.progress import TrainProgress
-from flashnav.names import ALGORITHMS, RECIPE_CHOICES, THRESHOLDS
+from flashnav.names import ALGORITHMS, RECIPE_CHOICES, RECIPE_HELP, THRESHOLDS
 from flashnav.spec import TrainConfig, config_from_cli, resolve
 from flashnav.yamlio import dump_yaml
 
@@ -22,10 +22,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                                    "policy.pt (TorchScript) and policy.onnx to --out.")
     p.add_argument("--robot", help="turtlebot2 (default), go2, or a preset YAML")
     p.add_argument("--algo", dest="algorithm", choices=ALGORITHMS, help="learner (default fastdsac)")
-    p.add_argument("--recipe", choices=RECIPE_CHOICES,
-                   help="hyperparameters: paper (GPU), cpu, auto (by device), paper-mirror (FastDSAC: the paper's with "
-                        "5-step returns, gamma 0.99 and mirrored replay), generalist (FastDSAC TurtleBot2 on "
-                        "many maps; also its maps, evaluation and task: presets/setups.yaml)")
+    p.add_argument("--recipe", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
     p.add_argument("--device", help="auto (default), cpu, cuda, cuda:N")
     p.add_argument("--map", help="ROS map YAML (default: the preset's bundled map)")
     p.add_argument("--maps", metavar="DIR_OR_GLOB",
