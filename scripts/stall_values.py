@@ -1,6 +1,7 @@
 """What does the critic think of a parked robot? (issue 16, items 3 and 4)
 
     .venv/bin/python scripts/stall_values.py RUN_DIR [--episodes 1024] [--seed 12345] [--step 100] [--samples K]
+                                             [--trace EPISODE]
 
 Loads a FastDSAC run's final learner (``RUN_DIR/checkpoint.pt`` with its ``config.yaml``), evaluates its final
 deterministic actor on the fixed set ``flashnav train`` evaluates on (``--episodes`` start/goal pairs, evaluation
@@ -14,6 +15,10 @@ driving no better than staying put is a value problem (how far the discount sees
 trains and collects with, DEM scale 1) and prints how often it succeeds, beside the actor's mean action and spread
 at the start: a start the stochastic policy solves almost always, but its mean action does not, is a deterministic
 actor that sits between two ways round (a mode-averaging mean), not a start the policy cannot solve.
+
+``--trace EPISODE`` replays that evaluation episode alone with the deterministic actor and prints, every step for
+``--step`` steps, the goal's distance and bearing, the speed, the actor's action and the nearest sector's range: a
+robot that turns back and forth between two bearings sits on an attracting fixed point of its own turn command.
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
     p.add_argument("--step", type=int, default=100, help="the replay step at which the critic is read")
     p.add_argument("--samples", type=int, default=0, help="stochastic replays of each failed episode (0: none)")
+    p.add_argument("--trace", type=int, default=None, metavar="EPISODE",
+                   help="print that evaluation episode step by step (deterministic actor, --step steps)")
     args = p.parse_args()
     run = Path(args.run)
     spec = RunSpec.from_dict(yaml.safe_load((run / "config.yaml").read_text()))
@@ -61,6 +68,8 @@ def main() -> None:
         failed = np.nonzero(~e["success"])[0]
         print(f"{run}: final actor, {args.episodes} episodes, success {e['success'].mean():.2%}; "
               f"failed: {', '.join(f'#{k}' for k in failed) or 'none'}")
+        if args.trace is not None:
+            trace(policy, spec.robot.name, e, args.trace, args.step)
         if not len(failed):
             return
         if args.samples > 0:
@@ -89,6 +98,24 @@ def placed(robot: str, e: dict, episodes: np.ndarray):
     env = make_env(robot, len(episodes), seed=0)
     env.reset(seed=0)
     return env, env.set_state(torch.as_tensor(e["start_pose"][episodes]), torch.as_tensor(e["goal"][episodes]))
+
+
+def trace(policy, robot: str, e: dict, episode: int, steps: int) -> None:
+    """Replay evaluation episode ``episode`` alone with ``policy`` and print every step."""
+    if not 0 <= episode < len(e["success"]):
+        raise SystemExit(f"--trace {episode}: the evaluation has episodes 0-{len(e['success']) - 1}")
+    env, obs = placed(robot, e, np.array([episode]))
+    print(f"episode #{episode} ({'success' if e['success'][episode] else 'failed'} in the evaluation), "
+          f"start pose {np.round(e['start_pose'][episode], 3).tolist()}, goal {np.round(e['goal'][episode], 3).tolist()}:")
+    for t in range(steps):
+        action = policy(obs)
+        print(f"  step {t:3d}: goal {obs[0, 30]:.2f} m at {obs[0, 31]:+.2f} rad, speed {obs[0, 32]:.2f} m/s, "
+              f"action ({action[0, 0]:+.2f}, {action[0, 1]:+.2f}), nearest sector {obs[0, :30].min():.2f} m")
+        out = env.step_slots(torch.arange(1), action)
+        if bool(out["terminated"][0] | out["truncated"][0]):
+            print(f"  ended at step {t + 1}: {'success' if out['success'][0] else 'collision' if out['collision'][0] else 'timeout'}")
+            break
+        obs = out["obs"]
 
 
 def stochastic(actor, hp, robot: str, e: dict, failed: np.ndarray, k: int) -> None:

@@ -74,6 +74,54 @@ def test_actor_updates_only_every_policy_frequency(algorithm):
     assert any(not torch.equal(a, b) for a, b in zip(actor0, params(lrn.state.actor)))
 
 
+def hand_actor_loss(algorithm, lrn, batch, weight):
+    """The actor objective written out: alpha log pi(a|s) - Q(s, a) at a reparameterised sample (the critics'
+    min of means for FastDSAC with CDQ, the mean of the C51 expectations for FastSAC), minus ``weight`` times
+    Q(s, tanh(mu)); the sample's noise is the next draw of ``update_gen``."""
+    st, hp = lrn.state, lrn.hp
+    eps = torch.randn((batch.obs.shape[0], A), generator=st.update_gen)
+    raw = st.actor(batch.obs)
+    if algorithm == "fastdsac":
+        mu, log_std = fastdsac.policy_log_std(raw, hp)
+        value = lambda a: gaussian_head(st.critic(batch.obs, a))[0].min(dim=0).values  # noqa: E731
+    else:
+        mu, raw_log_std = raw.chunk(2, dim=-1)
+        log_std = fastsac.bounded_log_std(raw_log_std, hp.log_std_min, hp.log_std_max)
+        value = lambda a: c51.expected_value(torch.softmax(st.critic(batch.obs, a), -1), st.algo.atoms).mean(0)  # noqa: E731
+    pre = mu + log_std.exp() * eps
+    action = torch.tanh(pre)
+    log_prob = (-0.5 * eps.pow(2) - log_std - 0.5 * math.log(2 * math.pi)
+                - torch.log(1 - action.pow(2) + 1e-6)).sum(-1)
+    loss = (st.algo.temperature.alpha * log_prob - value(action)).mean()
+    return loss - weight * value(torch.tanh(mu)).mean()
+
+
+@pytest.mark.parametrize("algorithm", ["fastdsac", "fastsac"])
+@pytest.mark.parametrize("weight", [0.0, 0.7])
+def test_the_actor_climbs_the_sampled_and_optionally_the_deterministic_actions_value(algorithm, weight):
+    lrn = learner(algorithm, mean_action_q=weight)
+    batch = random_batch(4)
+    rng = lrn.state.update_gen.get_state()
+    with torch.no_grad():
+        expected = hand_actor_loss(algorithm, lrn, batch, weight)
+    lrn.state.update_gen.set_state(rng)
+    update_actor = fastdsac.update_actor if algorithm == "fastdsac" else fastsac.update_actor
+    got = update_actor(lrn.state, batch)["actor_loss"]
+    assert torch.allclose(got, expected, rtol=1e-5, atol=1e-6), (float(got), float(expected))
+
+
+def test_the_deterministic_actions_value_moves_the_actor():
+    plain, both = learner("fastdsac"), learner("fastdsac", mean_action_q=1.0)
+    batch = random_batch(5)
+    fastdsac.update_actor(plain.state, batch)
+    fastdsac.update_actor(both.state, batch)
+    assert any(not torch.equal(a, b) for a, b in zip(params(plain.state.actor), params(both.state.actor)))
+    with pytest.raises(ValueError, match="mean_action_q"):
+        learner("fastdsac", mean_action_q=-1.0)
+    with pytest.raises(ValueError, match="mean_action_q"):
+        learner("fasttd3", mean_action_q=1.0)   # FastTD3's actor is deterministic already: no such key
+
+
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 def test_target_critic_is_a_polyak_average(algorithm):
     lrn = learner(algorithm)

@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from flashnav.learn.networks import Actor, TwinCritic
+from flashnav.learn.noise import ColoredNoise
 
 
 def adamw(params: Iterable[torch.Tensor], lr: float, betas: Sequence[float], weight_decay: float) -> torch.optim.AdamW:
@@ -135,7 +136,8 @@ def load_state_from_dict(state: Any, data: dict[str, Any], where: str = "learner
     """Inverse of :func:`state_to_dict`, in place (parameters keep their identity, so optimisers and
     cached parameter lists stay valid). A missing module, optimiser, tensor or nested state is a
     KeyError naming it (``where`` prefixes the message)."""
-    missing = [f.name for f in dataclasses.fields(state) if f.name not in data and _required(getattr(state, f.name))]
+    missing = [f.name for f in dataclasses.fields(state)
+               if f.name not in data and _required(getattr(state, f.name)) and not f.metadata.get("optional")]
     if missing:
         raise KeyError(f"{where} lacks {', '.join(missing)}")
     for field in dataclasses.fields(state):
@@ -169,6 +171,8 @@ class LearnerState:
     ``num_updates``: critic updates so far (host int: the actor schedule is decided without
     reading the device). ``*_params`` / ``*_buffers``: cached parameter and buffer lists (foreach Polyak, grad clipping, the averaged policy).
     ``last_actor_metrics``: the last actor step's metrics, repeated between actor steps.
+    ``noise``: with ``hp.noise_color > 0``, the coloured collection noise (:mod:`flashnav.learn.noise`);
+    None for white noise, drawn step by step from ``collect_gen``.
     """
 
     hp: Any
@@ -190,6 +194,8 @@ class LearnerState:
     averaged_buffers: list = dataclasses.field(default_factory=list)
     actor_buffers: list = dataclasses.field(default_factory=list)
     last_actor_metrics: dict = dataclasses.field(default_factory=dict)
+    # optional in a saved state: a run with coloured noise may start from one without (fresh sequences)
+    noise: ColoredNoise | None = dataclasses.field(default=None, metadata={"optional": True})
 
     @property
     def device(self) -> torch.device:
@@ -218,9 +224,10 @@ class Temperature:
         return loss.detach()
 
 
-def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_out: int,
+def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_out: int, num_envs: int,
                 device: torch.device | str, seed: int) -> LearnerState:
-    """Actor, collector copy, twin critic and its target, optimisers and RNG streams.
+    """Actor, collector copy, twin critic and its target, optimisers, RNG streams and, with
+    ``hp.noise_color > 0``, the coloured collection noise of ``num_envs`` envs.
 
     Weights are drawn on the CPU from a generator seeded by ``seed``, then moved: the same seed gives
     the same initial network on every device."""
@@ -233,18 +240,29 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen, **norms).to(device)
     critic_target = frozen_copy(critic)
     averaged = frozen_copy(actor) if hp.policy_averaging > 0 else None
+    collect_gen = generator(device, collect_seed)
     return LearnerState(
         hp=hp, actor=actor, collector=frozen_copy(actor), critic=critic, critic_target=critic_target,
         actor_opt=adamw(actor.parameters(), hp.actor_lr, hp.betas, hp.weight_decay),
         critic_opt=adamw(critic.parameters(), hp.critic_lr, hp.betas, hp.weight_decay),
-        collect_gen=generator(device, collect_seed), update_gen=generator(device, update_seed),
+        collect_gen=collect_gen, update_gen=generator(device, update_seed),
         critic_params=list(critic.parameters()), target_params=list(critic_target.parameters()),
         actor_params=list(actor.parameters()),
         averaged_actor=averaged,
         averaged_params=[] if averaged is None else list(averaged.parameters()),
         averaged_buffers=[] if averaged is None else list(averaged.buffers()),
         actor_buffers=list(actor.buffers()),
+        noise=None if hp.noise_color == 0 else ColoredNoise.create(hp.noise_color, num_envs, action_dim,
+                                                                   collect_gen, device),
     )
+
+
+def collection_noise(state: LearnerState, shape: Sequence[int], device: torch.device) -> torch.Tensor:
+    """Standard-normal exploration draws ``shape`` (= ``[N, A]``) for one collection step: white from
+    ``collect_gen``, or the next step of the coloured sequences (``hp.noise_color > 0``)."""
+    if state.noise is None:
+        return torch.randn(shape, generator=state.collect_gen, device=device)
+    return state.noise.draw(state.collect_gen)
 
 
 @torch.no_grad()

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from flashnav.learn.common import (LearnerState, Temperature, build_state, finish_update, make_temperature,
-                                   optimizer_step, resample_where, uniform)
+from flashnav.learn.common import (LearnerState, Temperature, build_state, collection_noise, finish_update,
+                                   make_temperature, optimizer_step, resample_where, uniform)
 from flashnav.learn.hparams import FastDSACHParams
 from flashnav.learn.networks import ObsLayout, bounded_log_std, dem_log_weights, gaussian_head, squashed_gaussian
 from flashnav.learn.replay import Transition
@@ -44,7 +44,8 @@ def init_state(hp: FastDSACHParams, layout: ObsLayout, action_dim: int, num_envs
                device: torch.device | str, seed: int) -> LearnerState:
     """Networks, optimisers, alpha (target entropy ``-ratio * A``), running std ``[2]`` (-1 = unset),
     and each env's DEM collection scale s_e ``[N, 1]``."""
-    state = build_state(hp, layout, action_dim, actor_heads=3, critic_out=2, device=device, seed=seed)
+    state = build_state(hp, layout, action_dim, actor_heads=3, critic_out=2, num_envs=num_envs,
+                        device=device, seed=seed)
     temperature = make_temperature(state, hp.alpha_init, hp.alpha_lr, -hp.target_entropy_ratio * action_dim)
     state.algo = DSACState(temperature=temperature, running_std=torch.full((2,), -1.0, device=state.device),
                            dem_scale=uniform((num_envs, 1), *hp.scale_range, state.collect_gen, state.device))
@@ -73,8 +74,9 @@ def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastDSACHParams, gen: 
 
 def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
     """Exploration action ``[N, A]`` from the collector's copy, DEM allocation sharpened/flattened
-    by each env's scale s_e."""
-    action, _ = sample(state.collector, obs, state.hp, state.collect_gen, state.algo.dem_scale)
+    by each env's scale s_e; the standard-normal draws white or coloured (``hp.noise_color``)."""
+    mu, log_std = policy_log_std(state.collector(obs), state.hp, state.algo.dem_scale)
+    action, _ = squashed_gaussian(mu, log_std, collection_noise(state, mu.shape, mu.device))
     return action.clamp(-1.0, 1.0)
 
 
@@ -144,13 +146,21 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
 
 
 def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
-    """Actor: minimise ``alpha log pi - min(mu_1, mu_2)`` (mean of both without CDQ); then one
-    temperature step with ``-alpha (log pi + H_target)``."""
+    """Actor: minimise ``alpha log pi - min(mu_1, mu_2)`` (mean of both without CDQ) at ``a ~ pi(.|s)``, minus
+    ``hp.mean_action_q`` times the same value at the deterministic action ``tanh(mu)``; then one temperature
+    step with ``-alpha (log pi + H_target)``."""
     hp = state.hp
-    action, log_prob = sample(state.actor, batch.obs, hp, state.update_gen)
-    q_mu, _ = gaussian_head(state.critic(batch.obs, action, detach_params=True))            # [2, B]
-    q = q_mu.min(dim=0).values if hp.cdq else q_mu.mean(dim=0)
-    loss = (state.algo.temperature.alpha * log_prob - q).mean()
+    mu, log_std = policy_log_std(state.actor(batch.obs), hp)
+    action, log_prob = squashed_gaussian(mu, log_std, torch.randn(mu.shape, generator=state.update_gen,
+                                                                  device=mu.device))
+
+    def value(a: torch.Tensor) -> torch.Tensor:                                               # [B]
+        q_mu, _ = gaussian_head(state.critic(batch.obs, a, detach_params=True))              # [2, B]
+        return q_mu.min(dim=0).values if hp.cdq else q_mu.mean(dim=0)
+
+    loss = (state.algo.temperature.alpha * log_prob - value(action)).mean()
+    if hp.mean_action_q > 0:  # the evaluated (deterministic) action's value too
+        loss = loss - hp.mean_action_q * value(torch.tanh(mu)).mean()
     grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, hp.max_grad_norm)
     alpha_loss = state.algo.temperature.step(log_prob)
     return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm, "alpha_loss": alpha_loss,

@@ -15,7 +15,8 @@ import torch
 import torch.nn.functional as F
 
 from flashnav.learn import c51
-from flashnav.learn.common import LearnerState, Temperature, build_state, finish_update, make_temperature, optimizer_step
+from flashnav.learn.common import (LearnerState, Temperature, build_state, collection_noise, finish_update,
+                                   make_temperature, optimizer_step)
 from flashnav.learn.hparams import FastSACHParams
 from flashnav.learn.networks import ObsLayout, bounded_log_std, squashed_gaussian
 from flashnav.learn.replay import Transition
@@ -33,7 +34,8 @@ class SACState:
 def init_state(hp: FastSACHParams, layout: ObsLayout, action_dim: int, num_envs: int,
                device: torch.device | str, seed: int) -> LearnerState:
     """Networks, optimisers, the C51 support, and alpha with target entropy ``-ratio * A``."""
-    state = build_state(hp, layout, action_dim, actor_heads=2, critic_out=hp.num_atoms, device=device, seed=seed)
+    state = build_state(hp, layout, action_dim, actor_heads=2, critic_out=hp.num_atoms, num_envs=num_envs,
+                        device=device, seed=seed)
     state.algo = SACState(atoms=c51.support(hp.v_min, hp.v_max, hp.num_atoms, state.device),
                           temperature=make_temperature(state, hp.alpha_init, hp.alpha_lr,
                                                        -hp.target_entropy_ratio * action_dim))
@@ -52,8 +54,11 @@ def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastSACHParams,
 
 
 def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
-    """Exploration action ``[N, A]`` sampled from the collector's copy of the policy."""
-    action, _ = sample(state.collector, obs, state.hp, state.collect_gen)
+    """Exploration action ``[N, A]`` sampled from the collector's copy of the policy (standard-normal
+    draws white or coloured: ``hp.noise_color``)."""
+    mu, raw_log_std = state.collector(obs).chunk(2, dim=-1)
+    log_std = bounded_log_std(raw_log_std, state.hp.log_std_min, state.hp.log_std_max)
+    action, _ = squashed_gaussian(mu, log_std, collection_noise(state, mu.shape, mu.device))
     return action.clamp(-1.0, 1.0)
 
 
@@ -91,11 +96,21 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
 
 
 def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
-    """Minimise ``alpha log pi(a|s) - mean(Q1, Q2)`` at reparameterised ``a ~ pi(.|s)``."""
-    action, log_prob = sample(state.actor, batch.obs, state.hp, state.update_gen)
-    logits = state.critic(batch.obs, action, detach_params=True)
-    q = c51.expected_value(F.softmax(logits, dim=-1), state.algo.atoms).mean(dim=0)
-    loss = (state.algo.temperature.alpha * log_prob - q).mean()
+    """Minimise ``alpha log pi(a|s) - mean(Q1, Q2)`` at reparameterised ``a ~ pi(.|s)``, minus
+    ``hp.mean_action_q`` times the same value at the deterministic action ``tanh(mu)``."""
+    hp = state.hp
+    mu, raw_log_std = state.actor(batch.obs).chunk(2, dim=-1)
+    log_std = bounded_log_std(raw_log_std, hp.log_std_min, hp.log_std_max)
+    action, log_prob = squashed_gaussian(mu, log_std, torch.randn(mu.shape, generator=state.update_gen,
+                                                                  device=mu.device))
+
+    def value(a: torch.Tensor) -> torch.Tensor:                                               # [B]
+        logits = state.critic(batch.obs, a, detach_params=True)
+        return c51.expected_value(F.softmax(logits, dim=-1), state.algo.atoms).mean(dim=0)
+
+    loss = (state.algo.temperature.alpha * log_prob - value(action)).mean()
+    if hp.mean_action_q > 0:  # the evaluated (deterministic) action's value too
+        loss = loss - hp.mean_action_q * value(torch.tanh(mu)).mean()
     grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, state.hp.max_grad_norm)
     return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm}
 

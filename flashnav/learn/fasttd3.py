@@ -13,8 +13,8 @@ import torch
 import torch.nn.functional as F
 
 from flashnav.learn import c51
-from flashnav.learn.common import (LearnerState, build_state, finish_update, optimizer_step, resample_where,
-                                   uniform)
+from flashnav.learn.common import (LearnerState, build_state, collection_noise, finish_update, optimizer_step,
+                                   resample_where, uniform)
 from flashnav.learn.hparams import FastTD3HParams
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Transition
@@ -32,7 +32,8 @@ class TD3State:
 def init_state(hp: FastTD3HParams, layout: ObsLayout, action_dim: int, num_envs: int,
                device: torch.device | str, seed: int) -> LearnerState:
     """Networks, optimisers, the C51 support and each env's exploration std sigma_e ``[N, 1]``."""
-    state = build_state(hp, layout, action_dim, actor_heads=1, critic_out=hp.num_atoms, device=device, seed=seed)
+    state = build_state(hp, layout, action_dim, actor_heads=1, critic_out=hp.num_atoms, num_envs=num_envs,
+                        device=device, seed=seed)
     state.algo = TD3State(atoms=c51.support(hp.v_min, hp.v_max, hp.num_atoms, state.device),
                           noise_std=uniform((num_envs, 1), *hp.collection_noise, state.collect_gen, state.device))
     zero = torch.zeros((), device=state.device)
@@ -44,7 +45,7 @@ def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
     """Exploration action ``[N, A]``: ``clamp(tanh(mu(obs)) + sigma_e * eps, -1, 1)``, from the
     collector's weight copy."""
     mean = torch.tanh(state.collector(obs))
-    noise = torch.randn(mean.shape, generator=state.collect_gen, device=mean.device)
+    noise = collection_noise(state, mean.shape, mean.device)  # white or coloured (hp.noise_color)
     return (mean + state.algo.noise_std * noise).clamp(-1.0, 1.0)
 
 

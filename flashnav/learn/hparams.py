@@ -46,6 +46,7 @@ class LearnerHParams(Strict):
         "float32", description="the learner updates' arithmetic: float32; bf16 = each update under torch.autocast(bfloat16) (matrix products in bf16, weights, state and targets float32), which pays only where the hardware multiplies bf16 natively (AVX-512 BF16 / AMX CPUs, GPUs); auto = bf16 there, float32 elsewhere, resolved and recorded when a run is set up (docs/learners.md S9)")
     lr_final_ratio: float = Field(1.0, ge=0, le=1, description="actor and critic learning rates at the end of the run's env-step budget, as a fraction of actor_lr / critic_lr: a cosine decay over the budget (1 = constant, the paper and the references' default; docs/learners.md S12)")
     mirror: float = Field(0.0, ge=0, le=1, description="share of each replay batch reflected left-right (the scan reversed, goal angle, turn rates and robot-frame y negated; the twin transition of the mirrored map: flashnav/learn/mirror.py); 0 = off, the paper and the references")
+    noise_color: float = Field(0.0, ge=0, le=2, description="exponent beta of the collection noise's power spectrum 1/f^beta, per env and action along the steps (0 = white: independent draws, the paper and the references; 1 = pink; 2 = red); each draw stays N(0, 1), only successive draws are correlated (flashnav/learn/noise.py, docs/learners.md S14)")
     actor_out_init_std: float = Field(0.01, ge=0, description="std of the normal draw of the actor's output-layer weights (bias 0); 0 = the hidden layers' PyTorch-default uniform draw, as the FastDSAC reference (docs/learners.md D1)")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")
@@ -99,6 +100,7 @@ class FastSACHParams(LearnerHParams):
     v_max: float = Field(description="C51 support upper end (return units)")
     log_std_min: float = Field(description="actor log sigma lower bound")
     log_std_max: float = Field(description="actor log sigma upper bound")
+    mean_action_q: float = Field(0.0, ge=0, description="weight of a second actor objective, the critics' value at the deterministic action tanh(mu) - the action that is evaluated and exported - beside the sampled action's (0 = off, the paper and the references; docs/learners.md S15)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -122,6 +124,7 @@ class FastDSACHParams(LearnerHParams):
     alpha_lr: float = Field(gt=0, description="temperature learning rate")
     alpha_init: float = Field(gt=0, description="initial entropy temperature alpha")
     target_entropy_ratio: float = Field(description="target entropy = -ratio * action_dim (nats)")
+    mean_action_q: float = Field(0.0, ge=0, description="weight of a second actor objective, the critics' value at the deterministic action tanh(mu) - the action that is evaluated and exported - beside the sampled action's (0 = off, the paper and the references; docs/learners.md S15)")
 
     @model_validator(mode="after")
     def _check(self):
@@ -142,11 +145,9 @@ def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
                  overrides: dict[str, Any] | None = None) -> AnyHParams:
     """Validated hyperparameters for ``algorithm`` / ``robot`` / ``recipe`` with dotted-key overrides.
 
-    ``recipe``: ``paper`` (appendix A, GPU), ``cpu`` (a 2-core CPU recipe), ``paper-mirror`` (``paper`` with
-    5-step returns, gamma 0.99 and mirrored replay) or ``generalist`` (based on ``cpu``: a recipe's
-    ``base`` is laid first). The values are the
-    layers of ``flashnav/presets/pipeline.yaml`` and ``<algorithm>.yaml`` (order written in
-    pipeline.yaml). Override keys name fields of the algorithm's model (``{"batch_size": 512,
+    ``recipe``: one of ``flashnav.names.RECIPES`` (each described in ``names.RECIPE_HELP``; a recipe's
+    ``base`` is laid first). The values are the layers of ``flashnav/presets/pipeline.yaml`` and
+    ``<algorithm>.yaml`` (order written in pipeline.yaml). Override keys name fields of the algorithm's model (``{"batch_size": 512,
     "betas": [0.9, 0.99]}``); an unknown key is an error that suggests the closest names.
     """
     check_name("algorithm", algorithm, ALGORITHMS)

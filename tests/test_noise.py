@@ -1,0 +1,145 @@
+"""Coloured collection noise (``algo.noise_color``, flashnav/learn/noise.py): the sequences' law, and
+what each learner's collection does with it."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from flashnav.learn.hparams import load_hparams
+from flashnav.learn.learners import make_learner
+from flashnav.learn.noise import NOISE_STEPS, ColoredNoise, powerlaw_noise
+from flashnav.names import ALGORITHMS
+from tests.test_learners import LAYOUT, random_obs
+
+N, A = 64, 2
+
+
+def gen(seed=0):
+    return torch.Generator().manual_seed(seed)
+
+
+def slow_periodogram(x: np.ndarray) -> np.ndarray:
+    """|DFT|^2 / n of each row at k = 1 .. n // 2, summed term by term (the obvious definition)."""
+    n = x.shape[-1]
+    t = np.arange(n)
+    out = []
+    for k in range(1, n // 2 + 1):
+        c = (x * np.cos(2 * np.pi * k * t / n)).sum(-1)
+        s = (x * np.sin(2 * np.pi * k * t / n)).sum(-1)
+        out.append((c ** 2 + s ** 2) / n)
+    return np.stack(out, -1)
+
+
+@pytest.mark.parametrize("beta", [0.0, 1.0, 2.0])
+@pytest.mark.parametrize("steps", [128, 127])
+def test_sequences_have_unit_variance_zero_mean_and_a_1_over_f_beta_spectrum(beta, steps):
+    x = powerlaw_noise((3000,), beta, steps, gen(1), "cpu")
+    assert x.shape == (3000, steps) and x.dtype == torch.float32
+    assert x.mean(-1).abs().max() < 1e-5                     # every sequence's mean is removed
+    assert abs(float(x.var()) - 1.0) < 0.05                   # unit variance on average ...
+    per_step = x.var(dim=0)                                   # ... at every step alike (a stationary law)
+    assert float((per_step - 1).abs().mean()) < 0.1
+    power = slow_periodogram(x.double().numpy()).mean(0)      # the spectrum, averaged over sequences
+    k = np.arange(1, steps // 2 + 1)
+    keep = k < steps // 2                                     # the Nyquist bin of an even length has its own law
+    slope = np.polyfit(np.log(k[keep]), np.log(power[keep]), 1)[0]
+    assert abs(slope + beta) < 0.1, slope
+    assert np.allclose(power[keep] / power[keep].mean(), k[keep] ** -beta / (k[keep] ** -beta).mean(), rtol=0.25)
+
+
+def test_colour_correlates_successive_draws():
+    lag1 = []
+    for beta in (0.0, 0.5, 1.0, 2.0):
+        x = powerlaw_noise((2000,), beta, NOISE_STEPS, gen(2), "cpu")
+        lag1.append(float((x[:, 1:] * x[:, :-1]).mean() / x.pow(2).mean()))
+    assert abs(lag1[0]) < 0.02 and lag1 == sorted(lag1) and lag1[2] > 0.5 and lag1[3] > 0.9
+
+
+def test_too_short_a_sequence_is_refused():
+    with pytest.raises(ValueError, match="at least 2 steps"):
+        powerlaw_noise((4,), 1.0, 1, gen(), "cpu")
+
+
+def test_draws_walk_through_a_block_then_draw_a_fresh_one():
+    g = gen(3)
+    noise = ColoredNoise.create(1.0, N, A, g, "cpu", steps=16)
+    first = noise.block.clone()
+    for t in range(16):
+        assert torch.equal(noise.draw(g), first[..., t])
+    fresh = noise.draw(g)
+    assert noise.step == 1 and not torch.equal(noise.block, first) and torch.equal(fresh, noise.block[..., 0])
+    again = ColoredNoise.create(1.0, N, A, gen(3), "cpu", steps=16)   # the same generator state, the same block
+    assert torch.equal(again.block, first)
+
+
+def learner(algorithm, seed=0, **overrides):
+    hp = load_hparams(algorithm, "turtlebot2", "paper", overrides)
+    return make_learner(algorithm, hp, LAYOUT, A, N, "cpu", seed)
+
+
+def action_lag1(lrn, steps=120):
+    """Lag-1 autocorrelation of the exploration actions on a fixed observation (each env's mean removed)."""
+    obs = random_obs(N, gen(4))
+    actions = torch.stack([lrn.act(obs) for _ in range(steps)], -1)          # [N, A, T]
+    centred = actions - actions.mean(-1, keepdim=True)
+    return float((centred[..., 1:] * centred[..., :-1]).mean() / centred.pow(2).mean())
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_each_learner_collects_with_correlated_draws_only_when_asked(algorithm):
+    white, pink = learner(algorithm), learner(algorithm, noise_color=1.0)
+    assert white.state.noise is None and pink.state.noise is not None
+    assert abs(action_lag1(white)) < 0.1
+    assert action_lag1(pink) > 0.4
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_white_noise_is_the_collection_generator_drawn_step_by_step(algorithm):
+    # noise_color 0 (every recipe): the exploration draw is torch.randn from collect_gen, as before the option
+    lrn = learner(algorithm)
+    obs = random_obs(N, gen(5))
+    saved = lrn.state.collect_gen.get_state()
+    action = lrn.act(obs)
+    lrn.state.collect_gen.set_state(saved)
+    eps = torch.randn((N, A), generator=lrn.state.collect_gen)
+    with torch.no_grad():
+        raw = lrn.state.collector(obs)
+        if algorithm == "fasttd3":
+            expected = (torch.tanh(raw) + lrn.state.algo.noise_std * eps).clamp(-1, 1)
+        elif algorithm == "fastsac":
+            mu, raw_log_std = raw.chunk(2, dim=-1)
+            from flashnav.learn.networks import bounded_log_std
+            expected = torch.tanh(mu + bounded_log_std(raw_log_std, lrn.hp.log_std_min, lrn.hp.log_std_max).exp() * eps)
+        else:
+            from flashnav.learn.fastdsac import policy_log_std
+            mu, log_std = policy_log_std(raw, lrn.hp, lrn.state.algo.dem_scale)
+            expected = torch.tanh(mu + log_std.exp() * eps)
+    assert torch.equal(action, expected.clamp(-1, 1))
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_the_noise_block_and_its_position_travel_with_the_learner_state(algorithm):
+    a = learner(algorithm, noise_color=1.0)
+    obs = random_obs(N, gen(6))
+    for _ in range(NOISE_STEPS - 3):      # near the end of the first block: the next block is drawn after the load
+        a.act(obs)
+    b = learner(algorithm, seed=9, noise_color=1.0)
+    b.load_state_dict(a.state_dict())
+    assert b.state.noise.step == a.state.noise.step
+    for _ in range(6):
+        assert torch.equal(a.act(obs), b.act(obs))
+    white = learner(algorithm).state_dict()              # a coloured run may start from a white one's state
+    c = learner(algorithm, noise_color=1.0)
+    block = c.state.noise.block.clone()
+    c.load_state_dict(white)
+    assert torch.equal(c.state.noise.block, block) and c.state.noise.step == 0
+
+
+def test_a_colour_outside_0_to_2_is_named():
+    with pytest.raises(ValueError, match="noise_color"):
+        load_hparams("fastdsac", "turtlebot2", "paper", {"noise_color": 3})
+    with pytest.raises(ValueError, match="noise_color"):
+        load_hparams("fasttd3", "turtlebot2", "paper", {"noise_color": -0.5})
+    assert math.isclose(load_hparams("fastsac", "go2", "cpu", {"noise_color": 1}).noise_color, 1.0)
