@@ -9,8 +9,8 @@ policy's Gaussian (its mean, spread and log-density) is unchanged - only success
 Learning", ICLR 2023). ``algo.noise_color`` sets beta; docs/learners.md S14.
 
 Sequences are drawn by the Timmer-Koenig method: complex Gaussian Fourier coefficients with amplitudes
-``f^(-beta/2)`` (frequencies below 1/T held at 1/T), an inverse real FFT, and the expected standard
-deviation divided out, so a draw has unit variance on average over sequences. All envs read the same
+``f^(-beta/2)``, the mean component left out, an inverse real FFT, and the expected standard deviation
+divided out, so a draw has unit variance on average over sequences. All envs read the same
 step of their own sequence; every ``steps`` vector steps the whole block is drawn afresh (one
 generation per block, no per-env bookkeeping, no host synchronisation).
 """
@@ -29,7 +29,7 @@ NOISE_STEPS = 256
 
 def powerlaw_scales(beta: float, steps: int) -> torch.Tensor:
     """Fourier amplitudes ``[steps // 2 + 1]`` of a 1/f^beta sequence of ``steps`` samples (float64):
-    ``f^(-beta/2)`` at the rFFT frequencies, the zero frequency held at the lowest one (1/steps)."""
+    ``f^(-beta/2)`` at the rFFT frequencies (the zero frequency, whose component is left out, held at 1/steps)."""
     freqs = torch.fft.rfftfreq(steps, dtype=torch.float64)
     freqs[0] = 1.0 / steps
     return freqs.pow(-beta / 2.0)
@@ -37,8 +37,8 @@ def powerlaw_scales(beta: float, steps: int) -> torch.Tensor:
 
 def powerlaw_noise(shape: tuple[int, ...], beta: float, steps: int, gen: torch.Generator,
                    device: torch.device | str) -> torch.Tensor:
-    """``shape + (steps,)`` float32 sequences with power spectrum ~ 1/f^beta along the last axis, zero mean
-    and unit variance in expectation (beta 0: independent N(0, 1) samples)."""
+    """``shape + (steps,)`` float32 sequences with power spectrum ~ 1/f^beta along the last axis, each with
+    zero mean, unit variance in expectation (beta 0: white, N(0, 1) samples but for the removed mean)."""
     if steps < 2:
         raise ValueError(f"coloured noise needs sequences of at least 2 steps, got {steps}")
     scales = powerlaw_scales(beta, steps)
