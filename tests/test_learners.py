@@ -36,9 +36,9 @@ def random_batch(seed=0, b=B, terminated=None):
                       1.0 - term, random_obs(b, gen))
 
 
-def learner(algorithm, seed=0, **overrides):
+def learner(algorithm, seed=0, envs=N, **overrides):
     hp = load_hparams(algorithm, "turtlebot2", "paper", overrides)
-    return make_learner(algorithm, hp, LAYOUT, A, N, "cpu", seed)
+    return make_learner(algorithm, hp, LAYOUT, A, envs, "cpu", seed)
 
 
 def params(module):

@@ -1,19 +1,22 @@
 """Coloured collection noise (``algo.noise_color``, flashnav/learn/noise.py): the sequences' law, and
 what each learner's collection does with it."""
 
+import functools
 import math
 
 import numpy as np
 import pytest
 import torch
 
+from flashnav.learn import fastdsac, fastsac
 from flashnav.learn.hparams import load_hparams
-from flashnav.learn.learners import make_learner
 from flashnav.learn.noise import NOISE_STEPS, ColoredNoise, powerlaw_noise
 from flashnav.names import ALGORITHMS
-from tests.test_learners import LAYOUT, random_obs
+from tests import test_learners
+from tests.test_learners import random_obs
 
 N, A = 64, 2
+learner = functools.partial(test_learners.learner, envs=N)  # the learners' test fixture, with more envs
 
 
 def gen(seed=0):
@@ -74,11 +77,6 @@ def test_draws_walk_through_a_block_then_draw_a_fresh_one():
     assert torch.equal(again.block, first)
 
 
-def learner(algorithm, seed=0, **overrides):
-    hp = load_hparams(algorithm, "turtlebot2", "paper", overrides)
-    return make_learner(algorithm, hp, LAYOUT, A, N, "cpu", seed)
-
-
 def action_lag1(lrn, steps=120):
     """Lag-1 autocorrelation of the exploration actions on a fixed observation (each env's mean removed)."""
     obs = random_obs(N, gen(4))
@@ -109,12 +107,10 @@ def test_white_noise_is_the_collection_generator_drawn_step_by_step(algorithm):
         if algorithm == "fasttd3":
             expected = (torch.tanh(raw) + lrn.state.algo.noise_std * eps).clamp(-1, 1)
         elif algorithm == "fastsac":
-            mu, raw_log_std = raw.chunk(2, dim=-1)
-            from flashnav.learn.networks import bounded_log_std
-            expected = torch.tanh(mu + bounded_log_std(raw_log_std, lrn.hp.log_std_min, lrn.hp.log_std_max).exp() * eps)
+            mu, log_std = fastsac.policy_log_std(raw, lrn.hp)
+            expected = torch.tanh(mu + log_std.exp() * eps)
         else:
-            from flashnav.learn.fastdsac import policy_log_std
-            mu, log_std = policy_log_std(raw, lrn.hp, lrn.state.algo.dem_scale)
+            mu, log_std = fastdsac.policy_log_std(raw, lrn.hp, lrn.state.algo.dem_scale)
             expected = torch.tanh(mu + log_std.exp() * eps)
     assert torch.equal(action, expected.clamp(-1, 1))
 

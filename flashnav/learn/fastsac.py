@@ -44,11 +44,16 @@ def init_state(hp: FastSACHParams, layout: ObsLayout, action_dim: int, num_envs:
     return state
 
 
+def policy_log_std(raw: torch.Tensor, hp: FastSACHParams) -> tuple[torch.Tensor, torch.Tensor]:
+    """Actor output ``[B, 2A]`` -> (mu ``[B, A]``, log sigma ``[B, A]`` bounded to [log_std_min, log_std_max])."""
+    mu, raw_log_std = raw.chunk(2, dim=-1)
+    return mu, bounded_log_std(raw_log_std, hp.log_std_min, hp.log_std_max)
+
+
 def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastSACHParams,
            gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """``obs [B, D]`` -> reparameterised ``action [B, A]`` in (-1, 1) and ``log_prob [B]``."""
-    mu, raw_log_std = actor(obs).chunk(2, dim=-1)
-    log_std = bounded_log_std(raw_log_std, hp.log_std_min, hp.log_std_max)
+    mu, log_std = policy_log_std(actor(obs), hp)
     noise = torch.randn(mu.shape, generator=gen, device=mu.device)
     return squashed_gaussian(mu, log_std, noise)
 
@@ -56,8 +61,7 @@ def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastSACHParams,
 def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
     """Exploration action ``[N, A]`` sampled from the collector's copy of the policy (standard-normal
     draws white or coloured: ``hp.noise_color``)."""
-    mu, raw_log_std = state.collector(obs).chunk(2, dim=-1)
-    log_std = bounded_log_std(raw_log_std, state.hp.log_std_min, state.hp.log_std_max)
+    mu, log_std = policy_log_std(state.collector(obs), state.hp)
     action, _ = squashed_gaussian(mu, log_std, collection_noise(state, mu.shape, mu.device))
     return action.clamp(-1.0, 1.0)
 
@@ -99,8 +103,7 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
     """Minimise ``alpha log pi(a|s) - mean(Q1, Q2)`` at reparameterised ``a ~ pi(.|s)``, minus
     ``hp.mean_action_q`` times the same value at the deterministic action ``tanh(mu)``."""
     hp = state.hp
-    mu, raw_log_std = state.actor(batch.obs).chunk(2, dim=-1)
-    log_std = bounded_log_std(raw_log_std, hp.log_std_min, hp.log_std_max)
+    mu, log_std = policy_log_std(state.actor(batch.obs), hp)
     action, log_prob = squashed_gaussian(mu, log_std, torch.randn(mu.shape, generator=state.update_gen,
                                                                   device=mu.device))
 
@@ -111,7 +114,7 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
     loss = (state.algo.temperature.alpha * log_prob - value(action)).mean()
     if hp.mean_action_q > 0:  # the evaluated (deterministic) action's value too
         loss = loss - hp.mean_action_q * value(torch.tanh(mu)).mean()
-    grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, state.hp.max_grad_norm)
+    grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, hp.max_grad_norm)
     return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm}
 
 
