@@ -77,20 +77,48 @@ def test_draws_walk_through_a_block_then_draw_a_fresh_one():
     assert torch.equal(again.block, first)
 
 
-def action_lag1(lrn, steps=120):
-    """Lag-1 autocorrelation of the exploration actions on a fixed observation (each env's mean removed)."""
+def test_one_exponent_per_action_colours_each_action_alone():
+    x = powerlaw_noise((2000, 3), (0.0, 1.0, 2.0), NOISE_STEPS, gen(7), "cpu")
+    lag1 = (x[..., 1:] * x[..., :-1]).mean((0, 2)) / x.pow(2).mean((0, 2))
+    assert abs(float(lag1[0])) < 0.02 and 0.5 < float(lag1[1]) < 0.9 and float(lag1[2]) > 0.9
+    assert (x.var((0, 2)) - 1).abs().max() < 0.05                       # unit variance for every exponent
+    # the Gaussian draws are the same as for one exponent: equal exponents give the same sequences bit for bit,
+    # and each action's sequences are those of its exponent alone
+    assert torch.equal(powerlaw_noise((50, 2), (1.0, 1.0), 64, gen(8), "cpu"), powerlaw_noise((50, 2), 1.0, 64, gen(8), "cpu"))
+    mixed = powerlaw_noise((50, 2), (0.0, 2.0), 64, gen(8), "cpu")
+    assert torch.allclose(mixed[:, 0], powerlaw_noise((50, 2), 0.0, 64, gen(8), "cpu")[:, 0], atol=1e-6)
+    assert torch.allclose(mixed[:, 1], powerlaw_noise((50, 2), 2.0, 64, gen(8), "cpu")[:, 1], atol=1e-6)
+    with pytest.raises(ValueError, match="3 exponents"):
+        powerlaw_noise((50, 2), (0.0, 1.0, 2.0), 64, gen(8), "cpu")
+
+
+def action_lag1(lrn, steps=120, per_action=False):
+    """Lag-1 autocorrelation of the exploration actions on a fixed observation (each env's mean removed),
+    over all actions or ``[A]`` per action."""
     obs = random_obs(N, gen(4))
     actions = torch.stack([lrn.act(obs) for _ in range(steps)], -1)          # [N, A, T]
     centred = actions - actions.mean(-1, keepdim=True)
-    return float((centred[..., 1:] * centred[..., :-1]).mean() / centred.pow(2).mean())
+    dims = (0, 2) if per_action else (0, 1, 2)
+    return (centred[..., 1:] * centred[..., :-1]).mean(dims) / centred.pow(2).mean(dims)
 
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 def test_each_learner_collects_with_correlated_draws_only_when_asked(algorithm):
     white, pink = learner(algorithm), learner(algorithm, noise_color=1.0)
     assert white.state.noise is None and pink.state.noise is not None
-    assert abs(action_lag1(white)) < 0.1
-    assert action_lag1(pink) > 0.4
+    assert abs(float(action_lag1(white))) < 0.1
+    assert float(action_lag1(pink)) > 0.4
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_a_list_of_exponents_colours_the_actions_one_by_one(algorithm):
+    turn_only = learner(algorithm, noise_color=[0, 1])      # the TurtleBot2: forward speed white, turn rate pink
+    assert turn_only.state.noise.beta == (0.0, 1.0)
+    forward, turn = action_lag1(turn_only, per_action=True).tolist()
+    assert abs(forward) < 0.1 and turn > 0.4
+    assert learner(algorithm, noise_color=[0, 0]).state.noise is None   # every exponent 0: white, from collect_gen
+    with pytest.raises(ValueError, match=r"algo.noise_color has 3 exponents .* \(2 for this robot\)"):
+        learner(algorithm, noise_color=[0, 1, 1])
 
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
@@ -126,6 +154,9 @@ def test_the_noise_block_and_its_position_travel_with_the_learner_state(algorith
     assert b.state.noise.step == a.state.noise.step
     for _ in range(6):
         assert torch.equal(a.act(obs), b.act(obs))
+    milder = learner(algorithm, noise_color=[0.5, 0.5])   # the exponent is configuration: a loaded state keeps it
+    milder.load_state_dict(a.state_dict())
+    assert milder.state.noise.beta == (0.5, 0.5) and milder.state.noise.step == a.state.noise.step
     white = learner(algorithm).state_dict()              # a coloured run may start from a white one's state
     c = learner(algorithm, noise_color=1.0)
     block = c.state.noise.block.clone()
@@ -139,3 +170,8 @@ def test_a_colour_outside_0_to_2_is_named():
     with pytest.raises(ValueError, match="noise_color"):
         load_hparams("fasttd3", "turtlebot2", "paper", {"noise_color": -0.5})
     assert math.isclose(load_hparams("fastsac", "go2", "cpu", {"noise_color": 1}).noise_color, 1.0)
+    with pytest.raises(ValueError, match="noise_color"):
+        load_hparams("fastdsac", "turtlebot2", "paper", {"noise_color": [0, 2.5]})
+    with pytest.raises(ValueError, match="noise_color"):
+        load_hparams("fastdsac", "turtlebot2", "paper", {"noise_color": []})
+    assert load_hparams("fastdsac", "go2", "paper", {"noise_color": [0, 0, 1]}).noise_color == (0.0, 0.0, 1.0)

@@ -171,7 +171,7 @@ class LearnerState:
     ``num_updates``: critic updates so far (host int: the actor schedule is decided without
     reading the device). ``*_params`` / ``*_buffers``: cached parameter and buffer lists (foreach Polyak, grad clipping, the averaged policy).
     ``last_actor_metrics``: the last actor step's metrics, repeated between actor steps.
-    ``noise``: with ``hp.noise_color > 0``, the coloured collection noise (:mod:`flashnav.learn.noise`);
+    ``noise``: with a ``hp.noise_color`` above 0, the coloured collection noise (:mod:`flashnav.learn.noise`);
     None for white noise, drawn step by step from ``collect_gen``.
     """
 
@@ -227,7 +227,7 @@ class Temperature:
 def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_out: int, num_envs: int,
                 device: torch.device | str, seed: int) -> LearnerState:
     """Actor, collector copy, twin critic and its target, optimisers, RNG streams and, with
-    ``hp.noise_color > 0``, the coloured collection noise of ``num_envs`` envs.
+    a ``hp.noise_color`` above 0, the coloured collection noise of ``num_envs`` envs.
 
     Weights are drawn on the CPU from a generator seeded by ``seed``, then moved: the same seed gives
     the same initial network on every device."""
@@ -252,14 +252,26 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
         averaged_params=[] if averaged is None else list(averaged.parameters()),
         averaged_buffers=[] if averaged is None else list(averaged.buffers()),
         actor_buffers=list(actor.buffers()),
-        noise=None if hp.noise_color == 0 else ColoredNoise.create(hp.noise_color, num_envs, action_dim,
-                                                                   collect_gen, device),
+        noise=collection_colour(hp.noise_color, num_envs, action_dim, collect_gen, device),
     )
+
+
+def collection_colour(beta: float | Sequence[float], num_envs: int, action_dim: int, gen: torch.Generator,
+                      device: torch.device) -> ColoredNoise | None:
+    """The coloured collection noise of ``algo.noise_color`` (one exponent, or one per action), or None for white
+    noise (every exponent 0: the draws come step by step from ``collect_gen``, as in every recipe)."""
+    betas = [beta] if isinstance(beta, (int, float)) else list(beta)
+    if len(betas) not in (1, action_dim):
+        raise ValueError(f"algo.noise_color has {len(betas)} exponents {betas}; give one, or one per action "
+                         f"({action_dim} for this robot)")
+    if all(b == 0 for b in betas):
+        return None
+    return ColoredNoise.create(beta, num_envs, action_dim, gen, device)
 
 
 def collection_noise(state: LearnerState, shape: Sequence[int], device: torch.device) -> torch.Tensor:
     """Standard-normal exploration draws ``shape`` (= ``[N, A]``) for one collection step: white from
-    ``collect_gen``, or the next step of the coloured sequences (``hp.noise_color > 0``)."""
+    ``collect_gen``, or the next step of the coloured sequences (``hp.noise_color`` above 0)."""
     if state.noise is None:
         return torch.randn(shape, generator=state.collect_gen, device=device)
     return state.noise.draw(state.collect_gen)

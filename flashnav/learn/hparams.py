@@ -46,7 +46,7 @@ class LearnerHParams(Strict):
         "float32", description="the learner updates' arithmetic: float32; bf16 = each update under torch.autocast(bfloat16) (matrix products in bf16, weights, state and targets float32), which pays only where the hardware multiplies bf16 natively (AVX-512 BF16 / AMX CPUs, GPUs); auto = bf16 there, float32 elsewhere, resolved and recorded when a run is set up (docs/learners.md S9)")
     lr_final_ratio: float = Field(1.0, ge=0, le=1, description="actor and critic learning rates at the end of the run's env-step budget, as a fraction of actor_lr / critic_lr: a cosine decay over the budget (1 = constant, the paper and the references' default; docs/learners.md S12)")
     mirror: float = Field(0.0, ge=0, le=1, description="share of each replay batch reflected left-right (the scan reversed, goal angle, turn rates and robot-frame y negated; the twin transition of the mirrored map: flashnav/learn/mirror.py); 0 = off, the paper and the references")
-    noise_color: float = Field(0.0, ge=0, le=2, description="exponent beta of the collection noise's power spectrum 1/f^beta, per env and action along the steps (0 = white: independent draws, the paper and the references; 1 = pink; 2 = red); each draw stays N(0, 1), only successive draws are correlated (flashnav/learn/noise.py, docs/learners.md S14)")
+    noise_color: float | tuple[float, ...] = Field(0.0, description="exponent beta of the collection noise's power spectrum 1/f^beta along the steps, one for every action or a list of one per action (e.g. [0, 1] on the TurtleBot2: white forward speed, pink turn rate); each in [0, 2] (0 = white: independent draws, the paper and the references; 1 = pink; 2 = red); each draw stays N(0, 1), only successive draws are correlated (flashnav/learn/noise.py, docs/learners.md S14)")
     actor_out_init_std: float = Field(0.01, ge=0, description="std of the normal draw of the actor's output-layer weights (bias 0); 0 = the hidden layers' PyTorch-default uniform draw, as the FastDSAC reference (docs/learners.md D1)")
     env_steps_per_sync: int = Field(ge=1, description="vector steps between collector-actor weight syncs")
     max_grad_norm: float = Field(ge=0, description="global gradient-norm clip (0 = off)")
@@ -57,6 +57,9 @@ class LearnerHParams(Strict):
     def _check_shared(self):
         if not all(0 <= b < 1 for b in self.betas):
             raise ValueError(f"betas must lie in [0, 1), got {self.betas}")
+        colours = (self.noise_color,) if isinstance(self.noise_color, (int, float)) else self.noise_color
+        if not colours or not all(0 <= b <= 2 for b in colours):
+            raise ValueError(f"noise_color must be an exponent in [0, 2], or a list of one per action, got {self.noise_color}")
         if min(self.actor_hidden + self.critic_hidden) <= 0:
             raise ValueError("hidden layer widths must be > 0")
         return self
