@@ -129,6 +129,11 @@ class Episode(Strict):
     goal_sampling: Literal[GOAL_SAMPLINGS] = Field(  # type: ignore[valid-type]
         "euclidean", description="goal distance band measured as the straight line (euclidean, the paper task) "
         "or as the path length through the free space (geodesic, capped by what the horizon allows)")
+    retry_failed: float = Field(
+        0.0, ge=0, le=1, description="chance that a slot whose episode ended without reaching the goal (a collision "
+        "or a timeout) starts its next episode from the same start pose and goal, on the same map, instead of a fresh "
+        "draw (a training curriculum that revisits the starts the policy fails; 0 = every episode drawn afresh, the "
+        "paper). Evaluation is unchanged: it counts each slot's first episode")
 
     @model_validator(mode="after")
     def _band(self) -> "Episode":

@@ -11,6 +11,7 @@ import torch
 
 import flashnav
 from flashnav.maps.grid import OccupancyMap
+from flashnav.presets import load_robot
 from flashnav.sim.env import beam_angles, make_env
 
 
@@ -213,3 +214,65 @@ def test_bad_inputs_are_named():
     tiny = OccupancyMap(np.zeros((8, 8), dtype=bool), 0.05, name="tiny")
     with pytest.raises(ValueError, match="no free space"):
         make_env("turtlebot2", 1, map=tiny)
+
+
+def retry_env(p, n=6, seed=5, **overrides):
+    return make_env(load_robot("turtlebot2", **{"episode.retry_failed": p, **overrides}), n, seed=seed)
+
+
+def test_retry_failed_restarts_failed_slots_from_their_start_and_draws_afresh_elsewhere():
+    # slots 0-1 collide, 2-3 reach the goal, 4-5 keep driving: p = 1 restarts exactly the failed ones
+    env = retry_env(1.0)
+    env.reset(seed=5)
+    pose = env.world_pose().clone()
+    pose[:2, 2] = 0.0
+    goal = env.world_goal().clone()
+    goal[2:4] = pose[2:4, :2].double() + torch.tensor([0.05, 0.0], dtype=torch.float64) @ torch.eye(2, dtype=torch.float64)
+    pose[2:4, 2] = 0.0
+    env.set_state(pose, goal)
+    starts = env.start_pose.clone(), env.start_goal.clone()
+    env.pose[:2, 0] = 100.0                       # off the map: a collision in the next step, whatever the action
+    before = env.pose[4:].clone(), env.goal[4:].clone()
+    _, _, terminated, _, info = env.step(torch.tensor([[1.0, 0.0]] * 6))
+    assert info["collision"][:2].all() and info["success"][2:4].all() and not terminated[4:].any()
+    assert torch.equal(env.pose[:2], starts[0][:2]) and torch.equal(env.goal[:2], starts[1][:2])
+    assert (env.steps[:4] == 0).all() and torch.equal(env.start_pose[:2], starts[0][:2])
+    assert not torch.equal(env.goal[2:4], starts[1][2:4])          # the successes drew new episodes
+    assert torch.equal(env.goal[4:], before[1]) and not torch.equal(env.pose[4:], before[0])  # still driving
+    # the restarted slot's observation is its episode's first one again
+    fresh = retry_env(1.0)
+    fresh.set_state(pose, goal)
+    assert torch.equal(env.obs[:2], fresh.obs[:2])
+
+
+def test_retry_failed_zero_is_todays_environment_and_timeouts_count_as_failures():
+    def rollout(env):
+        env.reset(seed=7)
+        gen = torch.Generator().manual_seed(1)
+        out = []
+        for _ in range(250):   # past the horizon: timeouts and collisions under random actions
+            obs, reward, *_ = env.step(torch.rand(6, 2, generator=gen) * 2 - 1)
+            out += [obs, reward[:, None]]
+        return torch.cat(out, 1)
+
+    assert torch.equal(rollout(make_env("turtlebot2", 6, seed=7)), rollout(retry_env(0.0, seed=7)))
+    env = retry_env(1.0, n=2)
+    env.reset(seed=1)
+    start = env.pose.clone()
+    for _ in range(200):                      # standing still: a timeout at the horizon, then the same start
+        env.step(torch.tensor([[-1.0, 0.0]] * 2))
+    assert torch.equal(env.pose, start) and (env.steps == 0).all()
+
+
+def test_retry_failed_is_a_probability_and_leaves_evaluation_as_it_is():
+    with pytest.raises(ValueError, match="retry_failed"):
+        load_robot("turtlebot2", **{"episode.retry_failed": 1.5})
+    from flashnav.evaluate import evaluate
+    weights = torch.randn(34, 2, generator=torch.Generator().manual_seed(0)) * 0.3
+
+    def policy(obs):
+        return torch.tanh(obs @ weights)
+
+    for dense in (False, True):   # each slot's first episode counts, whatever follows it
+        plain = evaluate(policy, make_env("turtlebot2", 64, seed=3), seed=11, dense=dense)
+        assert plain["success_rate"] < 1 and plain == evaluate(policy, retry_env(1.0, n=64, seed=3), seed=11, dense=dense)

@@ -174,4 +174,4 @@ def test_a_colour_outside_0_to_2_is_named():
         load_hparams("fastdsac", "turtlebot2", "paper", {"noise_color": [0, 2.5]})
     with pytest.raises(ValueError, match="noise_color"):
         load_hparams("fastdsac", "turtlebot2", "paper", {"noise_color": []})
-    assert load_hparams("fastdsac", "go2", "paper", {"noise_color": [0, 0, 1]}).noise_color == (0.0, 0.0, 1.0)
+    assert load_hparams("fastdsac", "go2", "paper", {"noise_color": [0, 1]}).noise_color == (0.0, 1.0)

@@ -107,6 +107,8 @@ class NavVecEnv(VectorEnv):
         n, f32 = num_envs, dict(device=self.device, dtype=torch.float32)
         self.pose = torch.zeros(n, 3, **f32)  # x, y (m, simulator frame), yaw (rad)
         self.goal = torch.zeros(n, 2, **f32)  # m, simulator frame
+        self.start_pose = torch.zeros(n, 3, **f32)  # each slot's episode start and goal (episode.retry_failed)
+        self.start_goal = torch.zeros(n, 2, **f32)
         self.velocity = torch.zeros(n, 2, **f32)  # executed (v m/s, w rad/s)
         self.steps = torch.zeros(n, dtype=torch.int32, device=self.device)
         self.goal_distance = torch.zeros(n, **f32)
@@ -207,10 +209,25 @@ class NavVecEnv(VectorEnv):
         self.map_index[idx], pose, goal = sample_on_maps(self._map_sampler, self._draw_map, idx.numel(), self._gen)
         self._place(idx, pose, goal)
 
+    def _retry_or_reset(self, done: torch.Tensor, success: torch.Tensor) -> None:
+        """Autoreset of the slots whose episode ended (``done`` [N] bool): with ``episode.retry_failed`` p > 0, each
+        slot that failed (``~success``) restarts from its last start and goal, on its map, with chance p (one
+        uniform draw per slot from the environment's generator); every other ended slot draws a new episode."""
+        p = self.preset.episode.retry_failed
+        if p > 0:
+            retry = done & ~success & (torch.rand(self.num_envs, generator=self._gen, device=self.device) < p)
+            again = retry.nonzero().squeeze(1)
+            if again.numel():
+                self._place(again, self.start_pose[again], self.start_goal[again])
+            done = done & ~retry
+        self._reset_slots(done.nonzero().squeeze(1))
+
     def _place(self, idx: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor) -> None:
         zeros = torch.zeros(idx.numel(), 2, device=self.device)
         self.pose[idx] = pose
         self.goal[idx] = goal
+        self.start_pose[idx] = pose
+        self.start_goal[idx] = goal
         self.velocity[idx] = zeros
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
@@ -305,7 +322,7 @@ class NavVecEnv(VectorEnv):
             "episode_steps": t["episode_steps"],
             "episode_return": t["episode_return"],
         }
-        self._reset_slots(done.nonzero().squeeze(1))
+        self._retry_or_reset(done, t["success"])
         return self.obs.clone(), t["reward"], t["terminated"], t["truncated"], info
 
     def step_slots(self, idx: torch.Tensor, actions) -> dict[str, torch.Tensor]:
