@@ -227,7 +227,7 @@ def test_retry_failed_restarts_failed_slots_from_their_start_and_draws_afresh_el
     pose = env.world_pose().clone()
     pose[:2, 2] = 0.0
     goal = env.world_goal().clone()
-    goal[2:4] = pose[2:4, :2].double() + torch.tensor([0.05, 0.0], dtype=torch.float64) @ torch.eye(2, dtype=torch.float64)
+    goal[2:4] = pose[2:4, :2].double() + torch.tensor([0.05, 0.0], dtype=torch.float64)  # 5 cm ahead
     pose[2:4, 2] = 0.0
     env.set_state(pose, goal)
     starts = env.start_pose.clone(), env.start_goal.clone()

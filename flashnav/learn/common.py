@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from flashnav.learn.networks import Actor, TwinCritic
-from flashnav.learn.noise import ColoredNoise
+from flashnav.learn.noise import ColoredNoise, exponents
 
 
 def adamw(params: Iterable[torch.Tensor], lr: float, betas: Sequence[float], weight_decay: float) -> torch.optim.AdamW:
@@ -260,13 +260,13 @@ def collection_colour(beta: float | Sequence[float], num_envs: int, action_dim: 
                       device: torch.device) -> ColoredNoise | None:
     """The coloured collection noise of ``algo.noise_color`` (one exponent, or one per action), or None for white
     noise (every exponent 0: the draws come step by step from ``collect_gen``, as in every recipe)."""
-    betas = [beta] if isinstance(beta, (int, float)) else list(beta)
+    betas = exponents(beta)
     if len(betas) not in (1, action_dim):
-        raise ValueError(f"algo.noise_color has {len(betas)} exponents {betas}; give one, or one per action "
+        raise ValueError(f"algo.noise_color has {len(betas)} exponents {list(betas)}; give one, or one per action "
                          f"({action_dim} for this robot)")
     if all(b == 0 for b in betas):
         return None
-    return ColoredNoise.create(beta, num_envs, action_dim, gen, device)
+    return ColoredNoise.create(betas, num_envs, action_dim, gen, device)
 
 
 def collection_noise(state: LearnerState, shape: Sequence[int], device: torch.device) -> torch.Tensor:

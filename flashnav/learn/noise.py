@@ -29,6 +29,11 @@ import torch
 NOISE_STEPS = 256
 
 
+def exponents(beta: float | Sequence[float]) -> tuple[float, ...]:
+    """``algo.noise_color`` as a tuple: ``(beta,)`` for one exponent, else one per action."""
+    return (float(beta),) if isinstance(beta, (int, float)) else tuple(float(b) for b in beta)
+
+
 def powerlaw_scales(beta: float, steps: int) -> torch.Tensor:
     """Fourier amplitudes ``[steps // 2 + 1]`` of a 1/f^beta sequence of ``steps`` samples (float64):
     ``f^(-beta/2)`` at the rFFT frequencies (the zero frequency, whose component is left out, held at 1/steps)."""
@@ -57,9 +62,9 @@ def powerlaw_noise(shape: tuple[int, ...], beta: float | Sequence[float], steps:
     ``shape = (envs, actions)``); the Gaussian draws are the same either way, only their amplitudes differ."""
     if steps < 2:
         raise ValueError(f"coloured noise needs sequences of at least 2 steps, got {steps}")
-    betas = [float(beta)] if isinstance(beta, (int, float)) else [float(b) for b in beta]
+    betas = exponents(beta)
     if len(betas) != 1 and (not shape or len(betas) != shape[-1]):
-        raise ValueError(f"{len(betas)} exponents beta {betas} for sequences of shape {tuple(shape)}: give one, or one "
+        raise ValueError(f"{len(betas)} exponents beta {list(betas)} for sequences of shape {tuple(shape)}: give one, or one "
                          f"per index of the last axis ({shape[-1] if shape else 0})")
     per_beta = [powerlaw_scales(b, steps) for b in betas]
     sigma = torch.tensor([expected_std(s, steps) for s in per_beta], dtype=torch.float32, device=device)
@@ -89,7 +94,7 @@ class ColoredNoise:
     @classmethod
     def create(cls, beta: float | Sequence[float], num_envs: int, action_dim: int, gen: torch.Generator,
                device: torch.device | str, steps: int = NOISE_STEPS) -> ColoredNoise:
-        betas = (float(beta),) if isinstance(beta, (int, float)) else tuple(float(b) for b in beta)
+        betas = exponents(beta)
         return cls(betas, powerlaw_noise((num_envs, action_dim), betas, steps, gen, device))
 
     def draw(self, gen: torch.Generator) -> torch.Tensor:
