@@ -284,11 +284,13 @@ def test_graph_replay_matches_eager_updates_on_cuda(algo):
 
 
 @CUDA
-def test_train_runs_with_the_cuda_graph_and_collector_stream():
+@pytest.mark.parametrize("late", [{}, {"algo.late_batch_size": 256, "algo.late_from": 0.5}])
+def test_train_runs_with_the_cuda_graph_and_collector_stream(late):
+    # with a late batch the run captures a second set of graphs, for the larger batch, half way through
     from flashnav import train
 
     overrides = {"algo.num_envs": 64, "algo.learning_start": 128, "algo.updates_per_step": 4,
-                 "algo.batch_size": 128, "algo.eval_every": 4}
+                 "algo.batch_size": 128, "algo.eval_every": 4, **late}
     config = TrainConfig(device="cuda", recipe="cpu", cuda_graph="on", overrides=overrides,
                          budget={"max_env_steps": 64 * 12, "stop_at_success": None}, eval={"episodes": 32})
     result = train(config)
@@ -296,9 +298,11 @@ def test_train_runs_with_the_cuda_graph_and_collector_stream():
     assert all(torch.isfinite(p).all() for p in result.learner.state.critic_params)
 
 
-def test_loop_with_static_buffers_trains_exactly_like_without():
+@pytest.mark.parametrize("late", [{}, {"algo.late_batch_size": 96, "algo.late_from": 0.5}])
+def test_loop_with_static_buffers_trains_exactly_like_without(late):
     # TrainConfig.cuda_graph=on on a CPU: the loop's static-buffer path, overlapped and sequential,
-    # gives the run of cuda_graph=off (the CPU default) to the bit.
+    # gives the run of cuda_graph=off (the CPU default) to the bit - also where the batch grows late
+    # (a second set of static buffers from half way on).
     from flashnav import train
 
     def run(**kw):
@@ -306,7 +310,7 @@ def test_loop_with_static_buffers_trains_exactly_like_without():
             device="cpu", recipe="cpu", seed=3, budget={"max_env_steps": 32 * 6, "stop_at_success": None},
             eval={"episodes": 16}, overrides={"algo.num_envs": 32, "algo.learning_start": 64,
                                               "algo.updates_per_step": 3, "algo.batch_size": 64,
-                                              "algo.eval_every": 3}, **kw))
+                                              "algo.eval_every": 3, **late}, **kw))
         result = train(config)
         curve = [(c["success_rate"], c["mean_return"]) for c in result.curve]
         return curve, result.learner.state_dict(), result.spec.cuda_graph

@@ -461,3 +461,11 @@ def test_lr_decay_is_a_cosine_from_the_recipe_rates_to_their_final_fraction():
     assert constant.state.actor_opt.param_groups[0]["lr"] == 0.123
     with pytest.raises(ValueError, match="lr_final_ratio"):
         learner("fastdsac", lr_final_ratio=1.5)
+
+
+def test_late_batch_options_are_validated_by_name():
+    for bad in ({"late_from": 1.5}, {"late_from": -0.1}, {"late_batch_size": -1}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            learner("fastdsac", **bad)
+    hp = learner("fastdsac", batch_size=64).hp
+    assert hp.late_batch_size == 0 and hp.batch_size_at(0.99) == 64  # off: the same batch all run long

@@ -226,3 +226,25 @@ def test_lr_decay_runs_the_cosine_over_the_env_step_budget():
     a = flat(decayed.learner.policy)
     b = flat(constant.learner.policy)
     assert not torch.equal(a, b)  # the schedule reached the updates
+
+
+def test_a_late_batch_starts_at_late_from_of_the_env_step_budget(monkeypatch):
+    # algo.late_batch_size: the updates draw batch_size transitions before late_from of the env-step budget
+    # and late_batch_size from there on (8 cycles of 32 envs: progress 0, 1/8, ..., 7/8; learning from cycle 3)
+    from flashnav.learn.replay import Replay
+
+    sizes = []
+    sample = Replay.sample
+
+    def spy(self, batch_size, n_batches=1, out=None):
+        sizes.append(batch_size)
+        return sample(self, batch_size, n_batches, out)
+
+    monkeypatch.setattr(Replay, "sample", spy)
+    late = train(tiny(overrides={**TINY, "algo.late_batch_size": 96, "algo.late_from": 0.5}))
+    assert sizes == [64, 64, 96, 96, 96, 96]  # cycles 3-4 before half way, 5-8 after
+    assert late.spec.hparams.batch_size_at(0.49) == 64 and late.spec.hparams.batch_size_at(0.5) == 96
+    sizes.clear()
+    plain = train(tiny())
+    assert sizes == [64] * 6
+    assert not torch.equal(flat(late.learner.policy), flat(plain.learner.policy))  # the late batches reached the updates

@@ -45,6 +45,8 @@ class LearnerHParams(Strict):
     precision: Literal[PRECISIONS] = Field(  # type: ignore[valid-type]
         "float32", description="the learner updates' arithmetic: float32; bf16 = each update under torch.autocast(bfloat16) (matrix products in bf16, weights, state and targets float32), which pays only where the hardware multiplies bf16 natively (AVX-512 BF16 / AMX CPUs, GPUs); auto = bf16 there, float32 elsewhere, resolved and recorded when a run is set up (docs/learners.md S9)")
     lr_final_ratio: float = Field(1.0, ge=0, le=1, description="actor and critic learning rates at the end of the run's env-step budget, as a fraction of actor_lr / critic_lr: a cosine decay over the budget (1 = constant, the paper and the references' default; docs/learners.md S12)")
+    late_batch_size: int = Field(0, ge=0, description="transitions per gradient update from late_from of the run's env-step budget on (0 = batch_size throughout, the paper and the references; docs/learners.md S17)")
+    late_from: float = Field(0.5, ge=0, le=1, description="with late_batch_size: the fraction of the run's env-step budget (budget.max_env_steps) from which updates draw late_batch_size transitions")
     mirror: float = Field(0.0, ge=0, le=1, description="share of each replay batch reflected left-right (the scan reversed, goal angle, turn rates and robot-frame y negated; the twin transition of the mirrored map: flashnav/learn/mirror.py); 0 = off, the paper and the references")
     noise_color: float | tuple[float, ...] = Field(0.0, description="exponent beta of the collection noise's power spectrum 1/f^beta along the steps, one for every action or a list of one per action (e.g. [0, 1]: white forward speed, pink turn rate); each in [0, 2] (0 = white: independent draws, the paper and the references; 1 = pink; 2 = red); each draw stays N(0, 1), only successive draws are correlated (flashnav/learn/noise.py, docs/learners.md S14)")
     actor_out_init_std: float = Field(0.01, ge=0, description="std of the normal draw of the actor's output-layer weights (bias 0); 0 = the hidden layers' PyTorch-default uniform draw, as the FastDSAC reference (docs/learners.md D1)")
@@ -63,6 +65,11 @@ class LearnerHParams(Strict):
         if min(self.actor_hidden + self.critic_hidden) <= 0:
             raise ValueError("hidden layer widths must be > 0")
         return self
+
+    def batch_size_at(self, progress: float) -> int:
+        """Transitions per update at ``progress`` (the fraction of the run's env-step budget done):
+        ``late_batch_size`` from ``late_from`` on when it is set, else ``batch_size``."""
+        return self.late_batch_size if self.late_batch_size and progress >= self.late_from else self.batch_size
 
 
 def _ordered(name: str, pair: tuple[float, float], strict: bool = False) -> None:

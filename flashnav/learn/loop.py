@@ -153,8 +153,19 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     maps = _map_stream(spec, cycles)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed,
                     n_step=hp.n_step, gamma=hp.gamma, mirror=mirror_for(preset, hp.mirror, dev))
-    updates = (CycleUpdates(learner, preset.obs_dim, 2, hp.batch_size, hp.updates_per_step, capture=dev.type == "cuda")
-               if spec.cuda_graph else None)
+    # The static-buffer updates of one batch size; with algo.late_batch_size a second set is built
+    # (and, on a GPU, captured anew) for the late batch when the run gets there.
+    static_updates: dict[int, CycleUpdates] = {}
+
+    def updates_for(batch_size: int) -> CycleUpdates | None:
+        if not spec.cuda_graph:
+            return None
+        if batch_size not in static_updates:
+            static_updates[batch_size] = CycleUpdates(learner, preset.obs_dim, 2, batch_size, hp.updates_per_step,
+                                                      capture=dev.type == "cuda")
+        return static_updates[batch_size]
+
+    updates = updates_for(hp.batch_size)
 
     eval_every = spec.eval_every
     overlap = spec.overlap
@@ -191,10 +202,10 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
             episodes.add(ended, info["success"])
             obs_box[0] = next_obs
 
-    def sample():
+    def sample(batch_size: int):
         if updates is not None:
             return updates.sample(replay)
-        return replay.sample(hp.batch_size, hp.updates_per_step)
+        return replay.sample(batch_size, hp.updates_per_step)
 
     precision = update_precision(hp.precision, dev)
 
@@ -217,8 +228,12 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
                 if maps is not None and maps.due(cycle):  # a fresh map set; every slot starts anew
                     obs_box[0] = env.replace_maps(maps.take())[0]
                     learner.on_episode_end(torch.ones(hp.num_envs, dtype=torch.bool, device=dev))
-                batches = sample() if learning else None
-                learner.schedule((cycle - 1) * hp.num_envs / spec.max_env_steps)  # this cycle's learning rates
+                progress = (cycle - 1) * hp.num_envs / spec.max_env_steps
+                batch_size = hp.batch_size_at(progress)
+                if updates is not None and updates.batch_size != batch_size:
+                    updates = updates_for(batch_size)
+                batches = sample(batch_size) if learning else None
+                learner.schedule(progress)  # this cycle's learning rates
                 if collector_stream is not None:
                     collector_stream.wait_stream(torch.cuda.current_stream(dev))
                 capturing = updates is not None and learning and updates.captures_next
