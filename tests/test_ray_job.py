@@ -68,7 +68,10 @@ def test_ray_job_submit_quickstart(head):
     for child in children:
         assert child.info.status == "FINISHED" and set(FINAL_METRICS) <= set(child.data.metrics)
         assert child.data.tags["device_kind"] == "cpu" and child.data.tags["git_commit"]
-        assert float(child.data.metrics["train_seconds_total"]) <= 3.0 * 1.5
+        # the --set budget reached the trial and stopped it: the sweep file's own is 20 s. Not a timing bound
+        # (a cycle's overrun past 3 s grows with the machine's load: 6.5 s beside a training, 2026-11-27)
+        assert child.data.params["budget.max_train_seconds"] == "3.0"
+        assert 3.0 <= float(child.data.metrics["train_seconds_total"]) < 20.0
     assert (runs / "ray" / "quickstart").is_dir()
 
     # `flashnav sweep submit --resume` of the finished sweep: validated here, submitted as a job with the
