@@ -153,19 +153,12 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     maps = _map_stream(spec, cycles)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed,
                     n_step=hp.n_step, gamma=hp.gamma, mirror=mirror_for(preset, hp.mirror, dev))
-    # The static-buffer updates of one batch size; with algo.late_batch_size a second set is built
-    # (and, on a GPU, captured anew) for the late batch when the run gets there.
-    static_updates: dict[int, CycleUpdates] = {}
+    # The static-buffer updates of one batch size; with algo.late_batch_size they are replaced (and, on a
+    # GPU, captured anew) for the late batch when the run gets there.
+    def static_updates(batch_size: int) -> CycleUpdates:
+        return CycleUpdates(learner, preset.obs_dim, 2, batch_size, hp.updates_per_step, capture=dev.type == "cuda")
 
-    def updates_for(batch_size: int) -> CycleUpdates | None:
-        if not spec.cuda_graph:
-            return None
-        if batch_size not in static_updates:
-            static_updates[batch_size] = CycleUpdates(learner, preset.obs_dim, 2, batch_size, hp.updates_per_step,
-                                                      capture=dev.type == "cuda")
-        return static_updates[batch_size]
-
-    updates = updates_for(hp.batch_size)
+    updates = static_updates(hp.batch_size) if spec.cuda_graph else None
 
     eval_every = spec.eval_every
     overlap = spec.overlap
@@ -231,7 +224,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
                 progress = (cycle - 1) * hp.num_envs / spec.max_env_steps
                 batch_size = hp.batch_size_at(progress)
                 if updates is not None and updates.batch_size != batch_size:
-                    updates = updates_for(batch_size)
+                    updates = static_updates(batch_size)
                 batches = sample(batch_size) if learning else None
                 learner.schedule(progress)  # this cycle's learning rates
                 if collector_stream is not None:
