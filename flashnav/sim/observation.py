@@ -1,6 +1,24 @@
 """The paper's observation of one batch of slots: the beams' directions, the optional sensor noise,
 pooling into sectors, goal distance and angle, the velocity state, and the observation space's
-bounds (the layout is in :mod:`flashnav.sim.env`'s docstring)."""
+bounds. The opt-in extras after it are :class:`flashnav.sim.extras.ObservationExtras` (:mod:`flashnav.sim.extras`).
+
+Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2, 35 for Go2):
+
+    [0, S)      pooled LiDAR: minimum range over each sector's consecutive beams, metres, (0, max_range];
+                sector 0 starts at -fov/2 (the robot's right) and sectors go counter-clockwise
+    S           goal distance, metres
+    S + 1       goal angle in the robot frame, radians, wrapped to [-pi, pi) (positive = to the left)
+    S + 2 ...   velocity state: (v, w) for 2 dims; (vx, vy, w) for 3 dims (vy = 0 for diff-drive);
+                m/s and rad/s, the command executed in the last step (0 after a reset)
+    then, only with ``observation.scan_history`` k > 0, the k previous pooled scans, newest first
+    (:mod:`flashnav.sim.history`; a new episode starts with its first scan repeated); obs_dim += k S
+    then, only with ``observation.agent_tracks`` M > 0, the M nearest agents the robot sees as a people
+    tracker reports them (present, x, y, vx, vy, radius in the robot frame; :mod:`flashnav.sim.tracks`);
+    obs_dim += 6 M
+    then, only with ``observation.pose_trail`` P > 0, the robot's own earlier positions, one every
+    ``observation.trail_every`` steps, newest first (x, y in the robot frame; :mod:`flashnav.sim.trail`;
+    a new episode starts with its start position repeated); obs_dim += 2 P
+"""
 
 from __future__ import annotations
 
