@@ -8,7 +8,7 @@ import yaml
 
 from flashnav.learn.hparams import load_hparams
 from flashnav.maps.stream import GeneratedMaps
-from flashnav.presets import load_preset_file
+from flashnav.presets import load_preset_file, preset_path
 from flashnav.spec import RunSpec, TrainConfig, config_from_cli, resolve
 
 
@@ -21,11 +21,27 @@ def test_generalist_hyperparameters_are_the_cpu_recipe_with_its_own_changes():
     assert all(generalist[k] == v for k, v in own["shared"].items())
 
 
-def test_recipes_without_a_learner_section_or_setup_name_what_is_missing():
+def test_recipes_without_a_learner_section_or_setup_name_what_is_missing(tmp_path):
     with pytest.raises(ValueError, match=r"fastsac.yaml has no 'generalist' recipe \(it has: paper, cpu"):
         load_hparams("fastsac", "turtlebot2", "generalist")
-    with pytest.raises(ValueError, match=r"recipe 'generalist' has a training setup for turtlebot2 only"):
-        TrainConfig(recipe="generalist", robot="go2")
+    robot = tmp_path / "my_robot.yaml"  # a robot of the user's own: no setup of the generalist names it
+    robot.write_text(preset_path("turtlebot2").read_text().replace("name: turtlebot2", "name: my_robot"))
+    with pytest.raises(ValueError, match=r"recipe 'generalist' has a training setup for turtlebot2, go2 only "
+                                         r"\(.*setups.yaml\), not for robot '.*my_robot.yaml'"):
+        TrainConfig(recipe="generalist", robot=str(robot))
+
+
+def test_the_go2_generalist_has_the_turtlebot2_setup_and_its_hyperparameters():
+    setups = load_preset_file("setups")["generalist"]
+    assert setups["go2"] == setups["turtlebot2"]
+    tb2, go2 = (load_hparams("fastdsac", robot, "generalist").model_dump() for robot in ("turtlebot2", "go2"))
+    # Go2's cpu recipe differs from TurtleBot2's; the generalist's Go2 row restores TB2's values, and only the
+    # paper's per-robot collector sync interval (pipeline.yaml) stays Go2's
+    assert {k for k in tb2 if tb2[k] != go2[k]} == {"env_steps_per_sync"}
+    spec = resolve(config_from_cli(None, {"recipe": "generalist", "robot": "go2", "device": "cpu"},
+                                   ["maps.count=2", "eval.maps_per_family=1", "eval.episodes=16"]))
+    assert spec.robot.name == "go2" and spec.robot.episode.goal_sampling == "geodesic"
+    assert isinstance(spec.config.maps, GeneratedMaps) and spec.hparams.layer_norm and spec.hparams.gamma == 0.99
 
 
 def test_the_setup_fills_what_the_run_leaves_open_and_the_run_wins():
