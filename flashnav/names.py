@@ -24,8 +24,8 @@ RECIPES = ("paper", "cpu", "paper-mirror", "generalist")
 RECIPE_CHOICES = ("auto", *RECIPES)
 #: The choices in one line, for help texts (``--recipe``, ``TrainConfig.recipe``).
 RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC: paper + 5-step "
-               "returns, gamma 0.99, mirrored replay), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also sets its maps, "
-               "evaluation and task: presets/setups.yaml)")
+               "returns, gamma 0.99, mirrored replay), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also "
+               "sets its maps, evaluation and task: presets/setups.yaml)")
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
 RAYCASTERS = ("exact", "exact-torch", "march")
 DEFAULT_RAYCASTER = RAYCASTERS[0]
