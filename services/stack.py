@@ -174,8 +174,9 @@ def _reap(pids: list[int]) -> None:
             pass
 
 
-def http_ok(url: str, timeout: float = 2.0) -> bool:
-    """The server answers: a 2xx, or 401 (a head in token-auth mode answers unauthenticated probes so)."""
+def http_ok(url: str, timeout: float = 5.0) -> bool:
+    """The server answers: a 2xx, or 401 (a head in token-auth mode answers unauthenticated probes so).
+    ``timeout``: seconds for one answer (a server on a loaded 2-core machine took over 2 s: CI, 2026-11-27)."""
     try:
         with urllib.request.urlopen(url, timeout=timeout) as response:
             return 200 <= response.status < 300
