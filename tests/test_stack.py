@@ -78,16 +78,6 @@ def local_stack(tmp_path, monkeypatch):
         subprocess.run(["rm", "-rf", temp_dir], check=False)
 
 
-def answers(url: str, within: float = 30.0) -> bool:
-    """The server answers within ``within`` seconds (one slow answer on a loaded machine is not a dead server)."""
-    deadline = time.monotonic() + within
-    while not stack.http_ok(url):
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.5)
-    return True
-
-
 def test_stack_up_job_down(local_stack, capsys):
     runs, state = local_stack
     ray_pid, mlflow_pid = state["ray"]["pid"], state["mlflow"]["pid"]
@@ -95,7 +85,10 @@ def test_stack_up_job_down(local_stack, capsys):
     assert state["ray"]["auth_mode"] == "disabled"
     assert state["ray"]["jobs_address"].startswith("http://127.0.0.1:")
     assert state["mlflow"]["tracking_uri"].startswith("http://127.0.0.1:")
-    assert answers(state["ray"]["health"]) and answers(state["mlflow"]["health"])
+    for name in ("ray", "mlflow"):  # each answers within 30 s (one slow answer on a loaded machine is not a dead
+        # server), else this raises with its log's last lines - the wait `up` itself uses
+        entry = state[name]
+        stack._wait_healthy(name, entry["health"], entry["pid"], Path(entry["log"]), 30.0)
     assert stack.status() == 0
     assert (runs / "services" / "ray.pid").read_text().strip() == str(ray_pid)
     assert (runs / "services" / "mlflow.log").exists()
