@@ -248,3 +248,34 @@ def test_a_late_batch_starts_at_late_from_of_the_env_step_budget(monkeypatch):
     plain = train(tiny())
     assert sizes == [64] * 6
     assert not torch.equal(flat(late.learner.policy), flat(plain.learner.policy))  # the late batches reached the updates
+
+
+def test_sigterm_ends_the_train_command_like_ctrl_c(tmp_path, monkeypatch):
+    """`kill PID` (SIGTERM) - the way to stop a background run, whose SIGINT a script's `&` ignores - writes the
+    run so far, as Ctrl-C does; the handler in place before the command is back afterwards. The test's own
+    handler fails the test (instead of killing pytest) if the command did not install one."""
+    import os
+    import signal
+
+    from flashnav.learn import loop
+
+    def unhandled(signum, frame):
+        raise AssertionError("SIGTERM reached the handler outside flashnav train")
+
+    previous = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        def kill_at(m):
+            if m["env_steps"] >= 96:
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        real_train = loop.train
+        monkeypatch.setattr(loop, "train", lambda spec, **kw: real_train(spec, **{**kw, "on_progress": kill_at}))
+        out = tmp_path / "run"
+        code = cli_main(["train", "--recipe", "cpu", "--device", "cpu", "--out", str(out),
+                         *[f"{k}={v}" for k, v in TINY.items()], "budget.max_env_steps=320", "eval.episodes=8"])
+        assert code == 0
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["stop_reason"] == "interrupted" and metrics["env_steps"] == 96
+        assert signal.getsignal(signal.SIGTERM) is unhandled
+    finally:
+        signal.signal(signal.SIGTERM, previous)

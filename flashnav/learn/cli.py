@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
+import signal
+import threading
 from pathlib import Path
 
 from rich.console import Console
@@ -79,7 +82,7 @@ def run_train(args) -> int:
         grids = spec.eval_env_maps()
         console.print(f"evaluating on {len(grids)} maps of eval.maps = {config.eval.maps} "
                       f"({config.eval.episodes} episodes spread over them), not on the training maps")
-    with TrainProgress(console) as progress:
+    with TrainProgress(console) as progress, sigterm_as_ctrl_c():
         result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress, interruptible=True)
     if result.stop_reason == "interrupted":
         console.print("[yellow]interrupted[/]: writing the run so far (Ctrl-C again aborts)")
@@ -88,6 +91,26 @@ def run_train(args) -> int:
     _write_artefacts(result, out)
     _summary(console, result, out)
     return 0
+
+
+@contextlib.contextmanager
+def sigterm_as_ctrl_c():
+    """While training, SIGTERM (``kill PID``, ``timeout``, a batch scheduler's stop) ends the run as Ctrl-C
+    does, and the run so far is written. A job started with ``cmd &`` from a script inherits SIGINT as
+    ignored, so SIGTERM is the way to stop it gracefully. The previous handler is back before the
+    artefacts are written: a second SIGTERM then ends the process at once."""
+    if threading.current_thread() is not threading.main_thread():  # signal handlers live in the main thread
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _write_artefacts(result, out: Path) -> None:
