@@ -19,11 +19,15 @@ from flashnav.sim.motion import action_to_velocity
 HIDDEN = (64, 64)
 
 
-def random_actor(preset, seed: int = 0, heads: int = 3, layer_norm: bool = False, obs_norm: bool = False) -> Actor:
+def random_actor(preset, seed: int = 0, heads: int = 3, layer_norm: bool = False, obs_norm: bool = False,
+                 goal_sincos: bool = False) -> Actor:
     """An actor with random weights; the output layer is re-drawn with a large std so that actions
     cover [-1, 1] (at the training init they sit near 0 and would test little)."""
+    import dataclasses
+
     gen = torch.Generator().manual_seed(seed)
-    actor = Actor(ObsLayout.from_robot(preset, math.hypot(*preset.map_size)), 2, HIDDEN, heads, gen, layer_norm, obs_norm)
+    layout = dataclasses.replace(ObsLayout.from_robot(preset, math.hypot(*preset.map_size)), goal_sincos=goal_sincos)
+    actor = Actor(layout, 2, HIDDEN, heads, gen, layer_norm, obs_norm)
     with torch.no_grad():
         actor.mlp.net[-1].weight.normal_(0.0, 1.0, generator=gen)
     return actor
@@ -116,10 +120,13 @@ def test_onnx_equals_torch(exported, tb2, n):
     torch.testing.assert_close(policy(obs), action, rtol=0, atol=1e-5)
 
 
-def test_a_normalised_actor_exports_to_the_same_actions(tb2, tmp_path):
+@pytest.mark.parametrize("goal_sincos", [False, True])
+def test_a_normalised_actor_exports_to_the_same_actions(tb2, tmp_path, goal_sincos):
+    """Layer norm, observation normalisation and (``goal_sincos``) the goal angle's sine and cosine live inside
+    the exported policy: its input stays the robot's observation."""
     import onnxruntime as ort
 
-    actor = random_actor(tb2, seed=5, layer_norm=True, obs_norm=True)
+    actor = random_actor(tb2, seed=5, layer_norm=True, obs_norm=True, goal_sincos=goal_sincos)
     actor.transform.update_stats(observations(tb2, 200, seed=7))  # non-trivial running statistics
     paths = export_policy(actor, tb2, tmp_path)
     obs = observations(tb2, 65)

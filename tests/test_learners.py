@@ -469,3 +469,18 @@ def test_late_batch_options_are_validated_by_name():
             learner("fastdsac", **bad)
     hp = learner("fastdsac", batch_size=64).hp
     assert hp.late_batch_size == 0 and hp.batch_size_at(0.99) == 64  # off: the same batch all run long
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_goal_sincos_learners_update_and_act_on_the_plain_observation(algorithm):
+    """``algo.goal_sincos`` widens every network's input by one (the angle's sine and cosine); the learner
+    still takes and stores the observation as it is, and an update moves its weights."""
+    lrn = learner(algorithm, goal_sincos=True)
+    assert lrn.state.actor.transform.goal_sincos and lrn.state.critic.transform.goal_sincos
+    assert lrn.state.actor.mlp.net[0].in_features == LAYOUT.obs_dim + 1
+    before = params(lrn.state.critic)
+    for i in range(lrn.hp.policy_frequency):
+        lrn.update(random_batch(i))
+    assert any(not torch.equal(a, b) for a, b in zip(before, params(lrn.state.critic)))
+    assert lrn.policy(random_batch(9).obs).shape == (B, A)
+    assert not learner(algorithm).state.actor.transform.goal_sincos  # off by default (the paper's feature)

@@ -245,3 +245,44 @@ def test_normalisation_is_the_identity_before_any_statistics():
     plain, normed = IPAPRec(TB2), IPAPRec(TB2, normalize=True)
     obs = random_obs(TB2, 9)
     torch.testing.assert_close(normed(obs), plain(obs), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("copies", [0, 2])
+def test_goal_sincos_puts_the_angles_sine_and_cosine_where_the_angle_was(copies):
+    """``goal_sincos``: one feature more (cos after sin, in the angle's place), every other column as without it;
+    the goal straight behind reads the same from either side of the wrap (pi and -pi), unlike angle / pi."""
+    import dataclasses
+
+    sincos = dataclasses.replace(TB2, goal_sincos=True)
+    assert sincos.obs_dim == TB2.obs_dim == 34 and sincos.feature_dim == 35 and TB2.feature_dim == 34
+    plain, both = IPAPRec(TB2, copies=copies), IPAPRec(sincos, copies=copies)
+    obs = random_obs(TB2, 16)
+    a, b = plain(obs), both(obs)
+    assert b.shape[-1] == 35
+    torch.testing.assert_close(b[..., :31], a[..., :31])
+    torch.testing.assert_close(b[..., 33:], a[..., 32:])
+    angle = obs[:, 31].expand(b.shape[:-1])
+    torch.testing.assert_close(b[..., 31], torch.sin(angle))
+    torch.testing.assert_close(b[..., 32], torch.cos(angle))
+    behind = obs[:2].clone()
+    behind[0, 31], behind[1, 31] = math.pi - 1e-4, -math.pi
+    behind[1, :31], behind[1, 32:] = behind[0, :31], behind[0, 32:]
+    out, raw = both(behind), plain(behind)
+    assert (out[..., 0, :] - out[..., 1, :]).abs().max() < 1e-3
+    assert (raw[..., 0, 31] - raw[..., 1, 31]).abs().min() > 1.99
+
+
+@pytest.mark.parametrize("obs_norm", [False, True])
+def test_goal_sincos_networks_take_the_observation_and_widen_their_input(obs_norm):
+    import dataclasses
+
+    sincos = dataclasses.replace(TB2, goal_sincos=True)
+    actor = Actor(sincos, 2, (32, 32), 3, torch.Generator().manual_seed(0), obs_norm=obs_norm)
+    critic = TwinCritic(sincos, 2, (32, 32), 11, torch.Generator().manual_seed(0), obs_norm=obs_norm)
+    obs = random_obs(TB2, 5)
+    assert actor.mlp.net[0].in_features == 35 and critic.weights[0].shape[1] == 35 + 2
+    assert actor(obs).shape == (5, 6) and critic(obs, torch.zeros(5, 2)).shape == (2, 5, 11)
+    if obs_norm:
+        actor.transform.update_stats(obs)
+        assert actor.transform.feat_mean.shape == (35,)
+        torch.testing.assert_close(actor.transform.feat_mean[32], torch.cos(obs[:, 31]).mean())

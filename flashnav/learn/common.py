@@ -235,6 +235,7 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     init_seed, collect_seed, update_seed = derive_seeds(seed, 3)
     init_gen = torch.Generator().manual_seed(init_seed)
     norms = dict(layer_norm=hp.layer_norm, obs_norm=hp.obs_norm)
+    layout = dataclasses.replace(layout, goal_sincos=hp.goal_sincos)
     actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, out_init_std=hp.actor_out_init_std,
                   **norms).to(device)
     critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen, **norms).to(device)

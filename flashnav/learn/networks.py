@@ -54,6 +54,8 @@ class ObsLayout:
     ``track_scales``: the divisors of one track's columns (:func:`flashnav.sim.tracks.track_scales`).
     ``pose_trail``: breadcrumbs P after the tracks (2 P columns, x and y; 0 = none).
     ``trail_scale``: the divisor of every breadcrumb column, metres (:func:`flashnav.sim.trail.trail_bound`).
+    ``goal_sincos``: the networks see the goal angle as (sin, cos) instead of angle / pi (one feature more than
+    the observation's columns: :attr:`feature_dim`); the observation itself is unchanged.
     """
 
     sectors: int
@@ -66,6 +68,7 @@ class ObsLayout:
     track_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     pose_trail: int = 0
     trail_scale: float = 1.0
+    goal_sincos: bool = False
 
     def __post_init__(self) -> None:
         goal = self.goal_scale
@@ -105,6 +108,11 @@ class ObsLayout:
         """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail."""
         return self.history_end + self.agent_tracks * len(self.track_scales) + 2 * self.pose_trail
 
+    @property
+    def feature_dim(self) -> int:
+        """The networks' input width: D, or D + 1 with ``goal_sincos`` (the angle's sine and cosine)."""
+        return self.obs_dim + int(self.goal_sincos)
+
     def feature_scales(self) -> torch.Tensor:
         """Divisors for the scaled columns: goal distance, angle, velocities, then the agent tracks' and
         the pose trail's."""
@@ -143,7 +151,9 @@ class IPAPRec(nn.Module):
     beta: one reading means the same distance whenever it was taken, and sharing keeps one parameter
     per transform; agent tracks (the last columns) are divided by their bounds like the goal and
     velocity columns, and so are the pose trail's breadcrumbs after them. The output keeps the input's
-    column order.
+    column order; with ``layout.goal_sincos`` the goal angle's column holds sin(angle) and cos(angle) follows it
+    (``layout.feature_dim`` columns: sin and cos are continuous where the angle jumps from pi to -pi, the goal
+    straight behind; docs/learners.md S18).
     """
 
     def __init__(self, layout: ObsLayout, copies: int = 0, normalize: bool = False):
@@ -157,6 +167,7 @@ class IPAPRec(nn.Module):
         self.history = layout.history_end > layout.base_dim
         self.tracks = layout.obs_dim > layout.history_end  # agent tracks and / or the pose trail
         self.scaled_base = layout.base_dim - layout.sectors  # goal and velocity columns
+        self.goal_sincos = bool(layout.goal_sincos)
         # softplus(rho0) = r_in - margin - BETA_INIT puts beta at BETA_INIT
         gap = self.r_in - BETA_MARGIN - BETA_INIT
         rho0 = gap + math.log(-math.expm1(-gap))
@@ -164,7 +175,7 @@ class IPAPRec(nn.Module):
         self.register_buffer("inv_scale", 1.0 / layout.feature_scales())
         self.normalize = normalize
         if normalize:  # running statistics of the transformed features (identity until the first update)
-            shape = (copies, 1, layout.obs_dim) if copies else (layout.obs_dim,)
+            shape = (copies, 1, layout.feature_dim) if copies else (layout.feature_dim,)
             self.register_buffer("feat_mean", torch.zeros(shape))
             self.register_buffer("feat_var", torch.ones(shape))
             self.register_buffer("feat_count", torch.zeros((), dtype=torch.float64))
@@ -197,7 +208,18 @@ class IPAPRec(nn.Module):
         self.feat_count.copy_(total)
 
     def features(self, obs: torch.Tensor, detach_rho: bool = False) -> torch.Tensor:
-        """The transform before any normalisation: LiDAR ``1 / (l - beta)``, the rest / bounds."""
+        """The transform before any normalisation: LiDAR ``1 / (l - beta)``, the rest / bounds (the goal
+        angle as its sine and cosine with ``goal_sincos``)."""
+        x = self._features(obs, detach_rho)
+        if not self.goal_sincos:
+            return x
+        angle = obs[..., self.sectors + 1: self.sectors + 2]
+        if self.copies > 0:
+            angle = angle.unsqueeze(0).expand(self.copies, -1, -1)
+        return torch.cat([x[..., : self.sectors + 1], torch.sin(angle), torch.cos(angle),
+                          x[..., self.sectors + 2:]], dim=-1)
+
+    def _features(self, obs: torch.Tensor, detach_rho: bool) -> torch.Tensor:
         beta = self.beta(detach_rho)
         if self.copies > 0:
             beta = beta.view(-1, 1, 1)
@@ -277,7 +299,7 @@ class Actor(nn.Module):
         self.heads = heads
         self.transform = IPAPRec(layout, normalize=obs_norm)
         # out_init_std 0: the output layer keeps the uniform draw of every other layer (PyTorch's default)
-        self.mlp = MLP(layout.obs_dim, hidden, heads * action_dim, generator, out_init_std or None, layer_norm)
+        self.mlp = MLP(layout.feature_dim, hidden, heads * action_dim, generator, out_init_std or None, layer_norm)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.mlp(self.transform(obs))
@@ -317,7 +339,7 @@ class TwinCritic(nn.Module):
         self.copies = copies
         self.layer_norm = layer_norm
         self.transform = IPAPRec(layout, copies=copies, normalize=obs_norm)
-        sizes = [layout.obs_dim + action_dim, *hidden, out_dim]
+        sizes = [layout.feature_dim + action_dim, *hidden, out_dim]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
         for n_in, n_out in zip(sizes[:-1], sizes[1:]):
