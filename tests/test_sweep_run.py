@@ -202,46 +202,55 @@ DRIVER = textwrap.dedent('''
 ''')
 
 
-@pytest.mark.parametrize("stop", ["kill", "ctrl-c"])
-def test_resume_after_kill_reruns_nothing_finished(tmp_path, runs, stop):
-    """``kill``: the driver and its Ray die at once. ``ctrl-c``: Tune catches SIGINT, saves its state and
-    returns early; the sweep must then stop as interrupted (parent KILLED, target not done), not finish."""
+def test_resume_after_ctrl_c_and_after_kill_reruns_nothing_finished(tmp_path, runs):
+    """One sweep of three seeds (one trial at a time), stopped twice and resumed twice (three Ray start-ups, not
+    four: the suite's time). First Ctrl-C while seed 1 trains: Tune catches SIGINT, saves its state and returns
+    early; the sweep must stop as interrupted (parent KILLED, target not done), not finish. Then ``--resume``,
+    killed (SIGKILL: the driver and its in-process Ray die at once) while seed 2 trains. Then ``--resume`` again:
+    every seed finished exactly once, the interrupted ones trained again, the finished one not."""
     sweep = write_sweep(tmp_path / "unit.yaml", seeds=3, max_concurrent_trials=1, retry={"max_failures": 0})
     (tmp_path / "driver.py").write_text(DRIVER)
     marks = tmp_path / "marks"
     marks.mkdir()
     env = {**os.environ, "PYTHONPATH": str(ROOT), "RAY_AUTH_MODE": "disabled"}
     command = [sys.executable, str(tmp_path / "driver.py"), str(sweep), str(marks)]
-    first = subprocess.Popen(command, env=env, cwd=tmp_path, start_new_session=True,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 120
-        while not list(marks.glob("start_1_*")):  # seed 0 is done (one trial at a time)
-            assert time.monotonic() < deadline and first.poll() is None, "the first driver never reached seed 1"
-            time.sleep(0.2)
-        time.sleep(0.6)
-        if stop == "ctrl-c":
-            os.kill(first.pid, signal.SIGINT)
-            assert first.wait(timeout=120) != 0
-            _, parents, _ = runs_of(runs, "unit")
-            assert [p.info.status for p in parents] == ["KILLED"]
-            (state_file,) = (runs / "sweeps" / "unit").glob("*/sweep_state.json")
-            assert json.loads(state_file.read_text())["done_targets"] == []
-    finally:
-        with contextlib.suppress(ProcessLookupError):  # after ctrl-c the group may be gone already
-            os.killpg(first.pid, signal.SIGKILL)  # the driver and its in-process Ray die mid-trial
-        first.wait()
+
+    def run_until_seed_starts(seed: int, args: list[str], stop: str) -> None:
+        driver = subprocess.Popen(command + args, env=env, cwd=tmp_path, start_new_session=True,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            deadline = time.monotonic() + 120
+            while not list(marks.glob(f"start_{seed}_*")):  # the seeds before it are done (one trial at a time)
+                assert time.monotonic() < deadline and driver.poll() is None, f"the driver never reached seed {seed}"
+                time.sleep(0.2)
+            time.sleep(0.6)
+            if stop == "ctrl-c":
+                os.kill(driver.pid, signal.SIGINT)
+                assert driver.wait(timeout=120) != 0
+        finally:
+            with contextlib.suppress(ProcessLookupError):  # after ctrl-c the group may be gone already
+                os.killpg(driver.pid, signal.SIGKILL)  # the driver and its in-process Ray die mid-trial
+            driver.wait()
+
+    run_until_seed_starts(1, [], "ctrl-c")
+    _, parents, _ = runs_of(runs, "unit")
+    assert [p.info.status for p in parents] == ["KILLED"]
+    (state_file,) = (runs / "sweeps" / "unit").glob("*/sweep_state.json")
+    assert json.loads(state_file.read_text())["done_targets"] == []
+    run_until_seed_starts(2, ["--resume"], "kill")
+    assert {seed: len(list(marks.glob(f"start_{seed}_*"))) for seed in range(3)} == {0: 1, 1: 2, 2: 1}
     resumed = subprocess.run(command + ["--resume"], env=env, cwd=tmp_path, capture_output=True, text=True,
                              timeout=240)
     assert resumed.returncode == 0, resumed.stdout[-3000:] + resumed.stderr[-3000:]
     starts = {seed: len(list(marks.glob(f"start_{seed}_*"))) for seed in range(3)}
-    assert starts[0] == 1  # finished before the kill: not trained again
-    assert starts[1] == 2 and starts[2] == 1  # killed mid-training: trained again; never started: once
+    # seed 0 finished before the Ctrl-C: never trained again; seed 1 (stopped by Ctrl-C) and seed 2 (killed):
+    # trained again once each
+    assert starts == {0: 1, 1: 2, 2: 2}
     _, parents, children = runs_of(runs, "unit")
-    assert len(parents) == 1 and parents[0].info.status == "FINISHED"  # the same parent run, reopened
+    assert len(parents) == 1 and parents[0].info.status == "FINISHED"  # the same parent run, reopened twice
     finished = [c for c in children if c.info.status == "FINISHED"]
     assert sorted(c.data.tags["seed"] for c in finished) == ["0", "1", "2"]  # nothing lost, no duplicate
-    assert all(c.info.status in ("FINISHED", "FAILED") for c in children)  # the killed attempt: FAILED
+    assert all(c.info.status in ("FINISHED", "FAILED") for c in children)  # the stopped attempts: FAILED
 
 
 def test_quickstart_with_real_train(runs, ray_session):
