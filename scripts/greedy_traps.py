@@ -1,0 +1,177 @@
+"""Which maps trap a controller without memory, per robot? (issue 15: why the TurtleBot2 generalist fails mazes)
+
+    .venv/bin/python scripts/greedy_traps.py [--maps heldout] [--robots turtlebot2,go2] [--episodes 256]
+                                             [--seed 12345] [--json OUT]
+
+For every map of ``--maps`` (a folder or glob of ROS map YAML files, or a committed benchmark suite: heldout, real)
+and every robot, draws the fixed evaluation episodes that ``flashnav eval POLICY --maps ... --episodes N --seed S``
+plays for that robot (its preset with geodesic goal sampling, as the command uses), and walks each
+one with a **greedy walker**: from the start cell it steps to the 8-neighbour nearest (straight line) to the goal, among
+the cells of the robot's configuration space (cell centres farther than its circumscribed radius from any wall, no
+corner cutting), as long as that neighbour is strictly nearer; it succeeds when the goal is within the task's goal
+threshold. A walker that stops first is in a dead end of the configuration space as seen from the goal: a place a
+memoryless policy, however well it avoids walls, must back out of by going away from the goal. The fraction of
+episodes that trap it is a property of the map, the robot's body and the episode distribution, not of any policy.
+A trap's **depth** is the shortest path (through the configuration space) from where the walker stopped to the
+nearest cell at least one cell nearer the goal than that point: the way a policy must go without getting nearer
+before it can get nearer again. A wall jutting into the way costs a few tens of centimetres; a maze's dead end metres.
+Prints one row per map and robot: the trapped fraction, the fraction trapped deeper than ``--deep`` metres, and the
+trapped episodes' median depth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from flashnav.eval_maps import fixed_episodes, suite_path
+from flashnav.maps.bundled import resolve_maps
+from flashnav.maps.fields import free_space
+from flashnav.presets import load_robot
+from flashnav.sim.env import NavVecEnv
+from flashnav.sim.goal_fields import evaluation_preset
+
+STEPS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+
+
+def free_graph(free: np.ndarray, resolution: float):
+    """The 8-connected graph of the ``free`` cells (no corner cutting), edge lengths in metres: a sparse [H W, H W]
+    matrix over flat cell indices."""
+    h, w = free.shape
+    rows, cols, lengths = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        ok = np.zeros_like(free)
+        r0, r1 = 0, h - dr
+        c0, c1 = max(0, -dc), w - max(0, dc)
+        a = free[r0:r1, c0:c1] & free[r0 + dr:r1 + dr, c0 + dc:c1 + dc]
+        if dr and dc:  # both cells beside a diagonal step free
+            a &= free[r0 + dr:r1 + dr, c0:c1] & free[r0:r1, c0 + dc:c1 + dc]
+        ok[r0:r1, c0:c1] = a
+        r, c = np.nonzero(ok)
+        rows.append(r * w + c)
+        cols.append((r + dr) * w + c + dc)
+        lengths.append(np.full(r.size, resolution * (math.sqrt(2.0) if dr and dc else 1.0)))
+    i, j, d = np.concatenate(rows), np.concatenate(cols), np.concatenate(lengths)
+    return coo_matrix((d, (i, j)), shape=(h * w, h * w)).tocsr()
+
+
+def trap_depths(graph, free: np.ndarray, traps: list[tuple[int, int]], goals: list[tuple[float, float]],
+                resolution: float) -> np.ndarray:
+    """[len(traps)] metres: for each trapped cell (row, col), the shortest free path to a cell whose centre is at
+    least one cell nearer (straight line) to its goal (x, y metres); inf if none is reachable."""
+    h, w = free.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    cx, cy = ((xx + 0.5) * resolution).ravel(), ((yy + 0.5) * resolution).ravel()
+    out = np.full(len(traps), np.inf)
+    for k0 in range(0, len(traps), 16):
+        chunk = traps[k0:k0 + 16]
+        dist = dijkstra(graph, directed=False, indices=[r * w + c for r, c in chunk])
+        for k, ((r, c), (gx, gy)) in enumerate(zip(chunk, goals[k0:k0 + 16])):
+            here = math.hypot((c + 0.5) * resolution - gx, (r + 0.5) * resolution - gy)
+            nearer = np.hypot(cx - gx, cy - gy) < here - resolution
+            if nearer.any():
+                out[k0 + k] = dist[k][nearer].min()
+    return out
+
+
+def greedy_walk(free: np.ndarray, start: tuple[int, int], goal_xy: tuple[float, float], resolution: float,
+                threshold: float) -> tuple[bool, tuple[int, int]]:
+    """Walk ``free`` [H, W] (row 0 = y 0, cell centres at (c + 0.5, r + 0.5) * resolution) from ``start`` (row,
+    col) towards ``goal_xy`` (metres), always to the neighbour nearest the goal while it is strictly nearer.
+    Returns (reached: within ``threshold`` metres of the goal, the cell where it stopped)."""
+    h, w = free.shape
+    gx, gy = goal_xy
+
+    def dist(r: int, c: int) -> float:
+        return math.hypot((c + 0.5) * resolution - gx, (r + 0.5) * resolution - gy)
+
+    r, c = start
+    d = dist(r, c)
+    while d >= threshold:
+        best, best_d = None, d
+        for dr, dc in STEPS:
+            nr, nc = r + dr, c + dc
+            if not (0 <= nr < h and 0 <= nc < w and free[nr, nc]):
+                continue
+            if dr and dc and not (free[r + dr, c] and free[r, c + dc]):  # no corner cutting
+                continue
+            nd = dist(nr, nc)
+            if nd < best_d - 1e-12:
+                best, best_d = (nr, nc), nd
+        if best is None:
+            return False, (r, c)
+        (r, c), d = best, best_d
+    return True, (r, c)
+
+
+def trap_rows(preset, grids, episodes: int, seed: int, deep: float) -> list[dict]:
+    """One row per map of ``grids``: map, episodes, trapped and deep (fractions of the episodes: trapped at all,
+    trapped deeper than ``deep`` metres), depth_median_m (of the trapped episodes; None if none)."""
+    radius = preset.footprint.circumscribed_radius
+    env = NavVecEnv(evaluation_preset(preset), episodes * len(grids), grid=grids[0] if len(grids) == 1 else grids,
+                    device="cpu", seed=seed)
+    rows = []
+    for m, grid in enumerate(grids):
+        pose, goal = fixed_episodes(env, m, episodes, seed)
+        ox, oy = grid.origin  # world metres -> metres from the map's lower-left corner
+        free = free_space(grid, radius)
+        traps, trap_goals = [], []
+        for k in range(episodes):
+            x, y = float(pose[k, 0]) - ox, float(pose[k, 1]) - oy
+            gx, gy = float(goal[k, 0]) - ox, float(goal[k, 1]) - oy
+            start = (min(max(int(y / grid.resolution), 0), free.shape[0] - 1),
+                     min(max(int(x / grid.resolution), 0), free.shape[1] - 1))
+            ok, stop = greedy_walk(free, start, (gx, gy), grid.resolution, preset.episode.goal_threshold)
+            if not ok:
+                traps.append(stop)
+                trap_goals.append((gx, gy))
+        depth = trap_depths(free_graph(free, grid.resolution), free, traps, trap_goals, grid.resolution)
+        rows.append({"map": grid.name, "episodes": episodes, "trapped": len(traps) / episodes,
+                     "deep": float((depth > deep).sum()) / episodes,
+                     "depth_median_m": float(np.median(depth)) if traps else None})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--maps", default="heldout")
+    p.add_argument("--robots", default="turtlebot2,go2")
+    p.add_argument("--episodes", type=int, default=256)
+    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--deep", type=float, default=1.0, help="a trap deeper than this many metres counts as deep")
+    p.add_argument("--json")
+    args = p.parse_args(argv)
+    out = {}
+    for robot in args.robots.split(","):
+        preset = load_robot(robot, **{"episode.goal_sampling": "geodesic"})
+        grids = resolve_maps(suite_path(args.maps), preset.map)
+        out[robot] = trap_rows(preset, grids, args.episodes, args.seed, args.deep)
+    robots = list(out)
+    print(f"greedy walker: trapped / trapped deeper than {args.deep:g} m (fractions of {args.episodes} episodes per "
+          f"map) and the trapped episodes' median depth")
+    print(f"{'map':<22}" + "".join(f"{r:>28}" for r in robots))
+    for i, row0 in enumerate(out[robots[0]]):
+        cells = []
+        for r in robots:
+            row = out[r][i]
+            depth = "-" if row["depth_median_m"] is None else f"{row['depth_median_m']:.2f} m"
+            cells.append(f"{row['trapped']:>10.1%} {row['deep']:>7.1%} {depth:>9}")
+        print(f"{row0['map']:<22}" + "".join(cells))
+    for r in robots:
+        print(f"{r}: mean trapped {np.mean([row['trapped'] for row in out[r]]):.1%}, "
+              f"deeper than {args.deep:g} m {np.mean([row['deep'] for row in out[r]]):.1%}")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump({"maps": args.maps, "episodes": args.episodes, "seed": args.seed, "deep_m": args.deep,
+                       "robots": out}, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
