@@ -14,6 +14,10 @@ observation's goal distance is passed to the policy as the environment computes 
 nothing clips it. The policy's input transform was scaled by its training map's diagonal
 (``goal_distance_scale``); a map with a larger diagonal is marked, and each row counts the episodes whose
 goal-distance input went beyond the scale (inputs the policy never saw in training).
+
+Each map's row also keeps every episode's ending, in the fixed episodes' order (``outcomes``: one letter
+per episode, ``s`` success, ``c`` collision, ``t`` timeout), so that an analysis of the same episodes (e.g.
+``scripts/greedy_traps.py --outcomes``) can pair its own per-episode reading with the policy's.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.sim.mapset import sim_frame
 
 #: Version of the ``--json`` layout written by :func:`evaluate_maps` (read by ``flashnav report
-#: --generalisation``).
+#: --generalisation``). Rows written before 2026-11-27 have no ``outcomes``.
 EVAL_MAPS_FORMAT = 1
 EVAL_MAPS_KIND = "flashnav.eval_maps"
 RATES = ("success_rate", "collision_rate", "timeout_rate")
@@ -151,8 +155,15 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
             "timeout_rate": (~success & ~collision).float().mean().item(),
             "mean_steps": e["episode_steps"][sl].mean().item(),
             "mean_return": e["episode_return"][sl].mean().item(),
+            "outcomes": outcome_letters(success, collision),
         })
     return {"maps": rows, "aggregate": aggregate(rows)}
+
+
+def outcome_letters(success: torch.Tensor, collision: torch.Tensor) -> str:
+    """One letter per episode: ``s`` success, ``c`` collision, ``t`` timeout (neither)."""
+    codes = torch.where(success, 0, torch.where(collision, 1, 2)).tolist()
+    return "".join("sct"[c] for c in codes)
 
 
 GUIDE_SOURCES = ("map", "scans")

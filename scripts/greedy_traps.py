@@ -1,7 +1,7 @@
 """Which maps trap a controller without memory, per robot? (issue 15: why the TurtleBot2 generalist fails mazes)
 
     .venv/bin/python scripts/greedy_traps.py [--maps heldout] [--robots turtlebot2,go2] [--episodes 256]
-                                             [--seed 12345] [--json OUT]
+                                             [--seed 12345] [--deep 1.0] [--json OUT] [--outcomes EVAL_JSON ...]
 
 For every map of ``--maps`` (a folder or glob of ROS map YAML files, or a committed benchmark suite: heldout, real)
 and every robot, draws the fixed evaluation episodes that ``flashnav eval POLICY --maps ... --episodes N --seed S``
@@ -17,6 +17,11 @@ nearest cell at least one cell nearer the goal than that point: the way a policy
 before it can get nearer again. A wall jutting into the way costs a few tens of centimetres; a maze's dead end metres.
 Prints one row per map and robot: the trapped fraction, the fraction trapped deeper than ``--deep`` metres, and the
 trapped episodes' median depth.
+
+``--outcomes EVAL_JSON``: the ``--json`` of ``flashnav eval POLICY --maps SUITE`` on the same episodes (same suite,
+``--episodes`` and ``--seed``; its robot must be among ``--robots``), whose rows keep every episode's ending: prints
+the policy's failure rate on the episodes with no trap, a shallow one and a deep one - does the policy fail where
+the walker meets a deep dead end, and only there?
 """
 
 from __future__ import annotations
@@ -112,7 +117,8 @@ def greedy_walk(free: np.ndarray, start: tuple[int, int], goal_xy: tuple[float, 
 
 def trap_rows(preset, grids, episodes: int, seed: int, deep: float) -> list[dict]:
     """One row per map of ``grids``: map, episodes, trapped and deep (fractions of the episodes: trapped at all,
-    trapped deeper than ``deep`` metres), depth_median_m (of the trapped episodes; None if none)."""
+    trapped deeper than ``deep`` metres), depth_median_m (of the trapped episodes; None if none), depths (per
+    episode in the fixed order: None = not trapped, else the trap's depth in metres)."""
     radius = preset.footprint.circumscribed_radius
     env = NavVecEnv(evaluation_preset(preset), episodes * len(grids), grid=grids[0] if len(grids) == 1 else grids,
                     device="cpu", seed=seed)
@@ -121,7 +127,7 @@ def trap_rows(preset, grids, episodes: int, seed: int, deep: float) -> list[dict
         pose, goal = fixed_episodes(env, m, episodes, seed)
         ox, oy = grid.origin  # world metres -> metres from the map's lower-left corner
         free = free_space(grid, radius)
-        traps, trap_goals = [], []
+        traps, trap_goals, trapped_at = [], [], []
         for k in range(episodes):
             x, y = float(pose[k, 0]) - ox, float(pose[k, 1]) - oy
             gx, gy = float(goal[k, 0]) - ox, float(goal[k, 1]) - oy
@@ -131,11 +137,54 @@ def trap_rows(preset, grids, episodes: int, seed: int, deep: float) -> list[dict
             if not ok:
                 traps.append(stop)
                 trap_goals.append((gx, gy))
+                trapped_at.append(k)
         depth = trap_depths(free_graph(free, grid.resolution), free, traps, trap_goals, grid.resolution)
+        depths: list[float | None] = [None] * episodes
+        for k, d in zip(trapped_at, depth):
+            depths[k] = float(d) if math.isfinite(d) else 1e9
         rows.append({"map": grid.name, "episodes": episodes, "trapped": len(traps) / episodes,
                      "deep": float((depth > deep).sum()) / episodes,
-                     "depth_median_m": float(np.median(depth)) if traps else None})
+                     "depth_median_m": float(np.median(depth)) if traps else None, "depths": depths})
     return rows
+
+
+def paired(report: dict, rows: list[dict], deep: float) -> dict[str, list[int]]:
+    """{class: [failures, episodes]} over the maps of an eval report paired with ``rows`` by map name, for the
+    classes none / shallow / deep (a trap deeper than ``deep`` metres)."""
+    by_map = {r["map"]: r for r in rows}
+    counts = {"none": [0, 0], "shallow": [0, 0], "deep": [0, 0]}
+    for m in report["maps"]:
+        row = by_map.get(m["map"])
+        if row is None or "outcomes" not in m:
+            raise ValueError(f"map {m['map']}: not among the walked maps, or its row has no per-episode outcomes "
+                             f"(re-run flashnav eval --maps --json)")
+        if len(m["outcomes"]) != len(row["depths"]):
+            raise ValueError(f"map {m['map']}: {len(m['outcomes'])} episodes in the report, {len(row['depths'])} walked")
+        for outcome, d in zip(m["outcomes"], row["depths"]):
+            kind = "none" if d is None else "deep" if d > deep else "shallow"
+            counts[kind][0] += outcome != "s"
+            counts[kind][1] += 1
+    return counts
+
+
+def print_outcomes(path: str, out: dict, args) -> None:
+    with open(path, encoding="utf-8") as f:
+        report = json.load(f)
+    robot = report.get("robot")
+    if robot not in out:
+        raise SystemExit(f"--outcomes {path}: robot {robot!r} is not among --robots {','.join(out)}")
+    if (report.get("episodes_per_map"), report.get("seed")) != (args.episodes, args.seed):
+        raise SystemExit(f"--outcomes {path}: {report.get('episodes_per_map')} episodes per map, seed "
+                         f"{report.get('seed')}; walked {args.episodes} with seed {args.seed} (not the same episodes)")
+    print(f"{report.get('label', path)} ({robot}): the policy's failures by the walker's trap on the same episodes")
+    groups = {"all maps": report["maps"]}
+    families = sorted({m["map"].rsplit("_", 1)[0] for m in report["maps"]})
+    groups.update({f: [m for m in report["maps"] if m["map"].rsplit("_", 1)[0] == f] for f in families})
+    for name, maps in groups.items():
+        counts = paired({**report, "maps": maps}, out[robot], args.deep)
+        cells = "  ".join(f"{kind}: {fail}/{n} = {fail / n:.1%}" if n else f"{kind}: -"
+                          for kind, (fail, n) in counts.items())
+        print(f"  {name:<12} {cells}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -146,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=12345)
     p.add_argument("--deep", type=float, default=1.0, help="a trap deeper than this many metres counts as deep")
     p.add_argument("--json")
+    p.add_argument("--outcomes", nargs="*", default=[], metavar="EVAL_JSON",
+                   help="flashnav eval --maps --json reports of the same episodes: the policy's failures by trap")
     args = p.parse_args(argv)
     out = {}
     for robot in args.robots.split(","):
@@ -166,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     for r in robots:
         print(f"{r}: mean trapped {np.mean([row['trapped'] for row in out[r]]):.1%}, "
               f"deeper than {args.deep:g} m {np.mean([row['deep'] for row in out[r]]):.1%}")
+    for path in args.outcomes:
+        print_outcomes(path, out, args)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"maps": args.maps, "episodes": args.episodes, "seed": args.seed, "deep_m": args.deep,

@@ -51,6 +51,8 @@ def test_each_maps_row_equals_that_map_evaluated_alone(sampling):
         assert row["success_rate"] == success.float().mean().item()
         assert row["collision_rate"] == collision.float().mean().item()
         assert row["timeout_rate"] == (~success & ~collision).float().mean().item()
+        assert row["outcomes"] == "".join("s" if a else "c" if b else "t" for a, b in zip(success.tolist(),
+                                                                                         collision.tolist()))
         assert row["mean_steps"] == pytest.approx(ref["episode_steps"].mean().item())
         assert row["mean_return"] == pytest.approx(ref["episode_return"].mean().item(), abs=1e-5)
         beyond = int((ref["max_goal_distance"] > 14.0).sum())

@@ -85,3 +85,13 @@ def test_trap_depths_equal_a_plain_dijkstra_on_random_grids(seed):
         nearer = [d for (rr, cc), d in reach.items()
                   if math.hypot((cc + 0.5) * RES - gx, (rr + 0.5) * RES - gy) < here - RES]
         assert depth == pytest.approx(min(nearer) if nearer else math.inf)
+
+
+def test_outcomes_pair_with_the_walked_episodes_by_map_and_order():
+    rows = [{"map": "a", "depths": [None, 0.3, 2.0, None]}, {"map": "b", "depths": [1.5, None]}]
+    report = {"maps": [{"map": "a", "outcomes": "sctt"}, {"map": "b", "outcomes": "ss"}]}
+    assert greedy_traps.paired(report, rows, 1.0) == {"none": [1, 3], "shallow": [1, 1], "deep": [1, 2]}
+    with pytest.raises(ValueError, match="per-episode outcomes"):
+        greedy_traps.paired({"maps": [{"map": "a"}]}, rows, 1.0)
+    with pytest.raises(ValueError, match="3 episodes in the report, 4 walked"):
+        greedy_traps.paired({"maps": [{"map": "a", "outcomes": "sss"}]}, rows, 1.0)
