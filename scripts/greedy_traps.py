@@ -32,38 +32,17 @@ import math
 import sys
 
 import numpy as np
-from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from flashnav.eval_maps import fixed_episodes, suite_path
 from flashnav.maps.bundled import resolve_maps
 from flashnav.maps.fields import free_space
+from flashnav.maps.graph import grid_graph
 from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
 from flashnav.sim.goal_fields import evaluation_preset
 
 STEPS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
-
-
-def free_graph(free: np.ndarray, resolution: float):
-    """The 8-connected graph of the ``free`` cells (no corner cutting), edge lengths in metres: a sparse [H W, H W]
-    matrix over flat cell indices."""
-    h, w = free.shape
-    rows, cols, lengths = [], [], []
-    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        ok = np.zeros_like(free)
-        r0, r1 = 0, h - dr
-        c0, c1 = max(0, -dc), w - max(0, dc)
-        a = free[r0:r1, c0:c1] & free[r0 + dr:r1 + dr, c0 + dc:c1 + dc]
-        if dr and dc:  # both cells beside a diagonal step free
-            a &= free[r0 + dr:r1 + dr, c0:c1] & free[r0:r1, c0 + dc:c1 + dc]
-        ok[r0:r1, c0:c1] = a
-        r, c = np.nonzero(ok)
-        rows.append(r * w + c)
-        cols.append((r + dr) * w + c + dc)
-        lengths.append(np.full(r.size, resolution * (math.sqrt(2.0) if dr and dc else 1.0)))
-    i, j, d = np.concatenate(rows), np.concatenate(cols), np.concatenate(lengths)
-    return coo_matrix((d, (i, j)), shape=(h * w, h * w)).tocsr()
 
 
 def trap_depths(graph, free: np.ndarray, traps: list[tuple[int, int]], goals: list[tuple[float, float]],
@@ -76,7 +55,7 @@ def trap_depths(graph, free: np.ndarray, traps: list[tuple[int, int]], goals: li
     out = np.full(len(traps), np.inf)
     for k0 in range(0, len(traps), 16):
         chunk = traps[k0:k0 + 16]
-        dist = dijkstra(graph, directed=False, indices=[r * w + c for r, c in chunk])
+        dist = dijkstra(graph, indices=[r * w + c for r, c in chunk])
         for k, ((r, c), (gx, gy)) in enumerate(zip(chunk, goals[k0:k0 + 16])):
             here = math.hypot((c + 0.5) * resolution - gx, (r + 0.5) * resolution - gy)
             nearer = np.hypot(cx - gx, cy - gy) < here - resolution
@@ -138,7 +117,7 @@ def trap_rows(preset, grids, episodes: int, seed: int, deep: float) -> list[dict
                 traps.append(stop)
                 trap_goals.append((gx, gy))
                 trapped_at.append(k)
-        depth = trap_depths(free_graph(free, grid.resolution), free, traps, trap_goals, grid.resolution)
+        depth = trap_depths(grid_graph(free, grid.resolution), free, traps, trap_goals, grid.resolution)
         depths: list[float | None] = [None] * episodes
         for k, d in zip(trapped_at, depth):
             depths[k] = float(d) if math.isfinite(d) else 1e9

@@ -41,7 +41,7 @@ def test_the_trap_depth_is_the_way_out_of_the_cup():
     depths = []
     for arm in (10, 20):
         free = cup(arm)
-        graph = greedy_traps.free_graph(free, RES)
+        graph = greedy_traps.grid_graph(free, RES)
         (d,) = greedy_traps.trap_depths(graph, free, [(30, 39)], [(5.5, 3.05)], RES)
         assert d > 2 * arm * RES * 0.9, (arm, d)
         depths.append(d)
@@ -78,7 +78,7 @@ def test_trap_depths_equal_a_plain_dijkstra_on_random_grids(seed):
     cells = list(zip(*np.nonzero(free)))
     picks = [cells[i] for i in rng.choice(len(cells), 5, replace=False)]
     goals = [tuple(rng.uniform(0, 2.4, 2)) for _ in picks]
-    got = greedy_traps.trap_depths(greedy_traps.free_graph(free, RES), free, picks, goals, RES)
+    got = greedy_traps.trap_depths(greedy_traps.grid_graph(free, RES), free, picks, goals, RES)
     for (r, c), (gx, gy), depth in zip(picks, goals, got):
         here = math.hypot((c + 0.5) * RES - gx, (r + 0.5) * RES - gy)
         reach = dijkstra_reference(free, (r, c))
