@@ -27,7 +27,7 @@ RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), pa
                "returns, gamma 0.99, mirrored replay; TurtleBot2: goal angle as sin/cos), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also "
                "sets its maps, evaluation and task: presets/setups.yaml)")
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
-RAYCASTERS = ("exact", "exact-torch", "march")
+RAYCASTERS = ("exact", "exact-torch", "march", "exact-cuda")
 DEFAULT_RAYCASTER = RAYCASTERS[0]
 #: How the episode sampler picks goals (``episode.goal_sampling``; :mod:`flashnav.sim.sampling`):
 #: ``euclidean`` (the default, the paper task) by straight-line distance, ``geodesic`` by path length.

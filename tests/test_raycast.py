@@ -259,7 +259,7 @@ def test_random_free_poses_and_factory():
     assert r.min() >= 0.1 - 1e-5
     with pytest.raises(ValueError, match="exact-torch"):
         make_raycaster("nope", grid, torch.zeros(1), 1.0)
-    assert RAYCASTERS == ("exact", "exact-torch", "march")
+    assert RAYCASTERS == ("exact", "exact-torch", "march", "exact-cuda")
     field = safe_field(grid)
     assert field.shape == (grid.shape[0] + 4, grid.shape[1] + 4)
 

@@ -21,8 +21,11 @@ Raycasters (:data:`RAYCASTERS`)
 -------------------------------
 - ``"exact"``: CPU tensors run a numba kernel (parallel over environments on all cores; exact
   Amanatides-Woo DDA with skipping through free space by a directional distance field, see
-  :mod:`flashnav.sim.raycast_numba`); CUDA tensors run ``"exact-torch"``.
+  :mod:`flashnav.sim.raycast_numba`); CUDA tensors run ``"exact-cuda"`` (``"exact-torch"`` where
+  numba's CUDA target is missing, with a warning).
 - ``"exact-torch"``: the same semantics as batched torch ops on any device (the GPU path).
+- ``"exact-cuda"``: the numba kernel's traversal compiled for a CUDA GPU by numba.cuda, one thread
+  per ray, one launch per scan (:mod:`flashnav.sim.raycast_cuda`); CUDA devices only.
 - ``"march"``: the paper's algorithm literally (appendix B): fixed steps of ``march_step`` metres
   from ``t = step``; the first sample point whose cell (``floor``) is occupied or off the map gives
   the range. Approximate (it can step over a corner); the fidelity baseline of the benchmark.
@@ -31,6 +34,7 @@ Raycasters (:data:`RAYCASTERS`)
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -74,7 +78,7 @@ class NumbaExactRaycaster(Raycaster):
         mi = self._check(pose, map_index)
         if pose.device.type != "cpu":
             if self._torch is None:
-                self._torch = raycast_torch.TorchExactRaycaster(self.grids, self.beam_angles, self.max_range, pose.device)
+                self._torch = gpu_exact(self.grids, self.beam_angles, self.max_range, pose.device)
             return self._torch(pose, mi)
         # float32 contiguous CPU poses reach the kernel as a zero-copy numpy view
         p = pose.detach().to(torch.float32).contiguous().numpy()
@@ -109,12 +113,35 @@ def make_raycaster(name: str, grid: OccupancyMap | Sequence[OccupancyMap], beam_
     if name == "exact":
         if device.type == "cpu":
             return NumbaExactRaycaster(grid, beam_angles, max_range, device)
-        return raycast_torch.TorchExactRaycaster(grid, beam_angles, max_range, device, name="exact")
+        return gpu_exact(grid, beam_angles, max_range, device)
     if name == "exact-torch":
         return raycast_torch.TorchExactRaycaster(grid, beam_angles, max_range, device)
     if name == "march":
         return raycast_torch.MarchRaycaster(grid, beam_angles, max_range, device, step=march_step)
+    if name == "exact-cuda":
+        from flashnav.sim.raycast_cuda import CudaExactRaycaster  # numba.cuda is imported only when asked for
+
+        return CudaExactRaycaster(grid, beam_angles, max_range, device)
     raise ValueError(f"unknown raycaster {name!r}; valid names: {', '.join(RAYCASTERS)}")
+
+
+def gpu_exact(grid, beam_angles, max_range, device) -> Raycaster:
+    """"exact" off the CPU: the numba.cuda kernel on a CUDA device (10-30x the march on an H100, one
+    launch per scan; docs/benchmarks.md "GPU: the exact raycaster as one kernel"), else exact-torch - also
+    where numba's CUDA target cannot be loaded or compiled, with a warning that says why."""
+    if torch.device(device).type == "cuda":
+        try:
+            from flashnav.sim.raycast_cuda import CudaExactRaycaster
+
+            ray = CudaExactRaycaster(grid, beam_angles, max_range, device)
+            ray.name = "exact"
+            # one cast compiles the kernel now, so that a missing CUDA toolchain shows here, not mid-training
+            ray(torch.zeros((1, 3), device=device), torch.zeros(1, dtype=torch.long, device=device))
+            return ray
+        except Exception as exc:  # noqa: BLE001  any failure of numba's CUDA target: the torch path is exact too
+            warnings.warn(f"raycaster 'exact' on {device}: numba.cuda unusable ({type(exc).__name__}: {exc}); "
+                          "using exact-torch (exact, slower)", RuntimeWarning, stacklevel=2)
+    return raycast_torch.TorchExactRaycaster(grid, beam_angles, max_range, device, name="exact")
 
 
 def error_stats(ranges: torch.Tensor, exact: torch.Tensor) -> dict[str, float]:
