@@ -146,7 +146,7 @@ class CudaExactRaycaster(Raycaster):
         if n == 0:
             return out
         a = self._arrays
-        args = [p, mi.contiguous(), a["cos_a"], a["sin_a"], a["angles"], a["flat"], a["base0"], a["sectors"], a["h"], a["w"],
+        args = [p, mi.to(self.device).contiguous(), a["cos_a"], a["sin_a"], a["angles"], a["flat"], a["base0"], a["sectors"], a["h"], a["w"],
                 a["hp"], a["wp"], a["ox"], a["oy"], a["res"], PAD, self.max_range, JUMP_MIN_CELLS, out]
         blocks = (n * k + THREADS - 1) // THREADS
         if self.device.type == "cuda":
