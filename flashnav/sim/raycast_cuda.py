@@ -146,8 +146,9 @@ class CudaExactRaycaster(Raycaster):
         if n == 0:
             return out
         a = self._arrays
-        args = [p, mi.to(self.device).contiguous(), a["cos_a"], a["sin_a"], a["angles"], a["flat"], a["base0"], a["sectors"], a["h"], a["w"],
-                a["hp"], a["wp"], a["ox"], a["oy"], a["res"], PAD, self.max_range, JUMP_MIN_CELLS, out]
+        args = [p, mi.to(self.device).contiguous(), a["cos_a"], a["sin_a"], a["angles"], a["flat"], a["base0"],
+                a["sectors"], a["h"], a["w"], a["hp"], a["wp"], a["ox"], a["oy"], a["res"], PAD, self.max_range,
+                JUMP_MIN_CELLS, out]
         blocks = (n * k + THREADS - 1) // THREADS
         if self.device.type == "cuda":
             stream = cuda.external_stream(torch.cuda.current_stream(self.device).cuda_stream)
