@@ -383,7 +383,7 @@ def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=
         map_weights: with ``maps``, the relative probability of each map (default: uniform).
         device: where every tensor lives ("cpu", "cuda", ...).
         seed: seeds start/goal sampling and map draws (and sensor noise when enabled).
-        raycaster: "exact" (default), "exact-torch" or "march" (the paper's fixed-step algorithm).
+        raycaster: "exact" (default; on CUDA the "exact-cuda" kernel), "exact-torch", "exact-cuda" or "march" (the paper's fixed-step algorithm).
     """
     preset = load_robot(robot)
     if maps is not None:
