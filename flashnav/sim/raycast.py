@@ -40,12 +40,11 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from flashnav.maps.fields import cone_field, safe_field
+from flashnav.maps.fields import safe_field
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import RAYCASTERS  # defined once; re-exported here
 from flashnav.sim import raycast_torch
-from flashnav.sim.mapset import map_table, pack
-from flashnav.sim.raycast_base import JUMP_MIN_CELLS, PAD, Raycaster
+from flashnav.sim.raycast_base import JUMP_MIN_CELLS, PAD, Raycaster, exact_kernel_arrays
 
 __all__ = ["RAYCASTERS", "NumbaExactRaycaster", "Raycaster", "error_stats", "make_raycaster",
            "random_free_poses"]
@@ -62,16 +61,13 @@ class NumbaExactRaycaster(Raycaster):
         from flashnav.sim import raycast_numba  # imported lazily: the first import may JIT-compile
 
         self._kernel = raycast_numba.cast_exact
-        fields = [cone_field(g, PAD) for g in self.grids]
-        self._field, self._base0 = pack(fields)
-        self._sectors = np.array([f.shape[0] for f in fields], dtype=np.int64)
-        table = {key: value.numpy() for key, value in map_table(self.grids, "cpu", PAD).items()}  # int64 / float64
-        self._hs, self._ws, self._hps, self._wps = table["h"], table["w"], table["hp"], table["wp"]
-        self._ox, self._oy, self._res = table["ox"], table["oy"], table["res"]
+        a = exact_kernel_arrays(self.grids, self.beam_angles)
+        self._angles, self._cos_a, self._sin_a = a["angles"], a["cos_a"], a["sin_a"]
+        self._field, self._base0, self._sectors = a["flat"], a["base0"], a["sectors"]
+        self._hs, self._ws, self._hps, self._wps = a["h"], a["w"], a["hp"], a["wp"]
+        self._ox, self._oy, self._res = a["ox"], a["oy"], a["res"]
         # map_index and cast order of a single map, grown on demand
         self._zeros, self._order = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        a = self.beam_angles.cpu().double().numpy()
-        self._angles, self._cos_a, self._sin_a = a, np.cos(a), np.sin(a)
         self._torch = None
 
     def __call__(self, pose: torch.Tensor, map_index=None) -> torch.Tensor:

@@ -1,5 +1,5 @@
 """What every raycaster shares: the :class:`Raycaster` interface and the floating-point constants of
-the exact semantics (:mod:`flashnav.sim.raycast`). A leaf module: the numba kernel
+the exact semantics (:mod:`flashnav.sim.raycast`), and the arrays the exact kernels read. A leaf module: the numba kernel
 (:mod:`flashnav.sim.raycast_numba`) and the torch raycasters (:mod:`flashnav.sim.raycast_torch`)
 both import it, and neither imports the other or the factory in :mod:`flashnav.sim.raycast`.
 """
@@ -9,13 +9,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
-from flashnav.maps.fields import PAD
+from flashnav.maps.fields import PAD, cone_field
 from flashnav.maps.grid import OccupancyMap
-from flashnav.sim.mapset import as_grids, check_map_index
+from flashnav.sim.mapset import as_grids, check_map_index, map_table, pack
 
-__all__ = ["AXIS_SNAP", "DELTA", "EPS", "JUMP_MIN_CELLS", "PAD", "Raycaster"]
+__all__ = ["AXIS_SNAP", "DELTA", "EPS", "JUMP_MIN_CELLS", "PAD", "Raycaster", "exact_kernel_arrays"]
 
 EPS = 1e-9  # cells: "on a grid line" / "through a vertex" tolerance (see flashnav.sim.raycast)
 DELTA = 1e-6  # cells: margin kept from the safe distance on every jump (>> EPS, << a cell)
@@ -66,3 +67,17 @@ class Raycaster:
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(name={self.name!r}, beams={self.beam_angles.numel()}, "
                 f"max_range={self.max_range}, device={self.device}, grid={self.grid!r})")
+
+
+def exact_kernel_arrays(grids: Sequence[OccupancyMap], beam_angles: torch.Tensor) -> dict[str, np.ndarray]:
+    """The arrays the exact kernels read (:func:`flashnav.sim.raycast_numba.cast_exact` and the CUDA kernel of
+    :mod:`flashnav.sim.raycast_cuda`), in their argument order: ``cos_a``, ``sin_a``, ``angles`` [K] float64 (the
+    beams); ``flat`` uint8 (every map's :func:`cone_field` flattened and concatenated); ``base0``, ``sectors``, ``h``,
+    ``w``, ``hp``, ``wp`` [M] int64 and ``ox``, ``oy``, ``res`` [M] float64 (per map: :func:`map_table`)."""
+    fields = [cone_field(g, PAD) for g in grids]
+    flat, base0 = pack(fields)
+    table = {key: value.numpy() for key, value in map_table(grids, "cpu", PAD).items()}  # int64 / float64
+    a = beam_angles.cpu().double().numpy()
+    return {"cos_a": np.cos(a), "sin_a": np.sin(a), "angles": a, "flat": flat, "base0": base0,
+            "sectors": np.array([f.shape[0] for f in fields], dtype=np.int64),
+            **{key: table[key] for key in ("h", "w", "hp", "wp", "ox", "oy", "res")}}

@@ -28,9 +28,7 @@ if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload for it
     np.row_stack = np.vstack
 from numba import cuda  # noqa: E402  a module global: numba's CUDA simulator swaps it in the kernel's globals
 
-from flashnav.maps.fields import cone_field
-from flashnav.sim.mapset import map_table, pack
-from flashnav.sim.raycast_base import AXIS_SNAP, JUMP_MIN_CELLS, PAD, Raycaster
+from flashnav.sim.raycast_base import AXIS_SNAP, JUMP_MIN_CELLS, PAD, Raycaster, exact_kernel_arrays
 
 #: The CPU kernel's functions that run per ray, in an order in which each one's callees come first.
 DEVICE_FUNCTIONS = ("_span", "_along_line", "_restart", "_touches", "cast_ray")
@@ -120,18 +118,9 @@ class CudaExactRaycaster(Raycaster):
         if self.device.type != "cuda" and not simulated():
             raise ValueError(f"raycaster 'exact-cuda' runs on a CUDA device, not {self.device} "
                              "(use 'exact' there; tests may set NUMBA_ENABLE_CUDASIM=1)")
-        fields = [cone_field(g, PAD) for g in self.grids]
-        field, base0 = pack(fields)
-        table = map_table(self.grids, "cpu", PAD)
-        a = self.beam_angles.double().cpu()
-        arrays = {
-            "cos_a": torch.cos(a), "sin_a": torch.sin(a), "angles": a,
-            "flat": torch.from_numpy(field.copy()),
-            "base0": torch.from_numpy(base0), "sectors": torch.tensor([f.shape[0] for f in fields], dtype=torch.int64),
-            "h": table["h"], "w": table["w"], "hp": table["hp"], "wp": table["wp"],
-            "ox": table["ox"], "oy": table["oy"], "res": table["res"],
-        }
-        self._arrays = {key: value.contiguous().to(self.device) for key, value in arrays.items()}
+        # in the kernel's argument order; copied (np.array), since a single map's packed field is a read-only view
+        self._arrays = {key: torch.from_numpy(np.array(value)).to(self.device)
+                        for key, value in exact_kernel_arrays(self.grids, self.beam_angles).items()}
         self._zeros = torch.zeros(0, dtype=torch.int64, device=self.device)
 
     def __call__(self, pose: torch.Tensor, map_index=None) -> torch.Tensor:
@@ -145,10 +134,7 @@ class CudaExactRaycaster(Raycaster):
         out = torch.empty((n, k), dtype=torch.float32, device=self.device)
         if n == 0:
             return out
-        a = self._arrays
-        args = [p, mi.to(self.device).contiguous(), a["cos_a"], a["sin_a"], a["angles"], a["flat"], a["base0"],
-                a["sectors"], a["h"], a["w"], a["hp"], a["wp"], a["ox"], a["oy"], a["res"], PAD, self.max_range,
-                JUMP_MIN_CELLS, out]
+        args = [p, mi.to(self.device).contiguous(), *self._arrays.values(), PAD, self.max_range, JUMP_MIN_CELLS, out]
         blocks = (n * k + THREADS - 1) // THREADS
         if self.device.type == "cuda":
             stream = cuda.external_stream(torch.cuda.current_stream(self.device).cuda_stream)
