@@ -263,6 +263,16 @@ def _readings(n: int, s: int, r_in: float, r_max: float, u) -> torch.Tensor:
 
 
 # ---- loading -------------------------------------------------------------------------------------
+def recorded_robot(meta: dict[str, Any]) -> "str | RobotPreset":
+    """The robot a loaded policy was exported for, from its metadata (:func:`load_policy`): the exact preset it
+    recorded (observation options such as a scan history or a pose trail included, so custom robots need no YAML
+    at hand), else, for files written before presets were recorded, its robot's name. Pass it to
+    :func:`flashnav.presets.load_robot` (with overrides) or :func:`flashnav.sim.env.make_env`."""
+    if "preset" in meta:
+        return RobotPreset.model_validate(meta["preset"])
+    return meta["robot"]
+
+
 def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
                 device: torch.device | str = "cpu") -> tuple[Callable[[torch.Tensor], torch.Tensor], dict[str, Any]]:
     """Load ``policy.pt`` (TorchScript) or ``policy.onnx`` (onnxruntime, CPU).

@@ -82,8 +82,7 @@ def load_policy_and_env(args, device: str = "cpu"):
 def load_policy_for(args, device: str = "cpu"):
     """(policy, metadata, robot, device): the policy of parsed `eval`-style arguments checked against
     ``--robot``, else the robot preset recorded in the policy (a RobotPreset or a name); the device resolved."""
-    from flashnav.config import RobotPreset
-    from flashnav.export import load_policy
+    from flashnav.export import load_policy, recorded_robot
     from flashnav.presets import load_robot
     from flashnav.sim.goal_fields import evaluation_preset
     from flashnav.machine import resolve_device
@@ -95,12 +94,7 @@ def load_policy_for(args, device: str = "cpu"):
     except ValueError as exc:
         raise ValueError(f"--device: {exc}") from None
     policy, meta = load_policy(args.policy, robot=args.robot)
-    if args.robot is not None:
-        robot = args.robot
-    elif "preset" in meta:  # the exact preset exported, so custom robots need no YAML at hand
-        robot = RobotPreset.model_validate(meta["preset"])
-    else:
-        robot = meta["robot"]
+    robot = args.robot if args.robot is not None else recorded_robot(meta)
     # evaluations play the task with the paper's reward, whatever shaping the policy trained with
     return policy, meta, evaluation_preset(load_robot(robot)), device
 

@@ -21,8 +21,7 @@ import math
 import numpy as np
 import torch
 
-from flashnav.config import RobotPreset
-from flashnav.export import load_policy
+from flashnav.export import load_policy, recorded_robot
 from flashnav.names import AGENT_BEHAVIOURS, SCENARIOS
 from flashnav.scenarios import run_scenario, scenario_preset
 from flashnav.sim.env import make_env
@@ -119,8 +118,7 @@ def main() -> None:
         print(f"stand still, {name}: agent collision {r['agent_collision_rate']:.1%} of {r['scored']} scored episodes")
     for path in args.policies:
         policy, meta = load_policy(path)  # the policy's own preset (e.g. its scan history), as `flashnav eval` does
-        robot = RobotPreset.model_validate(meta["preset"]) if "preset" in meta else meta["robot"]
-        preset = scenario_preset(robot, args.scenario)
+        preset = scenario_preset(recorded_robot(meta), args.scenario)
         half_fov = preset.lidar.fov_deg / 2
         speeds: list[float] = []
         hitters: list = []

@@ -28,8 +28,10 @@ from scipy.sparse.csgraph import dijkstra
 from failure_kinds import drive  # scripts/: the same replay from given starts and goals
 
 from flashnav.evaluate import evaluate_episodes
-from flashnav.export import load_policy
+from flashnav.export import load_policy, recorded_robot
+from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
+from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.maps.graph import grid_graph
 
 LENGTH_BINS = [0, 2, 3, 4, 5, 6, 8, math.inf]  # metres of route
@@ -55,7 +57,7 @@ def route_lengths(grid, radius: float, start_xy: np.ndarray, goal_xy: np.ndarray
     return out
 
 
-def replay_failures(policy, robot: str, start_pose: np.ndarray, goal: np.ndarray):
+def replay_failures(policy, robot, start_pose: np.ndarray, goal: np.ndarray):
     """Replays episodes alone from ``start_pose [F, 3]`` / ``goal [F, 2]`` (world): their paths
     ``[T, F, 2]`` (NaN after the episode ended) and closest approach to the goal ``[F]`` (m)."""
     import torch
@@ -130,7 +132,9 @@ def main() -> None:
     p.add_argument("--failures", help="the failed episodes' paths on the map (near misses apart)")
     args = p.parse_args()
     policy, meta = load_policy(args.policy)
-    env = make_env(meta["robot"], args.episodes, seed=args.seed)
+    # the policy's own preset (its observation options: scan history, pose trail), evaluated with the paper's reward
+    preset = evaluation_preset(load_robot(recorded_robot(meta)))
+    env = make_env(preset, args.episodes, seed=args.seed)
     e = {k: v.cpu().numpy() for k, v in evaluate_episodes(policy, env, args.seed).items()}
     outcome = np.where(e["success"], "success", np.where(e["collision"], "collision", "timeout"))
     start, goal = e["start_pose"][:, :2], e["goal"]
@@ -149,7 +153,7 @@ def main() -> None:
            "by_detour": table("detour ratio (route / straight line)", detour, DETOUR_BINS, outcome),
            "by_bearing": table("goal bearing from the start heading (|deg|)", bearing, BEARING_BINS, outcome)}
     failed = np.nonzero(outcome != "success")[0]
-    paths, closest = replay_failures(policy, meta["robot"], e["start_pose"][failed], goal[failed])
+    paths, closest = replay_failures(policy, preset, e["start_pose"][failed], goal[failed])
     near = closest < ep.goal_threshold + 0.1
     late = stalled_metres(paths, ep.horizon // 2)
     stalled = (outcome[failed] == "timeout") & ~near & (late < STALL_M)

@@ -27,9 +27,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from flashnav.config import RobotPreset
 from flashnav.evaluate import evaluate_episodes
-from flashnav.export import load_policy
+from flashnav.export import load_policy, recorded_robot
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
@@ -84,8 +83,7 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(1)
     policy, meta = load_policy(args.policy)
-    robot = RobotPreset.model_validate(meta["preset"]) if "preset" in meta else meta["robot"]
-    preset = evaluation_preset(load_robot(robot, **{"episode.goal_sampling": "geodesic"}))
+    preset = evaluation_preset(load_robot(recorded_robot(meta), **{"episode.goal_sampling": "geodesic"}))
     horizon = preset.episode.horizon
     rows, total = [], dict.fromkeys(("episodes", "success", *KINDS), 0)
     for map_path in args.maps:

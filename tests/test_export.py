@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from flashnav.checkpoint import CHECKPOINT_FORMAT_VERSION, load_checkpoint, save_checkpoint
-from flashnav.export import DeployablePolicy, export_policy, load_policy, sample_observations
+from flashnav.export import DeployablePolicy, export_policy, load_policy, recorded_robot, sample_observations
 from flashnav.learn.networks import Actor, DeterministicActor, ObsLayout
 from flashnav.presets import load_robot
 from flashnav.sim.motion import action_to_velocity
@@ -149,6 +149,19 @@ def test_metadata(exported, tb2):
         assert layout["goal_angle"]["column"] == 31 and layout["velocity"]["names"] == ["v", "w"]
         assert meta["preset"] == tb2.model_dump(mode="json")
     assert json.loads(paths["metadata"].read_text()) == meta
+
+
+def test_recorded_robot_is_the_exported_preset_with_its_observation_options(tmp_path):
+    """Scripts and `flashnav eval` build a policy's env from recorded_robot: a pose-trail Go2 policy gets its trail
+    (the bundled preset by name would give 35 columns, not 55); files without a preset block fall back to the name."""
+    go2_trail = load_robot("go2", **{"observation.pose_trail": 10})
+    paths = export_policy(random_actor(go2_trail), go2_trail, tmp_path, onnx=False)
+    policy, meta = load_policy(paths["torchscript"])
+    robot = recorded_robot(meta)
+    assert robot == go2_trail and load_robot(robot).obs_dim == 55 == meta["obs_dim"]
+    assert policy(sample_observations(load_robot(robot), 4)).shape == (4, 2)
+    legacy = {k: v for k, v in meta.items() if k != "preset"}
+    assert recorded_robot(legacy) == "go2"
 
 
 def test_load_policy_errors(exported, tmp_path):
