@@ -15,7 +15,7 @@ ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
 #: Display names of the learners (tables, figures).
 ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
 #: Hyperparameter recipes in ``flashnav/presets/<algorithm>.yaml``: ``paper`` is appendix A (GPU),
-#: ``cpu`` the departures measured for a 2-core CPU, ``paper-mirror`` (FastDSAC; FastSAC on TurtleBot2) the paper
+#: ``cpu`` the departures measured for a 2-core CPU, ``paper-mirror`` (FastDSAC; FastSAC and FastTD3 on TurtleBot2) the paper
 #: recipe with 5-step returns, gamma 0.99, mirrored replay and (TurtleBot2) the goal angle as sine and cosine (the
 #: departures with which TurtleBot2 reaches 100 % within the paper's budget in 8 of 10 seeds), ``generalist`` (FastDSAC, TurtleBot2) training for unseen
 #: buildings, with its training setup (maps, evaluation, task) in ``presets/setups.yaml``.
@@ -23,8 +23,8 @@ RECIPES = ("paper", "cpu", "paper-mirror", "generalist")
 #: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
 RECIPE_CHOICES = ("auto", *RECIPES)
 #: The choices in one line, for help texts (``--recipe``, ``TrainConfig.recipe``).
-RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC, and FastSAC on "
-               "TurtleBot2: paper + 5-step returns, gamma 0.99, mirrored replay; TurtleBot2: goal angle as sin/cos), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also "
+RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC, and FastSAC and "
+               "FastTD3 on TurtleBot2: paper + 5-step returns, gamma 0.99, mirrored replay; TurtleBot2: goal angle as sin/cos), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also "
                "sets its maps, evaluation and task: presets/setups.yaml)")
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
 RAYCASTERS = ("exact", "exact-torch", "march", "exact-cuda")

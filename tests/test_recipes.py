@@ -129,16 +129,16 @@ def test_paper_mirror_is_the_paper_recipe_with_its_departures(robot):
                        **({"goal_sincos": True} if robot == "turtlebot2" else {})}
     # the paper's own numbers, budget included, stay: the departures are only these three
     assert mirror["total_env_steps"] == paper["total_env_steps"]
-    with pytest.raises(ValueError, match=r"fasttd3.yaml has no 'paper-mirror' recipe"):
-        load_hparams("fasttd3", robot, "paper-mirror")
 
 
-def test_fastsac_paper_mirror_has_the_four_departures_on_turtlebot2_only():
-    """Measured on FastSAC for TurtleBot2 (docs/benchmarks.md "FastSAC with the four departures: ten seeds"); Go2 has
-    no measurement, so no recipe: asking for it is an error that names the robot."""
-    paper = load_hparams("fastsac", "turtlebot2", "paper").model_dump()
-    mirror = load_hparams("fastsac", "turtlebot2", "paper-mirror").model_dump()
+@pytest.mark.parametrize("algo", ["fastsac", "fasttd3"])
+def test_fastsac_and_fasttd3_paper_mirror_have_the_four_departures_on_turtlebot2_only(algo):
+    """Measured on FastSAC (docs/benchmarks.md "FastSAC with the four departures: ten seeds") and FastTD3 ("GPU: FastTD3
+    with the four departures, ten seeds") for TurtleBot2; Go2 has no measurement, so no recipe: asking for it is an
+    error that names the file and the robot."""
+    paper = load_hparams(algo, "turtlebot2", "paper").model_dump()
+    mirror = load_hparams(algo, "turtlebot2", "paper-mirror").model_dump()
     assert {k: mirror[k] for k in paper if paper[k] != mirror[k]} == {"n_step": 5, "gamma": 0.99, "mirror": 0.5,
                                                                         "goal_sincos": True}
-    with pytest.raises(ValueError, match=r"fastsac.yaml: no 'paper-mirror' recipe for robot 'go2'"):
-        load_hparams("fastsac", "go2", "paper-mirror")
+    with pytest.raises(ValueError, match=rf"{algo}.yaml: no 'paper-mirror' recipe for robot 'go2'"):
+        load_hparams(algo, "go2", "paper-mirror")
