@@ -10,7 +10,10 @@ agent that hit, relative to the robot's heading at the moment of contact: behind
 from the side (45-135 deg) or from the front (within 45 deg); and the forward speed it commands (mean over
 every step played, and the share of steps below 0.1 m/s: a hesitant robot stays longer among the agents);
 and the hitting agents' behaviours and how many of them turned (> 20 deg) in the second before the contact,
-beside how often any moving agent does in a second: are the hits the agents' turns?
+beside how often any moving agent does in a second: are the hits the agents' turns? And when the tracker (the
+agent tracks of the observation, :mod:`flashnav.sim.tracks`) last saw the hitting agent: in the observation the
+robot acted on last, some steps before (lost from sight: what a track that outlives the field of view would still
+hold), or never in the episode (what only an all-round sensor would have seen).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from flashnav.names import AGENT_BEHAVIOURS, SCENARIOS
 from flashnav.scenarios import run_scenario, scenario_preset
 from flashnav.sim.env import make_env
 from flashnav.sim.motion import action_to_velocity
+from flashnav.sim.tracks import TrackerView
 
 
 TURN_STEPS = 10  # steps back over which an agent's turn before a contact is read (1 s at dt 0.1)
@@ -40,18 +44,30 @@ def stand_still(preset) -> torch.Tensor:
 
 
 def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None = None,
-                 hitters: list | None = None, base: dict | None = None) -> list[float]:
+                 hitters: list | None = None, base: dict | None = None, sight: list | None = None) -> list[float]:
     """Degrees in [0, 180]: |bearing| of the hitting agent (the one nearest the footprint) per agent collision.
     ``speeds``, if given, collects the forward speed (m/s) the policy commands at every step played;
     ``hitters`` (kind, turn) per collision: the hitting agent's behaviour and how far its heading turned
     (degrees) between the step ``TURN_STEPS`` before the contact and the contact's step (None: too early in
     the episode, or the agent stood still in one of the two steps); ``base`` counts the same for every moving
-    agent of the running slots at every step (``known``, ``turned`` > ``TURNED``): how often agents turn at all."""
+    agent of the running slots at every step (``known``, ``turned`` > ``TURNED``): how often agents turn at all;
+    ``sight`` per collision: how many observations before the last one the robot acted on the tracker last saw the
+    hitting agent (0: in that last one; None: not once in the episode)."""
     env = make_env(preset, episodes, seed=seed)
     obs, _ = env.reset(seed=seed)
     active, out = torch.arange(episodes), []
+    view = TrackerView(preset, env.beam_angles) if sight is not None else None
+    last_seen = torch.full(env.agents.pos.shape[:2], -1, dtype=torch.long)  # observation index, -1: not yet
+
+    def look(index: int, slots: torch.Tensor) -> None:  # the tracker's view in observation ``index`` of ``slots``
+        if view is not None and slots.numel():
+            a = env.agents
+            seen = view.seen_by(env.pose[slots], a.pos[slots], a.radius[slots], a.active[slots], env.scan(slots))
+            last_seen[slots] = torch.where(seen, index, last_seen[slots])
+
+    look(0, active)
     past = [env.agents.pos.clone()]  # agent centres after each step (every slot), newest last
-    for _ in range(preset.episode.horizon):
+    for step in range(1, preset.episode.horizon + 1):  # acting on observation step - 1
         action = policy(obs)
         if speeds is not None:
             speeds.extend(action_to_velocity(action, preset.motion)[0].tolist())
@@ -72,8 +88,12 @@ def hit_bearings(policy, preset, episodes: int, seed: int, speeds: list | None =
             out.append(abs(math.degrees(math.atan2(math.sin(b), math.cos(b)))))
             if hitters is not None:
                 hitters.append((AGENT_BEHAVIOURS[int(env.agents.kind[i, j])], turn_at(turns, i, j)))
+            if sight is not None:
+                seen_at = int(last_seen[i, j])
+                sight.append(None if seen_at < 0 else step - 1 - seen_at)
         running = ~(t["terminated"] | t["truncated"])
         active, obs = active[running], t["obs"][running]
+        look(step, active)
         if active.numel() == 0:
             break
     return out
@@ -123,7 +143,8 @@ def main() -> None:
         speeds: list[float] = []
         hitters: list = []
         base: dict = {}
-        b = np.array(hit_bearings(policy, preset, args.episodes, args.seed, speeds, hitters, base))
+        sight: list = []
+        b = np.array(hit_bearings(policy, preset, args.episodes, args.seed, speeds, hitters, base, sight))
         v = np.array(speeds)
         print(f"{path} on {args.scenario}: {b.size} agent collisions in {args.episodes} episodes; agent behind the "
               f"field of view (> {half_fov:g} deg) {(b > half_fov).sum()}, side (45-{half_fov:g} deg) "
@@ -135,6 +156,11 @@ def main() -> None:
             f"unknown {sum(k == kind and x is None for k, x in hitters)})"
             for kind in AGENT_BEHAVIOURS if any(k == kind for k, _ in hitters))
             + f"; every moving agent at every step: turned in {base.get('turned', 0) / max(base.get('known', 0), 1):.1%}")
+        second = round(1.0 / preset.episode.dt)
+        lost = [x for x in sight if x]
+        print(f"  the tracker saw the hitting agent: in the last observation {sum(x == 0 for x in sight)}; lost from "
+              f"sight <= 1 s before {sum(x <= second for x in lost)}, 1-2 s {sum(second < x <= 2 * second for x in lost)}, "
+              f"> 2 s {sum(x > 2 * second for x in lost)}; never in the episode {sum(x is None for x in sight)}")
 
 
 if __name__ == "__main__":
