@@ -1,4 +1,6 @@
 #!/usr/bin/env bash
+# Ran in full on 2026-11-28 (docs/benchmarks.md "GPU: FastTD3 with the four departures, ten seeds ..."); what a GPU
+# session should try next: a GPU generalist recipe (more updates per step at 1,024 envs) and its pose-trail arm (issue 15).
 # What a GPU session should measure next (shared/notes/gpu.md; docs/benchmarks.md's GPU sections say what is done),
 # in one script of about 9 minutes on an H100: the CUDA tests, `bench sim` with the exact CUDA kernel for both robots,
 # the generalist's cycle on CUDA now that the exact raycaster is one kernel, and the four departures of `paper-mirror`
