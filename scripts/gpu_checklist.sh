@@ -33,11 +33,10 @@ echo "== generalist cycle on CUDA, 1,024 envs $(el)"
 timeout -s TERM -k 20 60 $FN train --device cuda --recipe generalist --seed 0 algo.num_envs=1024 budget.max_train_seconds=15 \
     eval.every=100000 --out "$OUT/gen" 2>&1 | tail -1
 python3 -c "import json;d=json.load(open('$OUT/gen/metrics.json'));print('generalist', d['env_steps'], round(d['train_seconds'],1), {k:round(v,1) for k,v in d['cycle'].items()})" 2>&1 | tail -1
-D="algo.n_step=5 algo.gamma=0.99 algo.mirror=0.5 algo.goal_sincos=true"
 C="--device cuda eval.episodes=1024 budget.max_train_seconds=100000 threads=1"
 echo "== FastTD3 with the four departures, three lanes of seeds, $(left) s $(el)"
 lane() { for S in "$@"; do [ "$(left)" -gt 60 ] || break
-  timeout -s TERM -k 20 "$(left)" $FN train --algo fasttd3 --recipe paper --seed "$S" $D $C --out "$OUT/td3-s$S" \
+  timeout -s TERM -k 20 "$(left)" $FN train --algo fasttd3 --recipe paper-mirror --seed "$S" $C --out "$OUT/td3-s$S" \
       > "$OUT/td3-s$S.log" 2>&1; done; }
 lane 0 3 6 9 & lane 1 4 7 & lane 2 5 8 &
 wait
