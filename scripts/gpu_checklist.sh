@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Ran in full on 2026-11-28 (docs/benchmarks.md "GPU: FastTD3 with the four departures, ten seeds ..."); what a GPU
-# session should try next: a GPU generalist recipe (more updates per step at 1,024 envs) and its pose-trail arm (issue 15).
-# What a GPU session should measure next (shared/notes/gpu.md; docs/benchmarks.md's GPU sections say what is done),
+# Ran in full on 2026-11-28 (docs/benchmarks.md "GPU: FastTD3 with the four departures, ten seeds ..."); the GPU
+# generalist it pointed to next is scripts/gpu_generalist.sh (run 2026-11-28: "GPU: a first generalist on an H200").
+# What this script measures (shared/notes/gpu.md; docs/benchmarks.md's GPU sections say what is done),
 # in one script of about 9 minutes on an H100: the CUDA tests, `bench sim` with the exact CUDA kernel for both robots,
 # the generalist's cycle on CUDA now that the exact raycaster is one kernel, and the four departures of `paper-mirror`
 # on FastTD3 (seeds 0-9 in three lanes, as many as the time allows) to the end of their budgets (nine at once ran out of GPU
