@@ -3,11 +3,14 @@
 # env step), with and without a pose trail, side by side, ~200 s of training each, then zero-shot on the held-out suite
 # (docs/benchmarks.md "GPU: a first generalist on an H200"). Works in WORK; the held-out JSONs, the eval tables and a
 # tarball of the runs (no .pt) go to OUT (the device tool's $OUT), so do not set OUT to WORK.
-# Usage (device tool, carry .whl): bash scripts/gpu_generalist.sh   [TS= training s, TT/TE= time limits, EP= episodes]
+# Usage (device tool, carry .whl): WHEELS=.whl bash scripts/gpu_generalist.sh   [TS= training s, TT/TE= time limits, EP= episodes]
 set -o pipefail
 WORK=${WORK:-/tmp/g28}; OUT=${OUT:-runs/gpu-generalist}; mkdir -p "$WORK" "$OUT"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
+if [ -n "${WHEELS:-}" ]; then   # a bare device image: flashnav's pure-Python dependencies as wheels, as gpu_checklist.sh
+  python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site "$WHEELS"/*.whl || exit 1
+  export PYTHONPATH=/tmp/site:$PWD
+fi
+export PYTHONUNBUFFERED=1
 FN="python3 -m flashnav.cli"
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$WORK/gpu.txt"
 A="--device cuda --recipe generalist --seed 0 algo.num_envs=1024 algo.updates_per_step=64 eval.every=200 budget.max_train_seconds=${TS:-200} budget.max_env_steps=100000000"
