@@ -20,14 +20,14 @@ HIDDEN = (64, 64)
 
 
 def random_actor(preset, seed: int = 0, heads: int = 3, layer_norm: bool = False, obs_norm: bool = False,
-                 goal_sincos: bool = False) -> Actor:
+                 goal_sincos: bool = False, headroom: float = 1.0) -> Actor:
     """An actor with random weights; the output layer is re-drawn with a large std so that actions
     cover [-1, 1] (at the training init they sit near 0 and would test little)."""
     import dataclasses
 
     gen = torch.Generator().manual_seed(seed)
     layout = dataclasses.replace(ObsLayout.from_robot(preset, math.hypot(*preset.map_size)), goal_sincos=goal_sincos)
-    actor = Actor(layout, 2, HIDDEN, heads, gen, layer_norm, obs_norm)
+    actor = Actor(layout, 2, HIDDEN, heads, gen, layer_norm, obs_norm, headroom=headroom)
     with torch.no_grad():
         actor.mlp.net[-1].weight.normal_(0.0, 1.0, generator=gen)
     return actor
@@ -132,6 +132,24 @@ def test_a_normalised_actor_exports_to_the_same_actions(tb2, tmp_path, goal_sinc
     obs = observations(tb2, 65)
     with torch.no_grad():
         action, _ = DeployablePolicy(actor, tb2).eval()(obs)
+    session = ort.InferenceSession(str(paths["onnx"]), providers=["CPUExecutionProvider"])
+    np.testing.assert_allclose(session.run(None, {"obs": obs.numpy()})[0], action.numpy(), rtol=0, atol=1e-5)
+    scripted, _ = load_policy(paths["torchscript"])
+    torch.testing.assert_close(scripted(obs), action, rtol=0, atol=1e-5)
+
+
+def test_an_actor_with_action_headroom_exports_its_clamped_actions(tb2, tmp_path):
+    """``algo.action_headroom`` lives inside the exported policy: clamp(k tanh(mu), -1, 1), bounds reached."""
+    import onnxruntime as ort
+
+    actor = random_actor(tb2, seed=6, headroom=1.2)
+    paths = export_policy(actor, tb2, tmp_path)
+    obs = observations(tb2, 65)
+    with torch.no_grad():
+        action, _ = DeployablePolicy(actor, tb2).eval()(obs)
+        squashed = torch.tanh(actor(obs)[:, :2])
+    torch.testing.assert_close(action, (1.2 * squashed).clamp(-1, 1), rtol=0, atol=0)
+    assert (action.abs() == 1.0).any() and (squashed.abs() < 1.0).all()
     session = ort.InferenceSession(str(paths["onnx"]), providers=["CPUExecutionProvider"])
     np.testing.assert_allclose(session.run(None, {"obs": obs.numpy()})[0], action.numpy(), rtol=0, atol=1e-5)
     scripted, _ = load_policy(paths["torchscript"])

@@ -484,3 +484,34 @@ def test_goal_sincos_learners_update_and_act_on_the_plain_observation(algorithm)
     assert any(not torch.equal(a, b) for a, b in zip(before, params(lrn.state.critic)))
     assert lrn.policy(random_batch(9).obs).shape == (B, A)
     assert not learner(algorithm).state.actor.transform.goal_sincos  # off by default (the paper's feature)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS)
+def test_action_headroom_scales_and_clamps_every_action_the_robot_gets(algorithm):
+    """``algo.action_headroom`` k: the evaluated policy is clamp(k tanh(mu), -1, 1), the collection actions stay in
+    [-1, 1] and reach the bounds for a large mean; k = 1 (every recipe) is the paper's tanh(mu), update for update."""
+    base, roomy = learner(algorithm, seed=3), learner(algorithm, seed=3, action_headroom=1.25)
+    obs = random_batch(4).obs
+    with torch.no_grad():
+        squashed = torch.tanh(base.state.actor(obs)[:, :A])
+        torch.testing.assert_close(base.policy(obs), squashed, rtol=0, atol=0)
+        torch.testing.assert_close(roomy.policy(obs), (1.25 * squashed).clamp(-1, 1), rtol=0, atol=0)
+        out = roomy.state.actor.mlp.net[-1]
+        out.bias[:A] = 2.0  # tanh(mu) ~ 0.96 in every state: beyond 1 / k, so the action sits on the bound
+        assert torch.equal(roomy.policy(obs), torch.ones(B, A))
+        roomy.state.collector.load_state_dict(roomy.state.actor.state_dict())
+        acted = roomy.act(obs[:N])
+    assert acted.abs().max() <= 1.0 and (acted == 1.0).float().mean() > 0.3
+    for i in range(4):  # updates run and stay finite with actions on the bound
+        assert all(torch.isfinite(v).all() for v in roomy.update(random_batch(10 + i)).values())
+    with pytest.raises(ValueError, match="action_headroom"):
+        learner(algorithm, action_headroom=0.9)
+
+
+def test_action_headroom_one_is_todays_learner_step_for_step():
+    """The default (k = 1) and an explicit k = 1 train to the same weights bit for bit."""
+    a, b = learner("fastdsac", seed=2), learner("fastdsac", seed=2, action_headroom=1.0)
+    for i in range(4):
+        a.update(random_batch(i)), b.update(random_batch(i))
+        a.act(random_batch(i).obs[:N]), b.act(random_batch(i).obs[:N])
+    assert all(torch.equal(x, y) for x, y in zip(params(a.state.actor), params(b.state.actor)))

@@ -237,7 +237,7 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     norms = dict(layer_norm=hp.layer_norm, obs_norm=hp.obs_norm)
     layout = dataclasses.replace(layout, goal_sincos=hp.goal_sincos)
     actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, out_init_std=hp.actor_out_init_std,
-                  **norms).to(device)
+                  headroom=hp.action_headroom, **norms).to(device)
     critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen, **norms).to(device)
     critic_target = frozen_copy(critic)
     averaged = frozen_copy(actor) if hp.policy_averaging > 0 else None

@@ -19,7 +19,8 @@ import torch.nn.functional as F
 from flashnav.learn.common import (LearnerState, Temperature, build_state, collection_noise, finish_update,
                                    make_temperature, optimizer_step, resample_where, uniform)
 from flashnav.learn.hparams import FastDSACHParams
-from flashnav.learn.networks import ObsLayout, bounded_log_std, dem_log_weights, gaussian_head, squashed_gaussian
+from flashnav.learn.networks import (ObsLayout, bounded_log_std, dem_log_weights, gaussian_head, squashed_gaussian,
+                                     with_headroom)
 from flashnav.learn.replay import Transition
 
 #: zeta ~ N(0, 1) is clamped to +-ZETA_CLIP before scaling the target std.
@@ -69,14 +70,15 @@ def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastDSACHParams, gen: 
     """``obs [B, D]`` -> reparameterised ``action [B, A]`` in (-1, 1) and ``log_prob [B]``."""
     mu, log_std = policy_log_std(actor(obs), hp, scale)
     noise = torch.randn(mu.shape, generator=gen, device=mu.device)
-    return squashed_gaussian(mu, log_std, noise)
+    return squashed_gaussian(mu, log_std, noise, hp.action_headroom)
 
 
 def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
     """Exploration action ``[N, A]`` from the collector's copy, DEM allocation sharpened/flattened
     by each env's scale s_e; the standard-normal draws white or coloured (``hp.noise_color``)."""
     mu, log_std = policy_log_std(state.collector(obs), state.hp, state.algo.dem_scale)
-    action, _ = squashed_gaussian(mu, log_std, collection_noise(state, mu.shape, mu.device))
+    action, _ = squashed_gaussian(mu, log_std, collection_noise(state, mu.shape, mu.device),
+                                  state.hp.action_headroom)
     return action.clamp(-1.0, 1.0)
 
 
@@ -152,7 +154,7 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
     hp = state.hp
     mu, log_std = policy_log_std(state.actor(batch.obs), hp)
     action, log_prob = squashed_gaussian(mu, log_std, torch.randn(mu.shape, generator=state.update_gen,
-                                                                  device=mu.device))
+                                                                  device=mu.device), hp.action_headroom)
 
     def value(a: torch.Tensor) -> torch.Tensor:                                               # [B]
         q_mu, _ = gaussian_head(state.critic(batch.obs, a, detach_params=True))              # [2, B]
@@ -160,7 +162,7 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
 
     loss = (state.algo.temperature.alpha * log_prob - value(action)).mean()
     if hp.mean_action_q > 0:  # the evaluated (deterministic) action's value too
-        loss = loss - hp.mean_action_q * value(torch.tanh(mu)).mean()
+        loss = loss - hp.mean_action_q * value(with_headroom(torch.tanh(mu), hp.action_headroom)).mean()
     grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, hp.max_grad_norm)
     alpha_loss = state.algo.temperature.step(log_prob)
     return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm, "alpha_loss": alpha_loss,

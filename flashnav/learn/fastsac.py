@@ -18,7 +18,7 @@ from flashnav.learn import c51
 from flashnav.learn.common import (LearnerState, Temperature, build_state, collection_noise, finish_update,
                                    make_temperature, optimizer_step)
 from flashnav.learn.hparams import FastSACHParams
-from flashnav.learn.networks import ObsLayout, bounded_log_std, squashed_gaussian
+from flashnav.learn.networks import ObsLayout, bounded_log_std, squashed_gaussian, with_headroom
 from flashnav.learn.replay import Transition
 
 
@@ -55,14 +55,15 @@ def sample(actor: torch.nn.Module, obs: torch.Tensor, hp: FastSACHParams,
     """``obs [B, D]`` -> reparameterised ``action [B, A]`` in (-1, 1) and ``log_prob [B]``."""
     mu, log_std = policy_log_std(actor(obs), hp)
     noise = torch.randn(mu.shape, generator=gen, device=mu.device)
-    return squashed_gaussian(mu, log_std, noise)
+    return squashed_gaussian(mu, log_std, noise, hp.action_headroom)
 
 
 def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
     """Exploration action ``[N, A]`` sampled from the collector's copy of the policy (standard-normal
     draws white or coloured: ``hp.noise_color``)."""
     mu, log_std = policy_log_std(state.collector(obs), state.hp)
-    action, _ = squashed_gaussian(mu, log_std, collection_noise(state, mu.shape, mu.device))
+    action, _ = squashed_gaussian(mu, log_std, collection_noise(state, mu.shape, mu.device),
+                                  state.hp.action_headroom)
     return action.clamp(-1.0, 1.0)
 
 
@@ -105,7 +106,7 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
     hp = state.hp
     mu, log_std = policy_log_std(state.actor(batch.obs), hp)
     action, log_prob = squashed_gaussian(mu, log_std, torch.randn(mu.shape, generator=state.update_gen,
-                                                                  device=mu.device))
+                                                                  device=mu.device), hp.action_headroom)
 
     def value(a: torch.Tensor) -> torch.Tensor:                                               # [B]
         logits = state.critic(batch.obs, a, detach_params=True)
@@ -113,7 +114,7 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
 
     loss = (state.algo.temperature.alpha * log_prob - value(action)).mean()
     if hp.mean_action_q > 0:  # the evaluated (deterministic) action's value too
-        loss = loss - hp.mean_action_q * value(torch.tanh(mu)).mean()
+        loss = loss - hp.mean_action_q * value(with_headroom(torch.tanh(mu), hp.action_headroom)).mean()
     grad_norm = optimizer_step(loss, state.actor_opt, state.actor_params, hp.max_grad_norm)
     return {"actor_loss": loss.detach(), "actor_grad_norm": grad_norm}
 

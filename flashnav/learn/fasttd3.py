@@ -16,7 +16,7 @@ from flashnav.learn import c51
 from flashnav.learn.common import (LearnerState, build_state, collection_noise, finish_update, optimizer_step,
                                    resample_where, uniform)
 from flashnav.learn.hparams import FastTD3HParams
-from flashnav.learn.networks import ObsLayout
+from flashnav.learn.networks import ObsLayout, with_headroom
 from flashnav.learn.replay import Transition
 
 
@@ -43,8 +43,8 @@ def init_state(hp: FastTD3HParams, layout: ObsLayout, action_dim: int, num_envs:
 
 def act(state: LearnerState, obs: torch.Tensor) -> torch.Tensor:
     """Exploration action ``[N, A]``: ``clamp(tanh(mu(obs)) + sigma_e * eps, -1, 1)``, from the
-    collector's weight copy."""
-    mean = torch.tanh(state.collector(obs))
+    collector's weight copy (``tanh(mu)`` with the action headroom: :func:`~flashnav.learn.networks.with_headroom`)."""
+    mean = with_headroom(torch.tanh(state.collector(obs)), state.hp.action_headroom)
     noise = collection_noise(state, mean.shape, mean.device)  # white or coloured (hp.noise_color)
     return (mean + state.algo.noise_std * noise).clamp(-1.0, 1.0)
 
@@ -66,7 +66,7 @@ def compute_target(state: LearnerState, batch: Transition) -> tuple[torch.Tensor
     bootstrap = batch.bootstrap
     noise = torch.randn(batch.action.shape, generator=state.update_gen, device=batch.action.device)
     noise = (noise * hp.target_noise).clamp(-hp.noise_clip, hp.noise_clip)
-    next_action = (torch.tanh(state.actor(batch.next_obs)) + noise).clamp(-1.0, 1.0)
+    next_action = (with_headroom(torch.tanh(state.actor(batch.next_obs)), hp.action_headroom) + noise).clamp(-1.0, 1.0)
     next_probs = F.softmax(state.critic_target(batch.next_obs, next_action), dim=-1)      # [2, B, K]
     projected = c51.project(next_probs, batch.reward, bootstrap, hp.gamma, state.algo.atoms)   # [2, B, K]
     values = c51.expected_value(projected, state.algo.atoms)                                    # [2, B]
@@ -87,7 +87,7 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
 
 def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
     """Maximise min(Q1, Q2) (expected values) at ``tanh(mu(s))``; critic weights are not trained here."""
-    action = torch.tanh(state.actor(batch.obs))
+    action = with_headroom(torch.tanh(state.actor(batch.obs)), state.hp.action_headroom)
     logits = state.critic(batch.obs, action, detach_params=True)
     q = c51.expected_value(F.softmax(logits, dim=-1), state.algo.atoms)                          # [2, B]
     loss = -q.min(dim=0).values.mean()

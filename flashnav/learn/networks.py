@@ -73,15 +73,17 @@ class Actor(nn.Module):
     """``obs [N, D]`` (raw units) -> raw head outputs ``[N, heads * A]``.
 
     heads = 1 (FastTD3: mu), 2 (FastSAC: mu, raw log sigma), 3 (FastDSAC DEM: mu, raw log sigma,
-    allocation logits). The deterministic action is always ``tanh(mu)``; see :class:`DeterministicActor`.
+    allocation logits). The deterministic action is ``tanh(mu)``, or with an action ``headroom`` k > 1
+    ``clamp(k tanh(mu), -1, 1)`` (:func:`with_headroom`); see :class:`DeterministicActor`.
     """
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], heads: int,
                  generator: torch.Generator | None = None, layer_norm: bool = False, obs_norm: bool = False,
-                 out_init_std: float = ACTOR_OUT_INIT_STD):
+                 out_init_std: float = ACTOR_OUT_INIT_STD, headroom: float = 1.0):
         super().__init__()
         self.action_dim = action_dim
         self.heads = heads
+        self.headroom = float(headroom)
         self.transform = IPAPRec(layout, normalize=obs_norm)
         # out_init_std 0: the output layer keeps the uniform draw of every other layer (PyTorch's default)
         self.mlp = MLP(layout.feature_dim, hidden, heads * action_dim, generator, out_init_std or None, layer_norm)
@@ -91,7 +93,8 @@ class Actor(nn.Module):
 
 
 class DeterministicActor(nn.Module):
-    """Deployable policy: ``obs [N, D]`` raw units -> ``action [N, A]`` = tanh(mu), in [-1, 1].
+    """Deployable policy: ``obs [N, D]`` raw units -> ``action [N, A]`` = tanh(mu), in [-1, 1] (with the
+    actor's action headroom k > 1: ``clamp(k tanh(mu), -1, 1)``).
 
     Shares parameters with the wrapped actor (evaluation sees the latest weights); deep-copy it to
     freeze. Plain tensor ops only, so ``torch.export`` / ONNX / TorchScript can trace it.
@@ -103,7 +106,17 @@ class DeterministicActor(nn.Module):
         self.action_dim = actor.action_dim
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.tanh(self.actor(obs)[..., : self.action_dim])
+        return with_headroom(torch.tanh(self.actor(obs)[..., : self.action_dim]), self.actor.headroom)
+
+
+def with_headroom(squashed: torch.Tensor, headroom: float) -> torch.Tensor:
+    """The robot's action from the actor's tanh output ``squashed [..., A]``: ``clamp(headroom * squashed,
+    -1, 1)``. A tanh output reaches the action bounds (top speed, top turn rate) only in the limit, so a
+    policy whose best action is a bound sits below it; with headroom k > 1 the bound is reached at
+    ``|tanh| = 1 / k`` (docs/learners.md S19). ``headroom`` 1 returns ``squashed`` itself: the paper's action."""
+    if headroom == 1.0:
+        return squashed
+    return (headroom * squashed).clamp(-1.0, 1.0)
 
 
 class TwinCritic(nn.Module):
@@ -179,14 +192,16 @@ def dem_log_weights(logits: torch.Tensor, temperature: float, scale: torch.Tenso
     return math.log(a) + torch.log_softmax(z, dim=-1)
 
 
-def squashed_gaussian(mu: torch.Tensor, log_std: torch.Tensor,
-                      noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def squashed_gaussian(mu: torch.Tensor, log_std: torch.Tensor, noise: torch.Tensor,
+                      headroom: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
     """Reparameterised tanh-Gaussian sample and its log-density.
 
     ``mu, log_std, noise [N, A]`` -> ``action [N, A]`` in (-1, 1), ``log_prob [N]`` (nats), with the
-    tanh change-of-variables correction ``log(1 - a^2 + 1e-6)`` summed over action dimensions.
+    tanh change-of-variables correction ``log(1 - a^2 + 1e-6)`` summed over action dimensions. With
+    ``headroom`` k > 1 the action is :func:`with_headroom` of the tanh sample (in [-1, 1]); ``log_prob``
+    stays the density of the tanh sample, before the clamp.
     """
-    action = torch.tanh(mu + torch.exp(log_std) * noise)
+    squashed = torch.tanh(mu + torch.exp(log_std) * noise)
     log_prob = -0.5 * noise.pow(2) - log_std - 0.5 * math.log(2.0 * math.pi)
-    log_prob = log_prob - torch.log(1.0 - action.pow(2) + 1e-6)
-    return action, log_prob.sum(-1)
+    log_prob = log_prob - torch.log(1.0 - squashed.pow(2) + 1e-6)
+    return with_headroom(squashed, headroom), log_prob.sum(-1)
