@@ -1,0 +1,104 @@
+"""How fast does a policy drive, and would it succeed more if it drove faster? (issue 16, docs/learners.md S19)
+
+    .venv/bin/python scripts/command_speed.py POLICY [POLICY ...] [--episodes 1024] [--seed 12345]
+        [--scales 1,1.05,1.1,1.15] [--json OUT]
+
+For each exported POLICY, on the fixed evaluation set ``flashnav train`` evaluates on (``--episodes`` start/goal
+pairs, evaluation seed ``--seed``, the policy's robot and bundled map):
+
+1. the distribution of its deterministic forward command ``a_v`` (the action in [-1, 1]; -1 = stand still, 1 = top
+   speed) over every step of every episode: what share of steps reach 0.9, 0.95, 0.99 of the action range, and its
+   percentiles;
+2. its evaluation with the forward speed scaled by each factor k of ``--scales`` (speed ``min(k v, v_max)``: the
+   action ``clamp(k (a_v + 1) - 1, -1, 1)`` where the lower speed bound is 0), the rest of the policy untouched:
+   success, collision and mean episode steps. k = 1 is the policy as it is. A policy whose failures are timeouts
+   that a faster drive turns into successes, without new collisions, is held back by its speed.
+
+A diagnostic, not a policy: an exported policy is evaluated as it is (``flashnav eval``); ``algo.action_headroom``
+is the training-side option that lets the actor reach its bounds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import torch
+
+from flashnav.evaluate import evaluate_episodes
+from flashnav.export import load_policy, recorded_robot
+from flashnav.presets import load_robot
+from flashnav.sim.env import make_env
+from flashnav.sim.goal_fields import evaluation_preset
+
+LEVELS = (0.5, 0.8, 0.9, 0.95, 0.99)
+
+
+def faster(policy, k: float, v_lo: float):
+    """``policy`` with its forward speed scaled by ``k`` (clamped at the top speed); needs ``v_lo == 0``."""
+    if v_lo != 0.0:
+        raise ValueError(f"speed scaling assumes a lower speed bound of 0, this robot's is {v_lo}")
+
+    def scaled(obs: torch.Tensor) -> torch.Tensor:
+        a = policy(obs).clone()
+        a[..., 0] = torch.clamp(k * (a[..., 0] + 1.0) - 1.0, -1.0, 1.0)
+        return a
+    return scaled
+
+
+def forward_commands(policy, env, seed: int) -> np.ndarray:
+    """Every deterministic forward action ``a_v`` of ``policy`` over the first episode of each slot of ``env``."""
+    obs, _ = env.reset(seed=seed)
+    n, horizon = env.num_envs, env.preset.episode.horizon
+    done, out = np.zeros(n, bool), []
+    for _ in range(horizon):
+        with torch.no_grad():
+            action = policy(obs)
+        out.append(action[~torch.as_tensor(done), 0].cpu().numpy())
+        obs, _, terminated, truncated, _ = env.step(action)
+        done |= (terminated | truncated).cpu().numpy()
+        if done.all():
+            break
+    return np.concatenate(out)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("policies", nargs="+", metavar="POLICY")
+    p.add_argument("--episodes", type=int, default=1024)
+    p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
+    p.add_argument("--scales", default="1,1.05,1.1,1.15", help="forward-speed factors, comma-separated")
+    p.add_argument("--json", help="write every policy's numbers here")
+    args = p.parse_args()
+    scales = [float(x) for x in args.scales.split(",")]
+    if any(k <= 0 for k in scales):
+        raise SystemExit(f"--scales must be positive, got {args.scales}")
+    report = {}
+    for path in args.policies:
+        policy, meta = load_policy(path)
+        preset = evaluation_preset(load_robot(recorded_robot(meta)))
+        a_v = forward_commands(policy, make_env(preset, args.episodes, seed=args.seed), args.seed)
+        share = {f"{q:g}": float((a_v >= q).mean()) for q in LEVELS}
+        pct = np.percentile(a_v, [5, 25, 50, 75, 95]).round(3).tolist()
+        print(f"{path}: forward action over {len(a_v):,} steps: percentiles 5/25/50/75/95 {pct}, max {a_v.max():.3f}; "
+              "share of steps at or above " + ", ".join(f"{q}: {v:.1%}" for q, v in share.items()))
+        rows = []
+        for k in scales:
+            e = evaluate_episodes(faster(policy, k, preset.motion.v_bounds[0]), make_env(preset, args.episodes,
+                                                                                        seed=args.seed), args.seed)
+            row = {"scale": k, "success": float(e["success"].float().mean()),
+                   "collision": float(e["collision"].float().mean()),
+                   "mean_steps": float(e["episode_steps"].float().mean())}
+            rows.append(row)
+            print(f"  speed x{k:<5g} success {row['success']:7.2%}  collision {row['collision']:6.2%}  "
+                  f"mean steps {row['mean_steps']:6.1f}")
+        report[path] = {"forward_action_percentiles": pct, "forward_action_max": float(a_v.max()),
+                        "share_at_or_above": share, "speed_scaled": rows}
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(report, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
