@@ -122,10 +122,12 @@ def _layout_keys(robot) -> dict[str, Any]:
 
 
 def _shape_keys(algorithm: str, hp) -> dict[str, Any]:
-    """The hyperparameters that decide the learner state's shapes, by their ``algo.`` key."""
+    """The hyperparameters that decide the learner state's shapes or what its networks' inputs and outputs mean
+    (the goal angle's features, the action the tanh output maps to), by their ``algo.`` key."""
     keys = {"algorithm": algorithm, "algo.actor_hidden": tuple(hp.actor_hidden),
             "algo.critic_hidden": tuple(hp.critic_hidden), "algo.layer_norm": hp.layer_norm,
-            "algo.obs_norm": hp.obs_norm, "algo.policy_averaging (on/off)": hp.policy_averaging > 0}
+            "algo.obs_norm": hp.obs_norm, "algo.policy_averaging (on/off)": hp.policy_averaging > 0,
+            "algo.goal_sincos": hp.goal_sincos, "algo.action_headroom": hp.action_headroom}
     if hasattr(hp, "num_atoms"):
         keys["algo.num_atoms"] = hp.num_atoms
     return keys

@@ -111,6 +111,8 @@ def test_this_runs_optimiser_settings_and_env_count_apply(tmp_path):
     ({"algo.layer_norm": True}, "algo.layer_norm"),
     ({"algo.obs_norm": True}, "algo.obs_norm"),
     ({"algo.policy_averaging": 0.01}, "algo.policy_averaging"),
+    ({"algo.goal_sincos": False}, "algo.goal_sincos"),           # the cpu recipe's TurtleBot2 values: true, 1.1
+    ({"algo.action_headroom": 1.0}, "algo.action_headroom"),
     ({"robot.lidar.sectors": 36}, "robot.lidar.sectors"),
     ({"robot.lidar.max_range": 12.0}, "robot.lidar.max_range"),
     ({"robot.footprint.radius": 0.25}, "robot.footprint"),
