@@ -47,20 +47,17 @@ def faster(policy, k: float, v_lo: float):
     return scaled
 
 
-def forward_commands(policy, env, seed: int) -> np.ndarray:
-    """Every deterministic forward action ``a_v`` of ``policy`` over the first episode of each slot of ``env``."""
-    obs, _ = env.reset(seed=seed)
-    n, horizon = env.num_envs, env.preset.episode.horizon
-    done, out = np.zeros(n, bool), []
-    for _ in range(horizon):
-        with torch.no_grad():
-            action = policy(obs)
-        out.append(action[~torch.as_tensor(done), 0].cpu().numpy())
-        obs, _, terminated, truncated, _ = env.step(action)
-        done |= (terminated | truncated).cpu().numpy()
-        if done.all():
-            break
-    return np.concatenate(out)
+def forward_commands(policy, env, seed: int) -> tuple[np.ndarray, dict]:
+    """``policy`` evaluated as it is on ``env``'s episode set for ``seed`` (:func:`flashnav.evaluate.evaluate_episodes`),
+    and every deterministic forward action ``a_v`` it took over those episodes (each slot's first)."""
+    taken = []
+
+    def record(obs: torch.Tensor) -> torch.Tensor:   # evaluate_episodes asks for the running slots' actions only
+        action = policy(obs)
+        taken.append(action[:, 0].cpu().numpy())
+        return action
+    evaluation = evaluate_episodes(record, env, seed)
+    return np.concatenate(taken), evaluation
 
 
 def main() -> None:
@@ -78,15 +75,15 @@ def main() -> None:
     for path in args.policies:
         policy, meta = load_policy(path)
         preset = evaluation_preset(load_robot(recorded_robot(meta)))
-        a_v = forward_commands(policy, make_env(preset, args.episodes, seed=args.seed), args.seed)
+        a_v, as_is = forward_commands(policy, make_env(preset, args.episodes, seed=args.seed), args.seed)
         share = {f"{q:g}": float((a_v >= q).mean()) for q in LEVELS}
         pct = np.percentile(a_v, [5, 25, 50, 75, 95]).round(3).tolist()
         print(f"{path}: forward action over {len(a_v):,} steps: percentiles 5/25/50/75/95 {pct}, max {a_v.max():.3f}; "
               "share of steps at or above " + ", ".join(f"{q}: {v:.1%}" for q, v in share.items()))
         rows = []
         for k in scales:
-            e = evaluate_episodes(faster(policy, k, preset.motion.v_bounds[0]), make_env(preset, args.episodes,
-                                                                                        seed=args.seed), args.seed)
+            e = as_is if k == 1 else evaluate_episodes(faster(policy, k, preset.motion.v_bounds[0]),
+                                                       make_env(preset, args.episodes, seed=args.seed), args.seed)
             row = {"scale": k, "success": float(e["success"].float().mean()),
                    "collision": float(e["collision"].float().mean()),
                    "mean_steps": float(e["episode_steps"].float().mean())}

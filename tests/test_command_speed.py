@@ -34,6 +34,7 @@ def test_speed_scaling_multiplies_the_speed_and_stops_at_the_bound():
 
 def test_forward_commands_are_read_while_each_episode_runs():
     env = make_env(load_robot("turtlebot2"), 6, seed=3)
-    a_v = command_speed.forward_commands(cruise, env, 3)
+    a_v, evaluation = command_speed.forward_commands(cruise, env, 3)
+    assert len(evaluation["episode_steps"]) == 6
     # one reading per slot and step until that slot's first episode ends: at least one per slot, at most the horizon
     assert 6 <= len(a_v) <= 6 * env.preset.episode.horizon and np.all(a_v == np.float32(0.6))
