@@ -75,15 +75,15 @@ def main() -> None:
     for path in args.policies:
         policy, meta = load_policy(path)
         preset = evaluation_preset(load_robot(recorded_robot(meta)))
-        a_v, as_is = forward_commands(policy, make_env(preset, args.episodes, seed=args.seed), args.seed)
+        env = make_env(preset, args.episodes, seed=args.seed)   # evaluate_episodes resets it to the same episodes
+        a_v, as_is = forward_commands(policy, env, args.seed)
         share = {f"{q:g}": float((a_v >= q).mean()) for q in LEVELS}
         pct = np.percentile(a_v, [5, 25, 50, 75, 95]).round(3).tolist()
         print(f"{path}: forward action over {len(a_v):,} steps: percentiles 5/25/50/75/95 {pct}, max {a_v.max():.3f}; "
               "share of steps at or above " + ", ".join(f"{q}: {v:.1%}" for q, v in share.items()))
         rows = []
         for k in scales:
-            e = as_is if k == 1 else evaluate_episodes(faster(policy, k, preset.motion.v_bounds[0]),
-                                                       make_env(preset, args.episodes, seed=args.seed), args.seed)
+            e = as_is if k == 1 else evaluate_episodes(faster(policy, k, preset.motion.v_bounds[0]), env, args.seed)
             row = {"scale": k, "success": float(e["success"].float().mean()),
                    "collision": float(e["collision"].float().mean()),
                    "mean_steps": float(e["episode_steps"].float().mean())}
