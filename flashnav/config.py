@@ -134,11 +134,20 @@ class Episode(Strict):
         "or a timeout) starts its next episode from the same start pose and goal, on the same map, instead of a fresh "
         "draw (a training curriculum that revisits the starts the policy fails; 0 = every episode drawn afresh, the "
         "paper). Evaluation is unchanged: it counts each slot's first episode")
+    hard_share: float = Field(
+        0.0, ge=0, le=1, description="training only, goal_sampling euclidean on one map: the share of new training "
+        "episodes drawn as the longest detour (path length / straight line) of hard_candidates draws of the task's "
+        "sampler (a curriculum that shows the policy the rare long routes round walls more often; 0 = the paper's "
+        "draws). Evaluations play the task's episodes")
+    hard_candidates: int = Field(8, ge=2, le=64, description="draws per hard episode (episode.hard_share)")
 
     @model_validator(mode="after")
     def _band(self) -> "Episode":
         if not self.min_goal_distance < self.max_goal_distance:
             raise ValueError("episode.min_goal_distance must be < episode.max_goal_distance")
+        if self.hard_share > 0 and self.goal_sampling != "euclidean":
+            raise ValueError(f"episode.hard_share={self.hard_share} needs episode.goal_sampling=euclidean (it "
+                             f"re-weights the straight-line sampler's draws), got {self.goal_sampling}")
         return self
 
 
@@ -153,8 +162,8 @@ class Reward(Strict):
                                             "below which agent_proximity applies")
     progress_metric: Literal[PROGRESS_METRICS] = Field(  # type: ignore[valid-type]
         "euclidean", description="the distance d of the shaping term: the straight line (euclidean, the "
-        "paper's) or the path length through the free space (geodesic: training only, needs "
-        "episode.goal_sampling=geodesic; flashnav.sim.goal_fields)")
+        "paper's) or the path length through the free space (geodesic: training only; with "
+        "episode.goal_sampling=euclidean on one map only; flashnav.sim.goal_fields)")
 
 
 class Agents(Strict):
@@ -232,15 +241,6 @@ class RobotPreset(Strict):
     map_size: tuple[float, float] = Field(description="the paper's map extent (x, y), metres, for reference")
     agents: Agents = Field(default_factory=Agents, description="moving obstacles (none by default)")
     observation: Observation = Field(default_factory=Observation, description="opt-in observation extras")
-
-    @model_validator(mode="after")
-    def _progress_metric(self) -> "RobotPreset":
-        if self.reward.progress_metric == "geodesic" and self.episode.goal_sampling != "geodesic":
-            raise ValueError("reward.progress_metric=geodesic needs episode.goal_sampling=geodesic (the path "
-                             f"lengths come from the geodesic sampler's source cells), got episode.goal_sampling="
-                             f"{self.episode.goal_sampling}; with it, set reward.progress_metric=euclidean too "
-                             "(the generalist recipe sets geodesic)")
-        return self
 
     @property
     def base_obs_dim(self) -> int:

@@ -14,7 +14,8 @@ from flashnav.maps.fields import free_space
 from flashnav.maps.grid import OccupancyMap
 from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
-from flashnav.sim.goal_fields import MARGIN_M, evaluation_preset, source_fields
+from flashnav.maps.geodesic_numba import map_fields
+from flashnav.sim.goal_fields import MARGIN_M, EpisodeGoalFields, evaluation_preset, source_fields
 from flashnav.sim.sampling import GOAL_INSIDE, EpisodeSampler
 from test_sampling import cells, reference_distances, robot, serpentine, walled
 
@@ -154,9 +155,9 @@ def test_progress_rewards_telescope_to_the_path_length_gained():
     del d_last
 
 
-def test_geodesic_progress_needs_geodesic_sampling_and_evaluations_play_the_task():
-    with pytest.raises(ValueError, match=r"reward.progress_metric=geodesic needs episode.goal_sampling=geodesic"):
-        robot("euclidean", **GEO)
+def test_geodesic_progress_with_straight_line_sampling_needs_one_map_and_evaluations_play_the_task():
+    with pytest.raises(ValueError, match=r"euclidean computes each episode's field on its one map; this env has 2 maps"):
+        NavVecEnv(robot("euclidean", **GEO), 8, grid=[serpentine(0.05), blocked_room(0.05)], seed=0)
     preset = geo_robot()
     plain = robot("geodesic")
     assert evaluation_preset(preset).reward == plain.reward and evaluation_preset(plain) is plain
@@ -229,3 +230,103 @@ def test_goals_near_their_cells_edges_find_their_source_and_walls_earn_no_progre
     pos = torch.tensor([[4.0, 2.0]])
     assert float(fields.distance(pos, ids[:1], None, torch.zeros(1))) == pytest.approx(fields.bound)
     assert float(fields.distance(pos, ids[:1], None, torch.zeros(1), unknown=torch.tensor([1.25]))) == 1.25
+
+
+# --- geodesic progress on the paper's straight-line episodes (EpisodeGoalFields) ---------------------
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_map_fields_equal_a_reference_dijkstra_on_random_maps(seed):
+    rng = np.random.default_rng(seed)
+    occ = rng.random((30, 40)) < 0.25
+    free = ~occ
+    sources = rng.choice(np.flatnonzero(free), size=3, replace=False)
+    bound = 12.0  # cells
+    table = map_fields(free, sources, bound)
+    assert table.shape == (3, 30 * 40) and table.dtype == np.float32
+    for k, s in enumerate(sources):
+        ref = reference_distances(free, 1.0, np.full(free.size, s), np.arange(free.size), limit=np.inf)
+        want = np.where(ref <= bound + 1e-9, ref, np.inf)
+        assert np.array_equal(np.isinf(table[k]), np.isinf(want))
+        fin = np.isfinite(want)
+        assert np.abs(table[k][fin] - want[fin]).max() < 1e-4
+
+
+def euclid_geo(**overrides):
+    return robot("euclidean", **GEO, **overrides)
+
+
+def test_straight_line_episodes_are_the_papers_draws_and_start_at_their_path_length():
+    grid = blocked_room(0.05)
+    env = NavVecEnv(euclid_geo(), 128, grid=grid, seed=3)
+    plain = NavVecEnv(robot("euclidean"), 128, grid=grid, seed=3)
+    env.reset(seed=3), plain.reset(seed=3)
+    assert isinstance(env.shaping.fields, EpisodeGoalFields)
+    assert torch.equal(env.pose, plain.pose) and torch.equal(env.goal, plain.goal)  # the same episodes
+    src = env.shaping.source
+    assert (src == torch.arange(128)).sum() >= 120  # ids are the slots (a goal off the disc's space: -1)
+    free = free_space(grid, env.preset.footprint.circumscribed_radius)
+    ok = src >= 0
+    a, b = cells(grid, env.pose[ok, :2].double().numpy()), cells(grid, env.goal[ok].double().numpy())
+    ref = torch.as_tensor(reference_distances(free, grid.resolution, b, a, limit=np.inf), dtype=torch.float32)
+    known = torch.isfinite(ref)
+    d = env.shaping.distance[ok]
+    # the path length from the goal's cell, read at the start's position (3 x 3 cells, continuous)
+    assert known.sum() > 100
+    assert (d[known] <= ref[known] + 2 * grid.resolution).all() and (d[known] >= ref[known] - 2 * grid.resolution).all()
+    assert (d >= env.goal_distance[ok] - 2 * grid.resolution).all()  # never shorter than the straight line
+    # the bound: the farthest an episode can drive, plus the margin
+    ep = env.preset.episode
+    assert env.shaping.fields.bound == pytest.approx(ep.horizon * ep.dt * env.preset.motion.v_bounds[1] + MARGIN_M)
+
+
+def test_straight_line_episodes_pay_the_way_round_the_wall_and_telescope():
+    grid = blocked_room(0.05)
+    x, y = 3.3, 2.0  # left of the wall, low down; across it at the same height
+    goal = torch.tensor([[x, y]], dtype=torch.float64)
+    pose = torch.tensor([[8.0 - x + 0.3, y, math.pi]], dtype=torch.float64)
+    rewards = []
+    for preset in (euclid_geo(), robot("euclidean")):
+        e = NavVecEnv(preset, 1, grid=grid, seed=0)
+        e.set_state(pose, goal)
+        _, reward, term, _, _ = e.step(torch.tensor([[1.0, 0.0]]))
+        assert not bool(term)
+        rewards.append(float(reward))
+    geodesic, straight_line = rewards
+    assert straight_line > 0.05 and geodesic < 0.5 * straight_line
+    # over random steps the shaping sums to the path length gained
+    env = NavVecEnv(euclid_geo(), 64, grid=grid, seed=5)
+    env.reset(seed=5)
+    d0 = env.shaping.distance.clone()
+    total, alive = torch.zeros(64), torch.ones(64, dtype=torch.bool)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(30):
+        _, reward, term, trunc, _ = env.step(torch.rand(64, 2, generator=gen) * 2 - 1)
+        ended = term | trunc
+        total += torch.where(alive & ~ended, reward, torch.zeros(64))
+        alive &= ~ended
+    assert alive.sum() > 10
+    c = env.preset.reward.progress
+    assert torch.allclose(total[alive], c * (d0[alive] - env.shaping.distance[alive]), atol=1e-3)
+
+
+def test_a_reset_slot_gets_its_new_goals_field_and_the_others_keep_theirs():
+    env = NavVecEnv(euclid_geo(), 16, grid=blocked_room(0.05), seed=2)
+    env.reset(seed=2)
+    fields = env.shaping.fields
+    before = fields.field.clone()
+    idx = torch.tensor([3, 7])
+    goal = torch.tensor([[1.0, 1.0], [6.5, 4.0]])
+    got = fields.start(idx, goal, None)
+    assert torch.equal(got, idx)
+    rest = torch.ones(16, dtype=torch.bool)
+    rest[idx] = False
+    assert torch.equal(fields.field[rest], before[rest])
+    # zero at the goal's own cell, and what a fresh computation for those goals gives
+    d = fields.distance(goal, got, None, torch.zeros(2))
+    assert (d < 0.05).all()
+    fresh = EpisodeGoalFields(blocked_room(0.05), env.preset, 2, "cpu")
+    fresh.start(torch.arange(2), goal, None)
+    assert torch.equal(fresh.field, fields.field[idx])
+    # a goal inside a wall: no field, the slot keeps the straight line
+    assert int(fields.start(torch.tensor([5]), torch.tensor([[4.0, 1.0]]), None)) == -1

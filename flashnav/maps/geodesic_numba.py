@@ -167,3 +167,31 @@ def window_fields(free, sources, reach, bound):
     for k in prange(p):
         _window_field(free, sources[k], reach, bound, out[k])
     return out
+
+
+@njit(parallel=True, cache=True)
+def map_fields(free, sources, bound):
+    """For each source cell (flat indices [P] into ``free`` [H, W] bool), the path lengths in cells to every
+    cell of the map, bounded at ``bound`` cells (inf beyond, where not free or unreachable): [P, H * W]
+    float32 (:func:`_dijkstra` with a window that covers the whole map)."""
+    p = sources.size
+    h, w = free.shape
+    reach = max(h, w)
+    out = np.empty((p, h * w), np.float32)
+    for k in prange(p):
+        out[k, :] = _dijkstra(free, sources[k], reach, bound, np.inf, np.empty(0, np.int64))[0]
+    return out
+
+
+@njit(parallel=True, cache=True)
+def pair_lengths(free, sources, targets, bound):
+    """For each pair k, the path length in cells from cell ``sources[k]`` to cell ``targets[k]`` (flat
+    indices into ``free`` [H, W] bool), bounded at ``bound`` cells: [P] float64, inf where farther, not
+    free or unreachable (:func:`_dijkstra` over the whole map)."""
+    p = sources.size
+    h, w = free.shape
+    reach = max(h, w)
+    out = np.empty(p, np.float64)
+    for k in prange(p):
+        out[k] = _dijkstra(free, sources[k], reach, bound, np.inf, np.empty(0, np.int64))[0][targets[k]]
+    return out

@@ -3,7 +3,7 @@
 The paper's shaping term is ``progress x (d_old - d_new)`` with ``d`` the straight-line distance to the
 goal. In a maze or behind a wall that distance points through the wall: the robot is paid for walking
 into a dead end that looks towards the goal and charged for the detour that leads there. With
-``progress_metric: geodesic`` (needs ``episode.goal_sampling: geodesic``), ``d`` is the path length
+``progress_metric: geodesic``, ``d`` is the path length
 through the free space of the robot's disc instead: a potential-based change of the shaping (the
 returns of two policies that reach the goal differ only by discounting) that uses the map during
 training only. The observation stays the paper's (the policy still sees the straight-line distance and
@@ -20,6 +20,12 @@ The fields use the free space of the footprint's circumscribed disc; where a foo
 disc stands with no such cell around it, the step earns no progress (:meth:`GoalFields.distance`).
 Cost: about 8-40 MB of fields per generated map plus 8 bytes per map cell (the cell -> source table),
 and 18 gathers per slot and step.
+
+With the paper's straight-line goal sampling (``episode.goal_sampling: euclidean``, one map: the paper's
+task, whose episodes stay exactly the paper's draws) the goals fall anywhere, so
+:class:`EpisodeGoalFields` computes each new episode's field when it starts instead: the path lengths
+from the goal's cell to the whole map (a bounded Dijkstra, about a millisecond per episode on the
+bundled maps), 4 bytes per map cell and slot (150 MB for 1,024 slots on the 13.5 x 13.5 m Go2 map).
 """
 
 from __future__ import annotations
@@ -39,12 +45,15 @@ _OFFSETS = torch.tensor([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)])  #
 
 
 def evaluation_preset(preset: RobotPreset) -> RobotPreset:
-    """``preset`` with the paper's straight-line progress: what an evaluation plays. The reward does not
-    change what is measured, but the geodesic metric plays every pair from its source end, which would
-    change the episodes; evaluations keep the task's."""
-    if preset.reward.progress_metric == "euclidean":
+    """``preset`` with the paper's straight-line progress and the task's own episode draws: what an
+    evaluation plays. The reward does not change what is measured, but the geodesic metric plays every
+    pair from its source end, and ``episode.hard_share`` re-weights the draws, which would change the
+    episodes; evaluations keep the task's."""
+    if preset.reward.progress_metric == "euclidean" and preset.episode.hard_share == 0:
         return preset
-    return preset.model_copy(update={"reward": preset.reward.model_copy(update={"progress_metric": "euclidean"})})
+    return preset.model_copy(update={
+        "reward": preset.reward.model_copy(update={"progress_metric": "euclidean"}),
+        "episode": preset.episode.model_copy(update={"hard_share": 0.0})})
 
 
 def source_fields(grid: OccupancyMap, sources: np.ndarray, radius: float, bound_m: float) -> tuple[np.ndarray, int]:
@@ -167,6 +176,10 @@ class GoalFields(WindowFields):
         super().__init__(grids, cells, preset.footprint.circumscribed_radius, samplers[0].d_max + MARGIN_M, device)
         self.lookup = torch.cat(lookup).to(self.device)  # [sum H W] cell -> source id, -1 elsewhere
 
+    def start(self, idx: torch.Tensor, goal: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
+        """New episodes in slots ``idx`` [k] with goals [k, 2]: their fields' ids (:meth:`ids`)."""
+        return self.ids(goal, maps)
+
     def ids(self, goal: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
         """[k] long: the source whose cell holds each goal [k, 2] (m, the map's frame), -1 where none does
         (a goal placed by ``set_state`` off the sources: its slot keeps straight-line progress). The
@@ -185,3 +198,50 @@ class GoalFields(WindowFields):
         best = gap.argmin(dim=1, keepdim=True)
         found = torch.isfinite(gap.gather(1, best)).squeeze(1)
         return torch.where(found, src.gather(1, best).squeeze(1), torch.full_like(found, -1, dtype=torch.long))
+
+
+class EpisodeGoalFields(WindowFields):
+    """Geodesic progress with the straight-line goal sampler on one map: slot ``i``'s field holds the path
+    lengths from its episode's goal cell to every cell of the map (metres, float32; inf where farther
+    than the bound, not free or unreachable), computed by :meth:`start` when the episode starts. The
+    bound is the farthest path an episode can drive (horizon x dt x top speed) + :data:`MARGIN_M`.
+    Field ids are slot indices; a goal whose cell is not in the free space of the footprint's
+    circumscribed disc gets id -1 (its slot keeps straight-line progress)."""
+
+    def __init__(self, grid: OccupancyMap, preset: RobotPreset, num_envs: int, device: torch.device | str):
+        self.device, self.radius = torch.device(device), float(preset.footprint.circumscribed_radius)
+        ep = preset.episode
+        self.bound = ep.horizon * ep.dt * preset.motion.v_bounds[1] + MARGIN_M
+        self.free = free_space(grid, self.radius)
+        self.h, self.w = grid.shape
+        self.grid_res = grid.resolution
+        self.res = torch.tensor([grid.resolution], dtype=torch.float32, device=self.device)
+        self.origin = torch.tensor([grid.origin], dtype=torch.float32, device=self.device)
+        self.hw = torch.tensor([[self.h, self.w]], dtype=torch.long, device=self.device)
+        self.offsets = _OFFSETS.to(self.device)
+        self.field = torch.full((num_envs, self.h * self.w), math.inf, dtype=torch.float32, device=self.device)
+
+    def start(self, idx: torch.Tensor, goal: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
+        """New episodes in slots ``idx`` [k] with goals [k, 2] (m): compute their fields; returns the
+        ids [k] (the slots, -1 where the goal's cell is not free)."""
+        from flashnav.maps import geodesic_numba  # the first import may JIT-compile
+
+        if idx.numel() == 0:
+            return torch.empty(0, dtype=torch.long, device=self.device)
+        cell = torch.floor((goal - self.origin) / self.res).long().cpu().numpy()  # [k, 2] col, row
+        col, row = cell[:, 0], cell[:, 1]
+        inside = (row >= 0) & (row < self.h) & (col >= 0) & (col < self.w)
+        flat = np.where(inside, row * self.w + col, 0)
+        ok = inside & self.free.reshape(-1)[flat]
+        if ok.any():
+            cells = geodesic_numba.map_fields(self.free, np.ascontiguousarray(flat[ok]), self.bound / self.grid_res)
+            rows = idx[torch.as_tensor(ok, device=idx.device)]
+            self.field[rows] = torch.from_numpy(cells * np.float32(self.grid_res)).to(self.device)
+        return torch.where(torch.as_tensor(ok, device=self.device), idx.to(self.device), -1)
+
+    def values(self, rc: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        """[k, n] float32 metres: slot ``ids`` [k]'s field at cells rc [k, n, 2] (row, col), inf off the map."""
+        inside = (rc[..., 0] >= 0) & (rc[..., 0] < self.h) & (rc[..., 1] >= 0) & (rc[..., 1] < self.w)
+        flat = torch.where(inside, rc[..., 0] * self.w + rc[..., 1], torch.zeros_like(rc[..., 0]))
+        got = self.field[ids[:, None], flat]
+        return torch.where(inside, got, torch.full_like(got, math.inf))

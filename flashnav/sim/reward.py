@@ -19,7 +19,7 @@ import torch
 
 from flashnav.config import RobotPreset
 from flashnav.maps.grid import OccupancyMap
-from flashnav.sim.goal_fields import GoalFields
+from flashnav.sim.goal_fields import EpisodeGoalFields, GoalFields
 
 
 class Shaping:
@@ -33,7 +33,14 @@ class Shaping:
         self.weight = preset.reward.progress
         self.fields = self.distance = self.source = None
         if preset.reward.progress_metric == "geodesic":
-            self.fields = GoalFields(frame_maps, samplers, preset, device)
+            if preset.episode.goal_sampling == "geodesic":
+                self.fields = GoalFields(frame_maps, samplers, preset, device)
+            elif len(frame_maps) == 1:
+                self.fields = EpisodeGoalFields(frame_maps[0], preset, num_envs, device)
+            else:
+                raise ValueError("reward.progress_metric=geodesic with episode.goal_sampling=euclidean computes each "
+                                 f"episode's field on its one map; this env has {len(frame_maps)} maps: set "
+                                 "episode.goal_sampling=geodesic with many maps")
             self.distance = torch.zeros(num_envs, device=device)
             self.source = torch.full((num_envs,), -1, dtype=torch.long, device=device)
 
@@ -42,7 +49,7 @@ class Shaping:
         """New episodes in slots ``idx`` [k]: the robots at ``xy`` [k, 2], goals [k, 2], straight-line
         distances [k], on ``maps`` [k] (None with one map)."""
         if self.fields is not None:
-            self.source[idx] = source = self.fields.ids(goal, maps)
+            self.source[idx] = source = self.fields.start(idx, goal, maps)
             self.distance[idx] = self.fields.distance(xy, source, maps, straight)
 
     def step(self, sel, xy: torch.Tensor, straight_old: torch.Tensor, straight: torch.Tensor,

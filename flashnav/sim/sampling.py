@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from flashnav.config import RobotPreset
-from flashnav.maps.fields import component_cells
+from flashnav.maps.fields import component_cells, free_space
 from flashnav.maps.grid import OccupancyMap
 
 GOAL_CANDIDATES = 32  # goal candidates drawn per start; the first inside the distance band wins
@@ -39,6 +39,7 @@ MIN_COMPONENT_CELLS = 16  # smaller pockets of free space are never used for sta
 #: horizon is for turning (a half turn takes 40 steps at pi/4 rad/s) and slowing down around corners.
 HORIZON_PATH_FRACTION = 0.5
 PROBE_EPISODES = 4096  # euclidean mode: episodes drawn at construction to find fallbacks
+HARD_MARGIN_M = 2.0  # episode.hard_share: metres of path beyond the farthest an episode can drive
 GOAL_INSIDE = 0.998  # geodesic progress: goal jitter as a share of the cell, inside it by 0.1 % a side
 _warned: set[tuple] = set()  # (map, band, radius) already reported: warn once per map and process
 
@@ -69,7 +70,7 @@ class EpisodeSampler:
         self.device = device
         self.out_of_band = torch.zeros((), dtype=torch.long, device=device)
         # geodesic progress (flashnav.sim.goal_fields) needs every goal on a pair's source cell
-        self.goal_at_source = preset.reward.progress_metric == "geodesic"
+        self.goal_at_source = preset.reward.progress_metric == "geodesic" and ep.goal_sampling == "geodesic"
         # ... and strictly inside it, so that float32 rounding never puts a goal on a neighbour's edge
         self.goal_jitter = GOAL_INSIDE if self.goal_at_source else 1.0
         if self.mode == "geodesic":
@@ -85,6 +86,12 @@ class EpisodeSampler:
             self.comp_count = torch.tensor(per_cell_count, device=device, dtype=torch.float32)  # [M]
             self.d_min, self.d_max = ep.min_goal_distance, ep.max_goal_distance
             self._probe(grid)
+        # episode.hard_share: some training episodes are the longest detour of several draws
+        self.hard_share, self.hard_candidates = ep.hard_share, ep.hard_candidates
+        if self.hard_share > 0:
+            self.hard_free = free_space(grid, preset.footprint.circumscribed_radius)
+            self.hard_origin = torch.tensor(grid.origin, dtype=torch.float32, device=device)
+            self.hard_bound = (ep.horizon * ep.dt * preset.motion.v_bounds[1] + HARD_MARGIN_M) / grid.resolution
 
     def _jitter(self, n: int, gen: torch.Generator) -> torch.Tensor:
         return (torch.rand(n, 2, generator=gen, device=self.device) - 0.5) * self.resolution
@@ -94,8 +101,40 @@ class EpisodeSampler:
         if self.mode == "geodesic":
             return self._sample_geodesic(n, gen)
         pose, goal, outside = self._sample_euclidean(n, gen)
+        if self.hard_share > 0:
+            self._harden(pose, goal, outside, gen)
         self.out_of_band += outside.sum()
         return pose, goal
+
+    def detour(self, start: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """[k] float32: path length / straight line from each start [k, 2] to its goal [k, 2] (m), the path
+        through the free space of the footprint's circumscribed disc (8-connected cells); 0 where no path
+        is within the bound (horizon x dt x top speed + HARD_MARGIN_M) or the straight line is 0."""
+        from flashnav.maps.geodesic_numba import pair_lengths  # the first import may JIT-compile
+
+        h, w = self.hard_free.shape
+
+        def flat(xy):
+            cr = torch.floor((xy - self.hard_origin) / self.resolution).long().cpu().numpy()
+            return np.clip(cr[:, 1], 0, h - 1) * w + np.clip(cr[:, 0], 0, w - 1)
+
+        cells = pair_lengths(self.hard_free, flat(goal), flat(start), self.hard_bound)
+        path = torch.as_tensor(cells * self.resolution, dtype=torch.float32, device=self.device)
+        straight = torch.linalg.vector_norm(goal - start, dim=1)
+        ratio = path / straight.clamp(min=1e-6)
+        return torch.where(torch.isfinite(ratio), ratio, torch.zeros_like(ratio))
+
+    def _harden(self, pose: torch.Tensor, goal: torch.Tensor, outside: torch.Tensor, gen: torch.Generator) -> None:
+        """episode.hard_share: each slot, with that chance, replaces its episode (in place) by the one with the
+        longest detour (:meth:`detour`) of ``hard_candidates`` fresh draws."""
+        n, c = pose.shape[0], self.hard_candidates
+        idx = (torch.rand(n, generator=gen, device=self.device) < self.hard_share).nonzero().squeeze(1)
+        if idx.numel() == 0:
+            return
+        cand_pose, cand_goal, cand_out = self._sample_euclidean(idx.numel() * c, gen)
+        best = self.detour(cand_pose[:, :2], cand_goal).view(-1, c).argmax(dim=1)
+        pick = torch.arange(idx.numel(), device=self.device) * c + best
+        pose[idx], goal[idx], outside[idx] = cand_pose[pick], cand_goal[pick], cand_out[pick]
 
     def _sample_euclidean(self, n: int, gen: torch.Generator):
         """(pose [n, 3], goal [n, 2], outside [n] bool: no candidate was in the band)."""
