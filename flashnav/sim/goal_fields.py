@@ -44,6 +44,14 @@ MARGIN_M = 2.0  # metres of path beyond the farthest goal that each field still 
 _OFFSETS = torch.tensor([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)])  # [9, 2] rows, cols
 
 
+def drive_bound(preset: RobotPreset) -> float:
+    """Metres: the farthest path an episode can drive (horizon x dt x top speed) + :data:`MARGIN_M`, the
+    bound of the path lengths measured on the paper's straight-line episodes (:class:`EpisodeGoalFields`,
+    ``episode.hard_share``)."""
+    ep = preset.episode
+    return ep.horizon * ep.dt * preset.motion.v_bounds[1] + MARGIN_M
+
+
 def evaluation_preset(preset: RobotPreset) -> RobotPreset:
     """``preset`` with the paper's straight-line progress and the task's own episode draws: what an
     evaluation plays. The reward does not change what is measured, but the geodesic metric plays every
@@ -210,8 +218,7 @@ class EpisodeGoalFields(WindowFields):
 
     def __init__(self, grid: OccupancyMap, preset: RobotPreset, num_envs: int, device: torch.device | str):
         self.device, self.radius = torch.device(device), float(preset.footprint.circumscribed_radius)
-        ep = preset.episode
-        self.bound = ep.horizon * ep.dt * preset.motion.v_bounds[1] + MARGIN_M
+        self.bound = drive_bound(preset)
         self.free = free_space(grid, self.radius)
         self.h, self.w = grid.shape
         self.grid_res = grid.resolution

@@ -32,6 +32,7 @@ import torch
 from flashnav.config import RobotPreset
 from flashnav.maps.fields import component_cells, free_space
 from flashnav.maps.grid import OccupancyMap
+from flashnav.sim.goal_fields import drive_bound
 
 GOAL_CANDIDATES = 32  # goal candidates drawn per start; the first inside the distance band wins
 MIN_COMPONENT_CELLS = 16  # smaller pockets of free space are never used for starts
@@ -39,7 +40,6 @@ MIN_COMPONENT_CELLS = 16  # smaller pockets of free space are never used for sta
 #: horizon is for turning (a half turn takes 40 steps at pi/4 rad/s) and slowing down around corners.
 HORIZON_PATH_FRACTION = 0.5
 PROBE_EPISODES = 4096  # euclidean mode: episodes drawn at construction to find fallbacks
-HARD_MARGIN_M = 2.0  # episode.hard_share: metres of path beyond the farthest an episode can drive
 GOAL_INSIDE = 0.998  # geodesic progress: goal jitter as a share of the cell, inside it by 0.1 % a side
 _warned: set[tuple] = set()  # (map, band, radius) already reported: warn once per map and process
 
@@ -86,12 +86,11 @@ class EpisodeSampler:
             self.comp_count = torch.tensor(per_cell_count, device=device, dtype=torch.float32)  # [M]
             self.d_min, self.d_max = ep.min_goal_distance, ep.max_goal_distance
             self._probe(grid)
-        # episode.hard_share: some training episodes are the longest detour of several draws
+        # episode.hard_share: some training episodes are the longest detour of several draws (detour)
         self.hard_share, self.hard_candidates = ep.hard_share, ep.hard_candidates
-        if self.hard_share > 0:
-            self.hard_free = free_space(grid, preset.footprint.circumscribed_radius)
-            self.hard_origin = torch.tensor(grid.origin, dtype=torch.float32, device=device)
-            self.hard_bound = (ep.horizon * ep.dt * preset.motion.v_bounds[1] + HARD_MARGIN_M) / grid.resolution
+        self._grid, self._path_radius, self.path_free = grid, preset.footprint.circumscribed_radius, None
+        self.path_origin = torch.tensor(grid.origin, dtype=torch.float32, device=device)
+        self.path_bound = drive_bound(preset) / grid.resolution  # cells
 
     def _jitter(self, n: int, gen: torch.Generator) -> torch.Tensor:
         return (torch.rand(n, 2, generator=gen, device=self.device) - 0.5) * self.resolution
@@ -109,16 +108,18 @@ class EpisodeSampler:
     def detour(self, start: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """[k] float32: path length / straight line from each start [k, 2] to its goal [k, 2] (m), the path
         through the free space of the footprint's circumscribed disc (8-connected cells); 0 where no path
-        is within the bound (horizon x dt x top speed + HARD_MARGIN_M) or the straight line is 0."""
+        is within :func:`~flashnav.sim.goal_fields.drive_bound` or the straight line is 0."""
         from flashnav.maps.geodesic_numba import pair_lengths  # the first import may JIT-compile
 
-        h, w = self.hard_free.shape
+        if self.path_free is None:  # built on first use (cached on the map)
+            self.path_free = free_space(self._grid, self._path_radius)
+        h, w = self.path_free.shape
 
         def flat(xy):
-            cr = torch.floor((xy - self.hard_origin) / self.resolution).long().cpu().numpy()
+            cr = torch.floor((xy - self.path_origin) / self.resolution).long().cpu().numpy()
             return np.clip(cr[:, 1], 0, h - 1) * w + np.clip(cr[:, 0], 0, w - 1)
 
-        cells = pair_lengths(self.hard_free, flat(goal), flat(start), self.hard_bound)
+        cells = pair_lengths(self.path_free, flat(goal), flat(start), self.path_bound)
         path = torch.as_tensor(cells * self.resolution, dtype=torch.float32, device=self.device)
         straight = torch.linalg.vector_norm(goal - start, dim=1)
         ratio = path / straight.clamp(min=1e-6)
