@@ -169,17 +169,24 @@ def window_fields(free, sources, reach, bound):
     return out
 
 
+@njit(cache=True)
+def _whole_map(free, src, bound):
+    """[H * W] path lengths in cells from cell ``src`` to every cell of the map, bounded at ``bound`` cells
+    (:func:`_dijkstra` with a window that covers the whole map)."""
+    h, w = free.shape
+    return _dijkstra(free, src, max(h, w), bound, np.inf, np.empty(0, np.int64))[0]
+
+
 @njit(parallel=True, cache=True)
 def map_fields(free, sources, bound):
     """For each source cell (flat indices [P] into ``free`` [H, W] bool), the path lengths in cells to every
     cell of the map, bounded at ``bound`` cells (inf beyond, where not free or unreachable): [P, H * W]
-    float32 (:func:`_dijkstra` with a window that covers the whole map)."""
+    float32 (:func:`_whole_map`)."""
     p = sources.size
     h, w = free.shape
-    reach = max(h, w)
     out = np.empty((p, h * w), np.float32)
     for k in prange(p):
-        out[k, :] = _dijkstra(free, sources[k], reach, bound, np.inf, np.empty(0, np.int64))[0]
+        out[k, :] = _whole_map(free, sources[k], bound)
     return out
 
 
@@ -187,11 +194,9 @@ def map_fields(free, sources, bound):
 def pair_lengths(free, sources, targets, bound):
     """For each pair k, the path length in cells from cell ``sources[k]`` to cell ``targets[k]`` (flat
     indices into ``free`` [H, W] bool), bounded at ``bound`` cells: [P] float64, inf where farther, not
-    free or unreachable (:func:`_dijkstra` over the whole map)."""
+    free or unreachable (:func:`_whole_map`)."""
     p = sources.size
-    h, w = free.shape
-    reach = max(h, w)
     out = np.empty(p, np.float64)
     for k in prange(p):
-        out[k] = _dijkstra(free, sources[k], reach, bound, np.inf, np.empty(0, np.int64))[0][targets[k]]
+        out[k] = _whole_map(free, sources[k], bound)[targets[k]]
     return out

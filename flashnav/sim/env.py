@@ -122,9 +122,6 @@ class NavVecEnv(VectorEnv):
         self._cast = make_raycaster(self.raycaster_name, geometry, self.beam_angles, lidar.max_range, self.device,
                                     lidar.march_step)
         self._collides = make_collision_checker(preset.footprint, geometry, self.device)
-        if preset.episode.hard_share > 0 and len(self.frame_maps) > 1:
-            raise ValueError(f"episode.hard_share={preset.episode.hard_share} re-weights one map's straight-line "
-                             f"draws; this env has {len(self.frame_maps)} maps: set episode.hard_share=0")
         self.samplers = [EpisodeSampler(g, preset, self.device) for g in self.frame_maps]
         self.sampler = self.samplers[0]
         # the shaping term's distance (reward.progress_metric geodesic: path lengths to each goal source)

@@ -243,6 +243,9 @@ class MapSetSampler:
         if not samplers:
             raise ValueError("MapSetSampler needs at least one map's EpisodeSampler, got none")
         first = samplers[0]
+        if first.hard_share > 0:  # the batched draws have no detour re-weighting (EpisodeSampler._harden)
+            raise ValueError(f"episode.hard_share={first.hard_share} re-weights one map's straight-line draws; this "
+                             f"env has {len(samplers)} maps: set episode.hard_share=0")
         for m, s in enumerate(samplers):
             if (s.mode, s.d_min, s.d_max, s.device, s.goal_at_source) != (
                     first.mode, first.d_min, first.d_max, first.device, first.goal_at_source):
