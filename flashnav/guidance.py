@@ -46,10 +46,8 @@ class PathGuide:
         cells, order = [], []
         for m, grid in enumerate(env.frame_maps):
             slots = np.flatnonzero(maps == m)
-            h, w = grid.shape
-            col = np.clip(np.floor((goal[slots, 0] - grid.origin[0]) / grid.resolution), 0, w - 1).astype(np.int64)
-            row = np.clip(np.floor((goal[slots, 1] - grid.origin[1]) / grid.resolution), 0, h - 1).astype(np.int64)
-            cells.append(row * w + col)
+            row, col = grid.cell_of(goal[slots], clip=True)
+            cells.append(row * grid.shape[1] + col)
             order.append(slots)
         bound = max(s.d_max for s in env.samplers) + margin if env.sampler.mode == "geodesic" else (
             env.preset.episode.max_goal_distance + margin)

@@ -95,11 +95,8 @@ class SeenWalls:
 
     def cells(self, xy: np.ndarray) -> np.ndarray:
         """Flat cell index of the points ``xy`` [k, 2] (clipped onto the grid)."""
-        g = self.grid
-        h, w = g.shape
-        j = np.clip(np.floor((xy[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, w - 1)
-        i = np.clip(np.floor((xy[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, h - 1)
-        return i * w + j
+        i, j = self.grid.cell_of(xy, clip=True)
+        return i * self.grid.shape[1] + j
 
     def _field(self, slot: int) -> np.ndarray:
         """Distance field (metres, inf where unreachable) to the slot's goal over its known walls."""
@@ -160,8 +157,7 @@ class SeenWalls:
         a = np.asarray(angles, np.float64)[None, :] + pose[:, 2:3]
         x, y = pose[:, :1] + r * np.cos(a), pose[:, 1:2] + r * np.sin(a)
         h, w = g.shape
-        j = np.floor((x - g.origin[0]) / g.resolution).astype(np.int64)
-        i = np.floor((y - g.origin[1]) / g.resolution).astype(np.int64)
+        i, j = g.cell_of(np.stack((x, y), axis=-1))
         hit &= (i >= 0) & (i < h) & (j >= 0) & (j < w)  # ends off the grid are not remembered
         rows = np.broadcast_to(np.arange(len(pose))[:, None], hit.shape)
         return rows[hit], i[hit], j[hit]

@@ -311,3 +311,29 @@ def test_resolve_map(tmp_path):
         resolve_map(str(tmp_path / "missing.yaml"), "go2")
     with pytest.raises(TypeError, match="got int"):
         resolve_map(3, "go2")
+
+
+def test_cell_of_matches_a_per_point_floor_and_clips_on_request():
+    import math
+
+    import torch
+
+    grid = OccupancyMap(np.zeros((7, 11), dtype=bool), 0.05, (-1.3, 2.7))
+    rng = np.random.default_rng(0)
+    xy = np.stack([rng.uniform(-1.6, -1.3 + 0.7, 500), rng.uniform(2.4, 2.7 + 0.45, 500)], axis=1)
+    xy[:4] = [(-1.3, 2.7), (-1.3 + 0.55, 2.7 + 0.35), (-1.31, 2.69), (-0.75, 3.05)]  # corners and edges
+    rows, cols = grid.cell_of(xy)
+    want_r = [math.floor((y - 2.7) / 0.05) for _, y in xy]
+    want_c = [math.floor((x + 1.3) / 0.05) for x, _ in xy]
+    assert rows.dtype == np.int64 and rows.tolist() == want_r and cols.tolist() == want_c
+    assert (rows < 0).any() and (cols >= 11).any()  # off the grid: not clipped unless asked
+    r2, c2 = grid.cell_of(xy, clip=True)
+    assert r2.tolist() == np.clip(want_r, 0, 6).tolist() and c2.tolist() == np.clip(want_c, 0, 10).tolist()
+    # a float32 tensor floors in float32, as the simulator's torch arithmetic does
+    t = torch.as_tensor(xy, dtype=torch.float32)
+    origin, res = torch.tensor([-1.3, 2.7]), torch.tensor(0.05)
+    ref = torch.floor((t - origin) / res).long()
+    r3, c3 = grid.cell_of(t)
+    assert r3.tolist() == ref[:, 1].tolist() and c3.tolist() == ref[:, 0].tolist()
+    r4, c4 = grid.cell_of(xy.reshape(20, 25, 2))  # any leading shape
+    assert r4.shape == (20, 25) and r4.reshape(-1).tolist() == want_r

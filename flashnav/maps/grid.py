@@ -82,6 +82,20 @@ class OccupancyMap:
         ox, oy = self.origin
         return ox + (cols + 0.5) * self.resolution, oy + (rows + 0.5) * self.resolution
 
+    def cell_of(self, xy, clip: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """``(rows, cols)``, int64 arrays of ``xy``'s leading shape: the cells holding the points ``xy``
+        [..., 2] (x, y metres in this map's frame; a numpy array, or a tensor on any device). The floor
+        runs in ``xy``'s own float type, as the simulator's float32 does. A point off the grid gets an
+        index outside [0, H) x [0, W), or with ``clip`` the nearest cell on the grid's edge."""
+        if hasattr(xy, "detach"):  # a torch tensor
+            xy = xy.detach().cpu().numpy()
+        xy = np.asarray(xy)
+        cols = np.floor((xy[..., 0] - self.origin[0]) / self.resolution).astype(np.int64)
+        rows = np.floor((xy[..., 1] - self.origin[1]) / self.resolution).astype(np.int64)
+        if clip:
+            rows, cols = np.clip(rows, 0, self.shape[0] - 1), np.clip(cols, 0, self.shape[1] - 1)
+        return rows, cols
+
     def padded(self, pad: int) -> np.ndarray:
         """[H + 2 pad, W + 2 pad] bool: the grid inside a border of ``pad`` occupied cells."""
         key = ("padded", pad)

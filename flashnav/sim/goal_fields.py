@@ -174,8 +174,7 @@ class GoalFields(WindowFields):
         for grid, sampler in zip(grids, samplers):
             h, w = grid.shape
             centres = sampler.centres[torch.unique(sampler.pair_start)].cpu().numpy()
-            cols = np.floor((centres[:, 0] - grid.origin[0]) / grid.resolution).astype(np.int64)
-            rows = np.floor((centres[:, 1] - grid.origin[1]) / grid.resolution).astype(np.int64)
+            rows, cols = grid.cell_of(centres)
             cells.append(rows * w + cols)
             cell_to_source = np.full(h * w, -1, dtype=np.int64)
             cell_to_source[rows * w + cols] = count + np.arange(len(rows))
@@ -220,6 +219,7 @@ class EpisodeGoalFields(WindowFields):
         self.device, self.radius = torch.device(device), float(preset.footprint.circumscribed_radius)
         self.bound = drive_bound(preset)
         self.free = free_space(grid, self.radius)
+        self.grid = grid
         self.h, self.w = grid.shape
         self.grid_res = grid.resolution
         self.res = torch.tensor([grid.resolution], dtype=torch.float32, device=self.device)
@@ -235,8 +235,7 @@ class EpisodeGoalFields(WindowFields):
 
         if idx.numel() == 0:
             return torch.empty(0, dtype=torch.long, device=self.device)
-        cell = torch.floor((goal - self.origin) / self.res).long().cpu().numpy()  # [k, 2] col, row
-        col, row = cell[:, 0], cell[:, 1]
+        row, col = self.grid.cell_of(goal)
         inside = (row >= 0) & (row < self.h) & (col >= 0) & (col < self.w)
         flat = np.where(inside, row * self.w + col, 0)
         ok = inside & self.free.reshape(-1)[flat]

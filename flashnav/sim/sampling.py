@@ -89,7 +89,6 @@ class EpisodeSampler:
         # episode.hard_share: some training episodes are the longest detour of several draws (detour)
         self.hard_share, self.hard_candidates = ep.hard_share, ep.hard_candidates
         self._grid, self._path_radius, self.path_free = grid, preset.footprint.circumscribed_radius, None
-        self.path_origin = torch.tensor(grid.origin, dtype=torch.float32, device=device)
         self.path_bound = drive_bound(preset) / grid.resolution  # cells
 
     def _jitter(self, n: int, gen: torch.Generator) -> torch.Tensor:
@@ -113,11 +112,11 @@ class EpisodeSampler:
 
         if self.path_free is None:  # built on first use (cached on the map)
             self.path_free = free_space(self._grid, self._path_radius)
-        h, w = self.path_free.shape
+        w = self.path_free.shape[1]
 
         def flat(xy):
-            cr = torch.floor((xy - self.path_origin) / self.resolution).long().cpu().numpy()
-            return np.clip(cr[:, 1], 0, h - 1) * w + np.clip(cr[:, 0], 0, w - 1)
+            row, col = self._grid.cell_of(xy, clip=True)
+            return row * w + col
 
         cells = pair_lengths(self.path_free, flat(goal), flat(start), self.path_bound)
         path = torch.as_tensor(cells * self.resolution, dtype=torch.float32, device=self.device)
