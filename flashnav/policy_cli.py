@@ -48,7 +48,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "ablation - moving agents then leave trails of walls in the planner's memory")
     p.add_argument("--scenario", default=None, metavar="NAME[,NAME]",
                    help="evaluation scenarios with moving agents: static, wander-4, wander-8, crossing, or all "
-                        "(success / collision with an agent / with a wall / timeout per scenario)")
+                        "(success / collision with an agent / with a wall / timeout per scenario); the agents are "
+                        "the simulator's defaults whatever the policy trained with, or with --robot PRESET.yaml "
+                        "that preset's agent options")
     p.set_defaults(func=run_eval)
 
     p = sub.add_parser("render", help="draw an exported policy's trajectories (PNG, optionally an animated GIF)")
@@ -104,11 +106,13 @@ def _map_label(args, preset) -> str:
 
 
 def _scenario_env(args, preset, name: str, device):
-    """The env of scenario ``name`` (:mod:`flashnav.scenarios`) for parsed `eval`/`render` arguments."""
+    """The env of scenario ``name`` (:mod:`flashnav.scenarios`) for parsed `eval`/`render` arguments: its
+    fixed agents, or with ``--robot`` the agent options of the preset named there."""
     from flashnav.scenarios import scenario_preset
     from flashnav.sim.env import make_env
 
-    return make_env(scenario_preset(preset, name), args.episodes, map=args.map, device=device, seed=args.seed)
+    scenario = scenario_preset(preset, name, own_agents=args.robot is not None)
+    return make_env(scenario, args.episodes, map=args.map, device=device, seed=args.seed)
 
 
 def run_eval(args) -> int:

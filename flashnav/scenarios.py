@@ -9,8 +9,12 @@
   which a cluttered map does not offer in every episode: only episodes whose crossing agent could be
   placed are scored, and the report says how many of the episodes drawn that is.
 
-Every scenario keeps the preset's other agent options (radius, speed, reactive share); the episodes
-are those of the evaluation seed, the same for every policy.
+A scenario's agents are fixed: the simulator's agent defaults (``agents:`` in
+``flashnav/presets/simulator.yaml``: radius, speed, no reactive agents, ...) with the scenario's count and
+mix, whatever agent options the policy trained with, so a policy trained among agents that yield is
+scored on the same sets as every other. ``own_agents=True`` (``flashnav eval --robot PRESET.yaml``: a
+preset the user names) keeps that preset's agent options instead. The episodes are those of the
+evaluation seed, the same for every policy.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import torch
 from flashnav.config import RobotPreset
 from flashnav.evaluate import play_episodes
 from flashnav.names import SCENARIOS, check_name, parse_names
-from flashnav.presets import load_robot
+from flashnav.presets import load_preset_file, load_robot
 
 WANDER_MIX = {"waypoints": 0.5, "bounce": 0.5}
 #: agents.* overrides of each scenario
@@ -34,10 +38,14 @@ SCENARIO_AGENTS = {
 }
 
 
-def scenario_preset(robot: str | RobotPreset, name: str) -> RobotPreset:
-    """The robot's preset with the agents of scenario ``name`` (one of :data:`SCENARIOS`)."""
+def scenario_preset(robot: str | RobotPreset, name: str, own_agents: bool = False) -> RobotPreset:
+    """The robot's preset with the agents of scenario ``name`` (one of :data:`SCENARIOS`): the simulator's
+    agent defaults with the scenario's count and mix, or with ``own_agents`` the preset's own agent options
+    with them (see the module docstring). Everything else (observation, motion, ...) is the preset's."""
     check_name("scenario", name, SCENARIOS)
-    return load_robot(robot, **{f"agents.{k}": v for k, v in SCENARIO_AGENTS[name].items()})
+    agents = {} if own_agents else dict(load_preset_file("simulator").get("agents") or {})
+    agents.update(SCENARIO_AGENTS[name])
+    return load_robot(robot, **{f"agents.{k}": v for k, v in agents.items()})
 
 
 def scenario_names(text: str) -> list[str]:

@@ -30,6 +30,30 @@ def test_scenario_presets_and_names():
         scenario_names("wander8")
 
 
+def test_scenario_agents_are_fixed_whatever_the_policy_trained_with(tmp_path):
+    from types import SimpleNamespace
+
+    from flashnav.policy_cli import _scenario_env
+    from flashnav.presets import load_robot
+    from flashnav.yamlio import dump_yaml
+
+    trained = load_robot("turtlebot2", **{"agents.count": 8, "agents.reactive": 0.5, "agents.speed": [0.6, 0.7],
+                                          "observation.agent_tracks": 4})
+    plain = scenario_preset("turtlebot2", "wander-8")
+    fixed = scenario_preset(trained, "wander-8")
+    assert fixed.agents == plain.agents and fixed.agents.reactive == 0.0 and fixed.agents.speed == (0.2, 0.5)
+    assert fixed.observation.agent_tracks == 4  # the rest of the policy's preset stays
+    own = scenario_preset(trained, "crossing", own_agents=True).agents
+    assert own.reactive == 0.5 and own.speed == (0.6, 0.7) and own.count == 1 and own.mix == {"crossing": 1.0}
+    # the CLI: the recorded preset gets the fixed agents; a preset named with --robot keeps its own
+    path = tmp_path / "reactive.yaml"
+    dump_yaml(load_robot("turtlebot2", **{"agents.reactive": 0.5}).model_dump(mode="json"), path)
+    args = SimpleNamespace(robot=None, episodes=4, map=None, seed=0)
+    assert _scenario_env(args, trained, "wander-4", "cpu").preset.agents.reactive == 0.0
+    args.robot = str(path)
+    assert _scenario_env(args, load_robot(str(path)), "wander-4", "cpu").preset.agents.reactive == 0.5
+
+
 def test_a_standing_robot_is_hit_by_agents_and_never_by_walls():
     env = make_env(scenario_preset("turtlebot2", "wander-8"), 48, seed=3)
     r = run_scenario(stand_still, env, seed=3)
