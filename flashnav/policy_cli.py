@@ -51,6 +51,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "(success / collision with an agent / with a wall / timeout per scenario); the agents are "
                         "the simulator's defaults whatever the policy trained with, or with --robot PRESET.yaml "
                         "that preset's agent options")
+    _agents_arg(p)
     p.set_defaults(func=run_eval)
 
     p = sub.add_parser("render", help="draw an exported policy's trajectories (PNG, optionally an animated GIF)")
@@ -59,7 +60,14 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gif", action="store_true", help="also write an animated GIF next to --out")
     p.add_argument("--scenario", default=None, metavar="NAME",
                    help="draw the episodes of this scenario (static, wander-4, wander-8, crossing) with its agents")
+    _agents_arg(p)
     p.set_defaults(func=run_render)
+
+
+def _agents_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--agents", action="append", default=None, metavar="KEY=VALUE",
+                   help="with --scenario: change one of the scenario's agent options (README \"Moving agents\"), "
+                        "e.g. --agents reactive=0.5 (half the agents yield to the robot); repeat for more")
 
 
 def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
@@ -105,13 +113,24 @@ def _map_label(args, preset) -> str:
     return str(args.map) if args.map is not None else preset.map
 
 
+def agent_overrides(args) -> dict:
+    """``--agents KEY=VALUE`` items as a mapping (values read as YAML); ``--agents`` without ``--scenario`` is an
+    error (the other modes have no agents to change)."""
+    from flashnav.yamlio import parse_assignment
+
+    items = getattr(args, "agents", None) or []
+    if items and getattr(args, "scenario", None) is None:
+        raise ValueError("--agents changes the agents of --scenario; give --scenario NAME too")
+    return dict(parse_assignment(item, "--agents") for item in items)
+
+
 def _scenario_env(args, preset, name: str, device):
     """The env of scenario ``name`` (:mod:`flashnav.scenarios`) for parsed `eval`/`render` arguments: its
     fixed agents, or with ``--robot`` the agent options of the preset named there."""
     from flashnav.scenarios import scenario_preset
     from flashnav.sim.env import make_env
 
-    scenario = scenario_preset(preset, name, own_agents=args.robot is not None)
+    scenario = scenario_preset(preset, name, own_agents=args.robot is not None, agents=agent_overrides(args))
     return make_env(scenario, args.episodes, map=args.map, device=device, seed=args.seed)
 
 
@@ -128,6 +147,7 @@ def run_eval(args) -> int:
         check_output_file(args.json, "--json")
     if args.maps is not None and args.scenario is not None:
         raise ValueError("give either --maps or --scenario, not both")
+    agent_overrides(args)  # --agents without --scenario: an error before any work
     if args.guide_from is not None and args.guide is None:
         raise ValueError(f"--guide-from {args.guide_from} goes with --guide LOOKAHEAD_M")
     if args.guide_keep_walls and args.guide_from != "scans":
@@ -196,7 +216,7 @@ def run_scenarios(args) -> int:
         table.add_column(col, justify="right")
     report = {"robot": preset.name, "map": _map_label(args, preset), "policy": str(args.policy), "seed": args.seed,
               "guide_lookahead_m": args.guide, "guide_from": None if args.guide is None else args.guide_from or "map",
-              "guide_keep_walls": bool(args.guide_keep_walls), "scenarios": {}}
+              "guide_keep_walls": bool(args.guide_keep_walls), "agents": agent_overrides(args), "scenarios": {}}
     for name in names:
         r = run_scenario(policy, _scenario_env(args, preset, name, device), args.seed, guide=guide)
         report["scenarios"][name] = r

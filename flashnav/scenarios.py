@@ -13,7 +13,8 @@ A scenario's agents are fixed: the simulator's agent defaults (``agents:`` in
 ``flashnav/presets/simulator.yaml``: radius, speed, no reactive agents, ...) with the scenario's count and
 mix, whatever agent options the policy trained with, so a policy trained among agents that yield is
 scored on the same sets as every other. ``own_agents=True`` (``flashnav eval --robot PRESET.yaml``: a
-preset the user names) keeps that preset's agent options instead. The episodes are those of the
+preset the user names) keeps that preset's agent options instead; ``agents`` (``flashnav eval --agents
+reactive=0.5``) changes named options on top, reported beside the rates. The episodes are those of the
 evaluation seed, the same for every policy.
 """
 
@@ -38,13 +39,18 @@ SCENARIO_AGENTS = {
 }
 
 
-def scenario_preset(robot: str | RobotPreset, name: str, own_agents: bool = False) -> RobotPreset:
+def scenario_preset(robot: str | RobotPreset, name: str, own_agents: bool = False,
+                    agents: dict | None = None) -> RobotPreset:
     """The robot's preset with the agents of scenario ``name`` (one of :data:`SCENARIOS`): the simulator's
     agent defaults with the scenario's count and mix, or with ``own_agents`` the preset's own agent options
-    with them (see the module docstring). Everything else (observation, motion, ...) is the preset's."""
+    with them (see the module docstring); then ``agents`` (``{"reactive": 0.5}``: ``flashnav eval --agents``)
+    over all of it, each key an ``agents.*`` option (an unknown one is a ValueError naming it). Everything
+    else (observation, motion, ...) is the preset's."""
     check_name("scenario", name, SCENARIOS)
+    changes = agents or {}
     agents = {} if own_agents else dict(load_preset_file("simulator").get("agents") or {})
     agents.update(SCENARIO_AGENTS[name])
+    agents.update(changes)
     return load_robot(robot, **{f"agents.{k}": v for k, v in agents.items()})
 
 

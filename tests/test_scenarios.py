@@ -3,11 +3,14 @@ render draws."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
 
 from flashnav.policy_cli import agent_tracks, rollout
+from flashnav.presets import load_robot
 from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
 from flashnav.sim.env import make_env
 from flashnav.viz import draw_trajectories
@@ -31,10 +34,7 @@ def test_scenario_presets_and_names():
 
 
 def test_scenario_agents_are_fixed_whatever_the_policy_trained_with(tmp_path):
-    from types import SimpleNamespace
-
     from flashnav.policy_cli import _scenario_env
-    from flashnav.presets import load_robot
     from flashnav.yamlio import dump_yaml
 
     trained = load_robot("turtlebot2", **{"agents.count": 8, "agents.reactive": 0.5, "agents.speed": [0.6, 0.7],
@@ -147,3 +147,30 @@ def test_eval_scenario_with_a_guide_records_it_and_refuses_bad_guides(tmp_path, 
         run_cli("eval", policy, "--scenario", "static", "--episodes", "2", "--guide", "0")
     with pytest.raises(ValueError, match="--guide goes with --maps or --scenario"):
         run_cli("eval", policy, "--episodes", "2", "--guide", "0.5")
+
+
+def test_eval_agents_option_changes_the_scenario_agents_and_names_bad_input(tmp_path):
+    import json
+
+    from test_export import run_cli
+
+    from flashnav.policy_cli import _scenario_env, agent_overrides
+
+    policy = "tests/fixtures/deploy_policy/policy.onnx"
+    out = tmp_path / "s.json"
+    assert run_cli("eval", policy, "--scenario", "wander-4", "--episodes", "6", "--agents", "reactive=0.5",
+                   "--agents", "speed=[0.3, 0.4]", "--json", str(out)) == 0
+    report = json.loads(out.read_text())
+    assert report["agents"] == {"reactive": 0.5, "speed": [0.3, 0.4]} and report["scenarios"]["wander-4"]["episodes"] == 6
+    args = SimpleNamespace(robot=None, episodes=4, map=None, seed=0, scenario="wander-4", agents=["reactive=0.5"])
+    env = _scenario_env(args, load_robot("turtlebot2"), "wander-8", "cpu")
+    assert env.preset.agents.reactive == 0.5 and env.preset.agents.count == 8  # the scenario's count stays
+    with pytest.raises(ValueError, match="agents.reactiv"):
+        run_cli("eval", policy, "--scenario", "wander-4", "--episodes", "2", "--agents", "reactiv=0.5")
+    with pytest.raises(ValueError, match="reactive"):
+        run_cli("eval", policy, "--scenario", "wander-4", "--episodes", "2", "--agents", "reactive=2")
+    with pytest.raises(ValueError, match="--agents 'reactive' is not key=value"):
+        run_cli("eval", policy, "--scenario", "wander-4", "--episodes", "2", "--agents", "reactive")
+    with pytest.raises(ValueError, match="--scenario"):
+        run_cli("eval", policy, "--episodes", "2", "--agents", "reactive=0.5")
+    assert agent_overrides(SimpleNamespace(scenario=None, agents=None)) == {}
