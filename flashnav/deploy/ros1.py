@@ -23,12 +23,17 @@ import json
 import os
 import sys
 import threading
+import time
 
 from flashnav.deploy.controller import Command, Controller
 from flashnav.deploy.runtime import yaw_from_quaternion
 
 #: where Debian's ROS 1 python packages live (override: FLASHNAV_ROS_PYTHONPATH, ':'-separated)
 ROS_DIST_PACKAGES = "/usr/lib/python3/dist-packages"
+#: wall seconds the shutdown hook waits after publishing the zero command: a rospy publisher with a queue_size
+#: sends from a thread of its own, and the shutdown hooks that run next close its connections, so without the
+#: wait the zero can be dropped and the robot keeps its last command (seen once in CI, 2026-11-28)
+SHUTDOWN_FLUSH_S = 0.3
 #: the Debian packages that provide what the node and the harness import
 ROS_APT_PACKAGES = ("ros-core", "python3-rospy", "python3-sensor-msgs", "python3-geometry-msgs",
                     "python3-nav-msgs", "python3-rosbag")
@@ -156,6 +161,7 @@ class DeployNode:
     def _on_shutdown(self) -> None:
         with self.lock:
             self._publish(self.ctl.shutdown(), self._now())
+        time.sleep(SHUTDOWN_FLUSH_S)  # let the publisher's thread send the zero before the connections close
 
     def spin(self) -> None:
         self.rospy.spin()
