@@ -301,6 +301,7 @@ def run_render(args) -> int:
     from flashnav.viz import draw_trajectories
 
     check_output_file(args.out, "--out")
+    agent_overrides(args)  # --agents without --scenario: an error before any work
     if args.gif:
         check_output_file(Path(args.out).with_suffix(".gif"), "--gif")
     if args.scenario is None:

@@ -173,4 +173,9 @@ def test_eval_agents_option_changes_the_scenario_agents_and_names_bad_input(tmp_
         run_cli("eval", policy, "--scenario", "wander-4", "--episodes", "2", "--agents", "reactive")
     with pytest.raises(ValueError, match="--scenario"):
         run_cli("eval", policy, "--episodes", "2", "--agents", "reactive=0.5")
+    with pytest.raises(ValueError, match="--scenario"):
+        run_cli("render", policy, "--episodes", "2", "--out", str(tmp_path / "r.png"), "--agents", "reactive=0.5")
+    assert not (tmp_path / "r.png").exists()
+    assert run_cli("render", policy, "--scenario", "wander-4", "--episodes", "2", "--out", str(tmp_path / "w.png"),
+                   "--agents", "reactive=1") == 0 and (tmp_path / "w.png").stat().st_size > 0
     assert agent_overrides(SimpleNamespace(scenario=None, agents=None)) == {}
