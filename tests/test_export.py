@@ -300,7 +300,7 @@ def test_render_command(exported, tmp_path):
 
 
 def test_rollout_paths_end_where_the_episode_ended(exported, tb2):
-    from flashnav.policy_cli import rollout
+    from flashnav.rollout import rollout
     from flashnav.sim.env import make_env
 
     _, paths = exported

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from flashnav.policy_cli import agent_tracks, rollout
 from flashnav.presets import load_robot
+from flashnav.rollout import agent_tracks, rollout
 from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
 from flashnav.sim.env import make_env
 from flashnav.viz import draw_trajectories
