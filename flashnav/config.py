@@ -208,6 +208,8 @@ MAX_AGENT_TRACKS = 16
 TRACK_FEATURES = ("present", "x", "y", "vx", "vy", "radius")
 #: Largest ``observation.pose_trail``: each breadcrumb adds 2 columns (x, y in the robot frame).
 MAX_POSE_TRAIL = 32
+#: Largest ``observation.memory_frames``: the memory scan's cost per step grows with the frames kept.
+MAX_MEMORY_FRAMES = 64
 
 
 class Observation(Strict):
@@ -226,6 +228,12 @@ class Observation(Strict):
                             "has been that odometry gives any robot; 0 = none, the paper's observation")
     trail_every: int = Field(10, ge=1, le=1000, description="control steps between two breadcrumbs of the pose "
                              "trail (the trail covers pose_trail * trail_every steps)")
+    memory_frames: int = Field(0, ge=0, le=MAX_MEMORY_FRAMES, description="the memory scan (flashnav.sim.memory): "
+                               "a 360-deg pooled scan of lidar.sectors columns of the wall points the LiDAR hit in "
+                               "the last memory_frames stored scans, appended after everything else: a memory of "
+                               "walls; 0 = none, the paper's observation")
+    memory_every: int = Field(10, ge=1, le=1000, description="control steps between two stored scans of the memory "
+                              "scan (it remembers memory_frames * memory_every steps)")
 
 
 class RobotPreset(Strict):
@@ -258,8 +266,14 @@ class RobotPreset(Strict):
         return self.history_end + self.observation.agent_tracks * len(TRACK_FEATURES)
 
     @property
+    def trail_end(self) -> int:
+        """End column of the pose trail: where the memory scan starts."""
+        return self.tracks_end + 2 * self.observation.pose_trail
+
+    @property
     def obs_dim(self) -> int:
         """The paper's observation, then ``observation.scan_history`` previous frames of ``sectors`` each,
         then ``observation.agent_tracks`` tracks of ``len(TRACK_FEATURES)`` columns each, then
-        ``observation.pose_trail`` breadcrumbs of 2 columns each."""
-        return self.tracks_end + 2 * self.observation.pose_trail
+        ``observation.pose_trail`` breadcrumbs of 2 columns each, then the memory scan's ``sectors`` columns
+        with ``observation.memory_frames`` > 0."""
+        return self.trail_end + (self.lidar.sectors if self.observation.memory_frames else 0)

@@ -29,6 +29,7 @@ from flashnav.checkpoint import is_checkpoint
 from flashnav.config import TRACK_FEATURES, RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, parse_metadata as _parse_metadata  # noqa: F401
+from flashnav.sim.memory import points_per_frame
 from flashnav.sim.tracks import track_bounds
 from flashnav.sim.trail import trail_bound
 
@@ -115,13 +116,13 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                          "units": [units[v] for v in velocity],
                          "meaning": "the command executed in the last control step (0 after a reset)"},
             # always written (0 = none), so a reader can tell a history-free policy from an old file
-            "scan_history": {"frames": k, "columns": [base, preset.obs_dim], "units": "m",
+            "scan_history": {"frames": k, "columns": [base, preset.history_end], "units": "m",
                              "order": "frame j (0-based) is the pooled scan of j + 1 control steps ago, "
                                       "newest first; each frame has the 'lidar' sector layout",
                              "reset": "a new episode (goal) fills every frame with its first scan"},
             # always written (0 = none): the people tracker's input (flashnav.sim.tracks)
             "agent_tracks": {"count": preset.observation.agent_tracks,
-                             "columns": [preset.history_end, preset.obs_dim], "features": list(TRACK_FEATURES),
+                             "columns": [preset.history_end, preset.tracks_end], "features": list(TRACK_FEATURES),
                              "units": ["1", "m", "m", "m/s", "m/s", "m"],
                              "frame": "robot frame: x ahead, y to the left; velocity rotated into it",
                              "order": "nearest first by the distance from the robot's centre to the agent's "
@@ -130,11 +131,22 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                                          "agent not seen at the previous step"},
             # always written (0 = none): the robot's own earlier positions from odometry (flashnav.sim.trail)
             "pose_trail": {"count": preset.observation.pose_trail, "every": preset.observation.trail_every,
-                           "columns": [preset.tracks_end, preset.obs_dim], "features": ["x", "y"], "units": "m",
+                           "columns": [preset.tracks_end, preset.trail_end], "features": ["x", "y"], "units": "m",
                            "frame": "robot frame of the current pose: x ahead, y to the left",
                            "order": "breadcrumb j (0-based) newest first; a breadcrumb is the position after "
                                     "every 'every'-th control step of the episode",
                            "reset": "a new episode (goal) sets every breadcrumb to the start position"},
+            # always written (0 = none): the memory scan of remembered wall hits (flashnav.sim.memory)
+            "memory_scan": {"frames": preset.observation.memory_frames, "every": preset.observation.memory_every,
+                            "points_per_frame": points_per_frame(preset),
+                            "columns": [preset.trail_end, preset.obs_dim], "units": "m",
+                            "order": "sector j covers bearings [-pi + j w, -pi + (j + 1) w), w = 2 pi / columns, in "
+                                     "the robot frame (from straight behind, counter-clockwise); max_range where "
+                                     "nothing is remembered",
+                            "meaning": "distance to the nearest wall hit stored in the last 'frames' stored scans; "
+                                       "a scan is stored after every 'every'-th control step of the episode, as "
+                                       "'points_per_frame' points (the nearest hit of each group of consecutive beams)",
+                            "reset": "a new episode (goal) stores its first scan and forgets the rest"},
         },
         "command_bounds": {"v": list(m.v_bounds), "w": list(m.w_bounds),
                            "max_linear_velocity": m.max_linear_velocity,
@@ -223,7 +235,7 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
                         goal_distance_max: float | None = None) -> torch.Tensor:
     """``[n, D]`` float32 observations spread over the valid ranges (for export checks and tests).
 
-    LiDAR readings (the current frame and any history frames) are uniform in [inscribed radius, max
+    LiDAR readings (the current frame, any history frames and the memory scan) are uniform in [inscribed radius, max
     range] with about a tenth exactly at each end (the IPAPRec pole side and the no-return reading); goal distance in [0, goal_distance_max]
     (default: the diagonal of the preset's map size), goal
     angle in [-pi, pi), velocities inside the command bounds (vy = 0 for a 3-D velocity state).
@@ -240,7 +252,8 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
     history = [_readings(n, s, r_in, r_max, u) for _ in range(preset.observation.scan_history)]
     bound = trail_bound(preset)
     trail = bound * (2.0 * u(n, 2 * preset.observation.pose_trail) - 1.0)
-    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u), trail], dim=1)
+    memory = [_readings(n, s, r_in, r_max, u)] if preset.observation.memory_frames else []
+    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u), trail, *memory], dim=1)
 
 
 def _tracks(preset: RobotPreset, n: int, u) -> torch.Tensor:

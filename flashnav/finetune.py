@@ -118,6 +118,7 @@ def _layout_keys(robot) -> dict[str, Any]:
         "robot.observation.agent_tracks": robot.observation.agent_tracks,
         "robot.observation.pose_trail": robot.observation.pose_trail,
         "robot.observation.trail_every (trail scale)": robot.observation.trail_every,
+        "robot.observation.memory_frames (on/off)": robot.observation.memory_frames > 0,
     }
 
 

@@ -74,6 +74,25 @@ def pose_trail_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tup
     return count, every
 
 
+def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, int]:
+    """``(frames, every)`` of the policy's memory scan (``observation.memory_frames`` stored scans, one every
+    ``observation.memory_every`` control steps, :mod:`flashnav.sim.memory`): the metadata's
+    ``observation.memory_scan``, else the exported preset's, else ``(0, 1)`` (files written before the
+    memory existed).
+
+    Raises ValueError naming ``path`` when a recorded value is not an integer (frames >= 0, every >= 1)."""
+    frames = ((meta.get("observation") or {}).get("memory_scan") or {}).get("frames")
+    if frames is None:
+        frames = ((meta.get("preset") or {}).get("observation") or {}).get("memory_frames", 0)
+    every = ((meta.get("observation") or {}).get("memory_scan") or {}).get("every")
+    if every is None:
+        every = ((meta.get("preset") or {}).get("observation") or {}).get("memory_every", 1)
+    for name, value, least in (("memory_frames", frames, 0), ("memory_every", every, 1)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < least:
+            raise ValueError(f"{path}: the policy's metadata records {name} {value!r}; expected an integer >= {least}")
+    return frames, every
+
+
 def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | Path) -> int:
     """``observation.<option>.<field>`` of the metadata, else the preset block's ``observation.<option>``,
     else 0; a ValueError naming ``path`` unless it is an integer >= 0."""

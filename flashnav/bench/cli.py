@@ -33,6 +33,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tracks", type=int, default=0, metavar="M",
                    help="with --agents: also time every row with those agents and M agent tracks in the "
                         "observation (observation.agent_tracks), interleaved with the others")
+    p.add_argument("--memory", type=int, default=0, metavar="F",
+                   help="also time every row with the memory scan of F stored scans (observation.memory_frames, "
+                        "one stored every step), interleaved with the static rows ('x static')")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -66,8 +69,9 @@ def run_sim(args) -> int:
     console = Console()
     robots, raycasters, sizes = _csv(args.robots), _csv(args.raycasters), _csv(args.num_envs, int)
     seconds = args.seconds
-    if args.agents < 0 or args.tracks < 0:
-        raise ValueError(f"--agents and --tracks must be >= 0, got {args.agents} and {args.tracks}")
+    if args.agents < 0 or args.tracks < 0 or args.memory < 0:
+        raise ValueError(f"--agents, --tracks and --memory must be >= 0, got {args.agents}, {args.tracks} and "
+                         f"{args.memory}")
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
     if args.quick:
@@ -88,10 +92,11 @@ def run_sim(args) -> int:
                 # march is orders of magnitude slower: a couple of steps give its rate
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
                 for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many,
-                                          agents=args.agents, tracks=args.tracks):
+                                          agents=args.agents, tracks=args.tracks, memory=args.memory):
                     rows.append(row.to_dict(1080))
                     console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d} "
-                                  f"tracks={row.tracks:2d}: {row.env_steps_per_s:12,.0f} env-steps/s")
+                                  f"tracks={row.tracks:2d} memory={row.memory:2d}: "
+                                  f"{row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
                 accuracy.append(sim.accuracy(robot, rc, args.device))
@@ -123,17 +128,18 @@ def _many_maps(robot: str, spec: str | None):
 
 
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
-    key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"], r.get("tracks", 0))  # noqa: E731
+    key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"], r.get("tracks", 0), r.get("memory", 0))  # noqa: E731
     base = {key(r): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
     # the static single-map row of the same robot, size and raycaster: the reference of both ratios
     one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows
-           if r["maps"] == 1 and r["agents"] == 0}
+           if r["maps"] == 1 and r["agents"] == 0 and r.get("memory", 0) == 0}
     many = any(r["maps"] > 1 for r in rows)
-    moving = any(r["agents"] > 0 for r in rows)
+    remembers = any(r.get("memory", 0) > 0 for r in rows)
+    moving = any(r["agents"] > 0 for r in rows) or remembers  # the 'x static' column
     tracked = any(r.get("tracks", 0) > 0 for r in rows)
     t = Table(title="whole env step, random actions (full 1,080-beam scans)")
     for col in ("robot", "raycaster", "envs", *(("maps",) if many else ()), *(("agents",) if moving else ()),
-                *(("tracks",) if tracked else ()), "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if moving else ())):
+                *(("tracks",) if tracked else ()), *(("memory",) if remembers else ()), "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if moving else ())):
         t.add_column(col, justify="right")
     for r in rows:
         ref = base.get(key(r))
@@ -141,16 +147,18 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         cells = [r["robot"], r["raycaster"], str(r["num_envs"])] + ([str(r["maps"])] if many else [])
         cells += [str(r["agents"])] if moving else []
         cells += [str(r.get("tracks", 0))] if tracked else []
+        cells += [str(r.get("memory", 0))] if remembers else []
         cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
         single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:
             cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and r["maps"] > 1 else "-")
         if moving:
-            cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and r["agents"] > 0 else "-")
+            extra = r["agents"] > 0 or r.get("memory", 0) > 0
+            cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and extra else "-")
         t.add_row(*cells)
     for p in peer:
         t.add_row(p["robot"], "ir-sim (peer)", "1", *(("1",) if many else ()), *(("0",) if moving else ()),
-                  *(("0",) if tracked else ()),
+                  *(("0",) if tracked else ()), *(("0",) if remembers else ()),
                   f"{p['env_steps_per_s']:,.1f}", f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-",
                   *(("-",) if many else ()), *(("-",) if moving else ()))
     console.print(t)

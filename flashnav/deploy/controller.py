@@ -31,6 +31,10 @@ own earlier positions from the odometry pose: every breadcrumb is the goal's fir
 first, and after every ``trail_every``-th control step since the goal that step's pose becomes the newest
 (as the simulator's episode steps). Only a new goal restarts the trail: a stop (stale) does not change
 where the robot has been.
+A policy with a memory scan (``observation.memory_frames`` F > 0, :mod:`flashnav.sim.memory`) gets it from
+:class:`flashnav.deploy.memory.ScanMemory`: the goal's first control step's scan is stored, then that of
+every ``memory_every``-th control step since the goal (its wall hits in the odometry frame, the last F
+kept); only a new goal forgets them.
 With a ``guide`` (:class:`flashnav.mapless.ScanGuide`: mapless guidance, ``flashnav deploy ros --guide M``)
 the policy is not aimed at the goal but, at every control step, at a point M metres along a path planned
 on the walls this goal's scans have shown so far (its memory starts afresh with every goal; no map); the
@@ -45,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from flashnav.deploy.memory import ScanMemory
 from flashnav.deploy.runtime import PolicyRuntime, robot_frame
 from flashnav.mapless import ScanGuide
 
@@ -86,8 +91,11 @@ class Controller:
         self.last_obs: np.ndarray | None = None  # the observation of the last control step
         self.frames: list[np.ndarray] = []  # sectors of the previous control steps, newest first
         self.crumbs: list[tuple[float, float]] = []  # the pose trail, newest first (empty: a new goal)
-        self.goal_steps = 0  # control steps since the goal (the pose trail's clock)
+        self.goal_steps = 0  # control steps since the goal (the pose trail's and the memory's clock)
         self.steps = 0
+        rt = runtime
+        self.memory = (ScanMemory(rt.memory_frames, rt.memory_every, rt.layout.sectors, rt.memory_points,
+                                  rt.layout.fov_deg, rt.layout.max_range) if rt.memory_frames else None)
 
     # ---- inputs ---------------------------------------------------------------------------------
     def on_goal(self, x: float, y: float, now: float) -> None:
@@ -98,6 +106,8 @@ class Controller:
             return
         self.goal, self.velocity, self.last_step_stamp = (float(x), float(y)), (0.0, 0.0), -math.inf
         self.state, self.frames, self.crumbs, self.goal_steps = "driving", [], [], 0
+        if self.memory is not None:
+            self.memory.forget()
         if self.guide is not None:
             self.guide.start(self.goal)
             self.carrot = None
@@ -126,17 +136,20 @@ class Controller:
         if self._stale(now):
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
-        target, goal_distance = self.goal, None
+        target, goal_distance, memory = self.goal, None, None
+        if self.guide is not None or self.memory is not None:
+            angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
         if self.guide is not None:
             goal_distance = self.rt.goal_in_robot_frame(self.pose, self.goal)[0]
             if goal_distance < self.rt.goal_threshold:
                 return self._stop("reached")  # the goal itself, whatever the carrot
-            angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
             self.carrot = self.guide.step(self.pose, angles, beams, self.rt.layout.max_range)
             if self.rt.goal_in_robot_frame(self.pose, self.carrot)[0] > self.rt.goal_threshold + 1e-3:
                 target = self.carrot  # (a carrot at the goal radius would read as arrived: aim at the goal)
+        if self.memory is not None:
+            memory = self.memory.step(self.pose, angles, beams, self.goal_steps)
         d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
-                           self._trail())
+                           self._trail(), memory)
         self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1
         self.last_obs = d.obs
         self.distance = d.distance if target is self.goal else goal_distance

@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
-from flashnav.policy_meta import METADATA_KEY, agent_track_count, parse_metadata, pose_trail_shape, scan_history_frames
+from flashnav.policy_meta import (METADATA_KEY, agent_track_count, memory_scan_shape, parse_metadata, pose_trail_shape,
+                                  scan_history_frames)
 
 #: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
 TRACK_WIDTH = 6
@@ -91,13 +92,16 @@ class PolicyRuntime:
             raise ValueError(f"{path}: the policy's metadata lacks goal_threshold / control_period_s")
         self.scan_history = scan_history_frames(meta, path)  # k previous frames after the paper's layout
         self.agent_tracks = agent_track_count(meta, path)  # M people of a tracker
-        self.pose_trail, self.trail_every = pose_trail_shape(meta, path)  # P breadcrumbs, last
+        self.pose_trail, self.trail_every = pose_trail_shape(meta, path)  # P breadcrumbs
+        self.memory_frames, self.memory_every = memory_scan_shape(meta, path)  # the memory scan, last
+        self.memory_points = int(((meta.get("observation") or {}).get("memory_scan") or {}).get("points_per_frame", 1))
+        memory = self.layout.sectors if self.memory_frames else 0
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
-                              - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail)
+                              - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory)
         if self.velocity_dims not in (2, 3):
             raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + "
                              f"velocity + {self.scan_history} history frames + {self.agent_tracks} agent tracks + "
-                             f"{self.pose_trail} pose-trail breadcrumbs")
+                             f"{self.pose_trail} pose-trail breadcrumbs + {memory} memory-scan sectors")
         bounds = meta.get("command_bounds") or {}
         self.v_limit = float(bounds.get("max_linear_velocity", math.inf))
         self.w_limit = float(bounds.get("max_angular_velocity", math.inf))
@@ -139,14 +143,16 @@ class PolicyRuntime:
         dx, dy = float(goal[0]) - float(pose[0]), float(goal[1]) - float(pose[1])
         return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - float(pose[2]))
 
-    def observation(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None) -> np.ndarray:
+    def observation(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None,
+                    memory=None) -> np.ndarray:
         """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed,
         then ``history`` [k, S] m (the sectors of the k previous control steps, newest first; None
         when the policy has no scan history), then the policy's M agent tracks from ``tracks`` (the
         people a tracker reports, rows of (x, y, vx, vy, radius) in the robot frame; an empty list when
         it reports nobody; None when the policy has no tracks), then ``trail`` [P, 2] (the robot's
         earlier positions in the pose's frame, newest first; None when the policy has no pose trail)
-        in the robot frame of ``pose``."""
+        in the robot frame of ``pose``, then ``memory`` [S] m (the memory scan,
+        :class:`flashnav.deploy.memory.ScanMemory`; None when the policy has none)."""
         sectors = np.asarray(sectors, np.float32).reshape(-1)
         if sectors.size != self.layout.sectors:
             raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
@@ -175,6 +181,14 @@ class PolicyRuntime:
                 raise ValueError(f"trail must be [{self.pose_trail}, 2] finite (x, y) positions (the policy's "
                                  f"observation.pose_trail breadcrumbs, newest first), got {got}")
             parts.append(trail_columns(crumbs, pose))
+        if memory is not None or self.memory_frames:
+            mem = np.asarray(memory, np.float32).reshape(-1) if memory is not None else None
+            want_mem = self.layout.sectors if self.memory_frames else 0
+            if mem is None or mem.size != want_mem or not np.isfinite(mem).all():
+                got = None if mem is None else (mem.size if np.isfinite(mem).all() else "not finite")
+                raise ValueError(f"memory must be {want_mem} finite distances (the policy's memory scan, "
+                                 f"observation.memory_frames {self.memory_frames}), got {got}")
+            parts.append(mem)
         return np.concatenate(parts)
 
     # ---- the command ----------------------------------------------------------------------------
@@ -189,10 +203,10 @@ class PolicyRuntime:
         w = min(max(float(command[0, 1]), -self.w_limit), self.w_limit)
         return action[0], v, w
 
-    def decide(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None) -> Decision:
+    def decide(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None, memory=None) -> Decision:
         """One control step: stop inside the goal radius, else the policy's command (``history``,
-        ``tracks`` and ``trail`` as in :meth:`observation`)."""
-        obs = self.observation(sectors, pose, goal, velocity, history, tracks, trail)
+        ``tracks``, ``trail`` and ``memory`` as in :meth:`observation`)."""
+        obs = self.observation(sectors, pose, goal, velocity, history, tracks, trail, memory)
         dist, angle = float(obs[self.layout.sectors]), float(obs[self.layout.sectors + 1])
         if dist < self.goal_threshold:
             return Decision("reached", 0.0, 0.0, dist, angle, None, obs)

@@ -42,6 +42,7 @@ class ObsLayout:
     ``track_scales``: the divisors of one track's columns (:func:`flashnav.sim.tracks.track_scales`).
     ``pose_trail``: breadcrumbs P after the tracks (2 P columns, x and y; 0 = none).
     ``trail_scale``: the divisor of every breadcrumb column, metres (:func:`flashnav.sim.trail.trail_bound`).
+    ``memory_sectors``: the memory scan's columns after the trail (LiDAR-like, :mod:`flashnav.sim.memory`; 0 = none).
     ``goal_sincos``: the networks see the goal angle as (sin, cos) instead of angle / pi (one feature more than
     the observation's columns: :attr:`feature_dim`); the observation itself is unchanged.
     """
@@ -56,6 +57,7 @@ class ObsLayout:
     track_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     pose_trail: int = 0
     trail_scale: float = 1.0
+    memory_sectors: int = 0
     goal_sincos: bool = False
 
     def __post_init__(self) -> None:
@@ -80,6 +82,8 @@ class ObsLayout:
             raise ValueError(f"ObsLayout.agent_tracks must be an integer >= 0, got {self.agent_tracks!r}")
         if not isinstance(self.pose_trail, int) or self.pose_trail < 0:
             raise ValueError(f"ObsLayout.pose_trail must be an integer >= 0, got {self.pose_trail!r}")
+        if not isinstance(self.memory_sectors, int) or self.memory_sectors < 0:
+            raise ValueError(f"ObsLayout.memory_sectors must be an integer >= 0, got {self.memory_sectors!r}")
 
     @property
     def base_dim(self) -> int:
@@ -92,9 +96,14 @@ class ObsLayout:
         return self.base_dim + self.scan_history * self.sectors
 
     @property
-    def obs_dim(self) -> int:
-        """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail."""
+    def trail_end(self) -> int:
+        """The end of the agent tracks and the pose trail (the scaled columns), where the memory scan starts."""
         return self.history_end + self.agent_tracks * len(self.track_scales) + 2 * self.pose_trail
+
+    @property
+    def obs_dim(self) -> int:
+        """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail + memory_sectors."""
+        return self.trail_end + self.memory_sectors
 
     @property
     def feature_dim(self) -> int:
@@ -123,7 +132,8 @@ class ObsLayout:
                    max_range=preset.lidar.max_range, goal_scale=(float(goal_distance_max), math.pi),
                    velocity_scales=velocity, scan_history=preset.observation.scan_history,
                    agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset),
-                   pose_trail=preset.observation.pose_trail, trail_scale=trail_bound(preset))
+                   pose_trail=preset.observation.pose_trail, trail_scale=trail_bound(preset),
+                   memory_sectors=preset.lidar.sectors if preset.observation.memory_frames else 0)
 
 
 class IPAPRec(nn.Module):
@@ -138,7 +148,8 @@ class IPAPRec(nn.Module):
     History frames (columns from ``layout.base_dim`` on) get the same ``1 / (l - beta)`` with the same
     beta: one reading means the same distance whenever it was taken, and sharing keeps one parameter
     per transform; agent tracks (the last columns) are divided by their bounds like the goal and
-    velocity columns, and so are the pose trail's breadcrumbs after them. The output keeps the input's
+    velocity columns, and so are the pose trail's breadcrumbs after them; the memory scan (last) is LiDAR-like:
+    ``1 / (l - beta)`` with the same beta. The output keeps the input's
     column order; with ``layout.goal_sincos`` the goal angle's column holds sin(angle) and cos(angle) follows it
     (``layout.feature_dim`` columns: sin and cos are continuous where the angle jumps from pi to -pi, the goal
     straight behind; docs/learners.md S18).
@@ -150,10 +161,11 @@ class IPAPRec(nn.Module):
         self.r_in = float(layout.inscribed_radius)
         self.max_range = float(layout.max_range)
         self.copies = copies
-        self.base_dim, self.history_end = layout.base_dim, layout.history_end
+        self.base_dim, self.history_end, self.trail_end = layout.base_dim, layout.history_end, layout.trail_end
         # Python bools: tracing records one path
         self.history = layout.history_end > layout.base_dim
-        self.tracks = layout.obs_dim > layout.history_end  # agent tracks and / or the pose trail
+        self.tracks = layout.trail_end > layout.history_end  # agent tracks and / or the pose trail
+        self.memory = layout.obs_dim > layout.trail_end
         self.scaled_base = layout.base_dim - layout.sectors  # goal and velocity columns
         self.goal_sincos = bool(layout.goal_sincos)
         # softplus(rho0) = r_in - margin - BETA_INIT puts beta at BETA_INIT
@@ -211,7 +223,7 @@ class IPAPRec(nn.Module):
         beta = self.beta(detach_rho)
         if self.copies > 0:
             beta = beta.view(-1, 1, 1)
-        if not self.history and not self.tracks:
+        if not self.history and not self.tracks and not self.memory:
             return torch.cat([self._reciprocal(obs[..., : self.sectors], beta),
                               self._scaled(obs[..., self.sectors:])], dim=-1)
         parts = [self._reciprocal(obs[..., : self.sectors], beta)]
@@ -219,7 +231,9 @@ class IPAPRec(nn.Module):
         if self.history:
             parts.append(self._reciprocal(obs[..., self.base_dim: self.history_end], beta))
         if self.tracks:
-            parts.append(self._scaled(obs[..., self.history_end:], self.scaled_base, None))
+            parts.append(self._scaled(obs[..., self.history_end: self.trail_end], self.scaled_base, None))
+        if self.memory:
+            parts.append(self._reciprocal(obs[..., self.trail_end:], beta))
         return torch.cat(parts, dim=-1)
 
     def _reciprocal(self, lidar: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:

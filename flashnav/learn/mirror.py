@@ -98,6 +98,9 @@ def mirror_for(preset: RobotPreset, fraction: float, device: torch.device | str 
         start = preset.tracks_end + 2 * crumb
         index += [start, start + 1]
         sign += [1.0, -1.0]
+    if preset.observation.memory_frames:  # 360 deg from straight behind: a mirror image reverses the sectors
+        index += list(range(preset.trail_end, preset.trail_end + s))[::-1]
+        sign += [1.0] * s
     if len(index) != preset.obs_dim:  # a column this module does not know: refuse rather than guess
         raise ValueError(f"algo.mirror: {preset.name}'s observation has {preset.obs_dim} columns, the mirror "
                          f"knows {len(index)}")

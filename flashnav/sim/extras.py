@@ -1,7 +1,7 @@
 """The opt-in columns after the paper's observation (:mod:`flashnav.sim.env`'s layout): the scan history
-(:mod:`flashnav.sim.history`), the agent tracks (:mod:`flashnav.sim.tracks`) and the pose trail
-(:mod:`flashnav.sim.trail`), in that order. Each is None where its option is 0: then the step is exactly
-the paper's."""
+(:mod:`flashnav.sim.history`), the agent tracks (:mod:`flashnav.sim.tracks`), the pose trail
+(:mod:`flashnav.sim.trail`) and the memory scan (:mod:`flashnav.sim.memory`), in that order. Each is None
+where its option is 0: then the step is exactly the paper's."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import torch
 
 from flashnav.config import RobotPreset
 from flashnav.sim.history import ScanHistory
+from flashnav.sim.memory import WallMemory
 from flashnav.sim.tracks import AgentTracks
 from flashnav.sim.trail import PoseTrail
 
@@ -21,17 +22,21 @@ class ObservationExtras:
         self.history = ScanHistory(n, o.scan_history, preset.lidar.sectors, device) if o.scan_history else None
         self.tracks = AgentTracks(preset, n, beam_angles, device) if o.agent_tracks else None
         self.trail = PoseTrail(n, o.pose_trail, o.trail_every, device) if o.pose_trail else None
+        self.memory = WallMemory.from_preset(preset, n, beam_angles, device) if o.memory_frames else None
 
     def append(self, obs: torch.Tensor, sel, agents, pose: torch.Tensor, ranges: torch.Tensor, start: bool,
                steps: torch.Tensor | None = None) -> torch.Tensor:
         """The paper's observations ``obs`` [k, D] of slots ``sel`` with the extras after them: the scan
         history (a new episode, ``start``, fills it; a step gives the frames before it, then this scan joins
-        them), the ``agents`` seen, as a tracker reports them, and the pose trail (``steps`` [k]: the slots'
-        episode steps after this step; not needed at a start)."""
+        them), the ``agents`` seen, as a tracker reports them, the pose trail and the memory scan (``steps``
+        [k]: the slots' episode steps after this step; not needed at a start)."""
         if self.history is not None:
             obs = (self.history.start if start else self.history.push)(sel, obs)
         if self.tracks is not None:
             obs = torch.cat([obs, self.tracks.observe(sel, agents, pose, ranges, fresh=start)], dim=1)
         if self.trail is not None:
             obs = torch.cat([obs, self.trail.start(sel, pose) if start else self.trail.push(sel, pose, steps)], dim=1)
+        if self.memory is not None:
+            m = self.memory
+            obs = torch.cat([obs, m.start(sel, pose, ranges) if start else m.push(sel, pose, ranges, steps)], dim=1)
         return obs

@@ -18,6 +18,8 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     then, only with ``observation.pose_trail`` P > 0, the robot's own earlier positions, one every
     ``observation.trail_every`` steps, newest first (x, y in the robot frame; :mod:`flashnav.sim.trail`;
     a new episode starts with its start position repeated); obs_dim += 2 P
+    then, only with ``observation.memory_frames`` F > 0, the memory scan: a 360-deg pooled scan of the wall
+    points hit in the last F stored scans (:mod:`flashnav.sim.memory`); obs_dim += S
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
 def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) [obs_dim] float32 of the observation space; history frames repeat the LiDAR bounds,
     agent tracks :func:`flashnav.sim.tracks.track_bounds`, pose-trail breadcrumbs
-    +-:func:`flashnav.sim.trail.trail_bound`."""
+    +-:func:`flashnav.sim.trail.trail_bound`, the memory scan the LiDAR's."""
     s = preset.lidar.sectors
     (v_lo, v_hi), (w_lo, w_hi) = preset.motion.v_bounds, preset.motion.w_bounds
     vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if preset.motion.velocity_state_dims == 2 else (
@@ -53,8 +55,11 @@ def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[n
     k, m = preset.observation.scan_history, preset.observation.agent_tracks
     t_lo, t_hi = track_bounds(preset)
     trail = np.full(2 * preset.observation.pose_trail, trail_bound(preset), dtype=np.float32)
-    return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m), -trail]),
-            np.concatenate([high, np.tile(high[:s], k), np.tile(np.array(t_hi, np.float32), m), trail]))
+    mem = int(preset.observation.memory_frames > 0)  # the memory scan: LiDAR bounds, one frame
+    return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m), -trail,
+                            np.tile(low[:s], mem)]),
+            np.concatenate([high, np.tile(high[:s], k), np.tile(np.array(t_hi, np.float32), m), trail,
+                            np.tile(high[:s], mem)]))
 
 
 def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator) -> torch.Tensor:

@@ -1,0 +1,72 @@
+"""The memory scan on the robot (numpy, no torch): :mod:`flashnav.sim.memory` from a real scanner's beams.
+
+A policy trained with ``observation.memory_frames`` F > 0 ends its observation with a 360-deg pooled scan
+of the wall hits stored in the last F stored scans. The simulator cuts its own beams into groups of
+consecutive beams; a robot's scanner has other beams, so here a stored scan is cut by angle into the same
+``points_per_frame`` equal wedges across the policy's field of view (the simulator's groups exactly, for
+its own beams): each wedge keeps its nearest hit at that beam's bearing, in the odometry frame. The
+controller (:class:`flashnav.deploy.controller.Controller`) stores the first control step's scan after a
+goal and then one every ``every`` control steps, as the simulator's episode steps; a new goal forgets.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class ScanMemory:
+    """The stored wall points of one robot (odometry frame) and the memory scan they give."""
+
+    def __init__(self, frames: int, every: int, sectors: int, points: int, fov_deg: float, max_range: float):
+        if frames < 1 or every < 1 or sectors < 1 or points < 1 or not 0 < fov_deg <= 360 or not max_range > 0:
+            raise ValueError(f"ScanMemory needs frames, every, sectors, points >= 1, fov in (0, 360] deg and a "
+                             f"positive max range, got {frames}, {every}, {sectors}, {points}, {fov_deg}, {max_range}")
+        self.frames, self.every, self.sectors, self.points = frames, every, sectors, points
+        self.fov, self.max_range = math.radians(fov_deg), float(max_range)
+        self.stored: list[np.ndarray] = []  # frames of hit points [h, 2], newest first
+
+    def forget(self) -> None:
+        """A new goal: nothing is remembered."""
+        self.stored = []
+
+    def frame(self, pose, angles: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+        """The hit points [h, 2] (odometry frame) of one scan: beams at ``angles`` [B] (radians from the
+        heading) with ``ranges`` [B] (m; inf = no return, NaN = invalid) seen from ``pose`` (x, y, yaw):
+        the nearest hit below max range in each of ``points`` equal wedges across the field of view."""
+        angles, ranges = np.asarray(angles, np.float64), np.asarray(ranges, np.float64)
+        rel = angles + 0.5 * self.fov
+        if self.fov >= 2 * math.pi:
+            rel = np.mod(rel, 2 * math.pi)
+        wedge = np.floor(rel / (self.fov / self.points)).astype(np.int64)
+        hit = np.isfinite(ranges) & (ranges < self.max_range) & (wedge >= 0) & (wedge < self.points)
+        best = np.full(self.points, np.inf)
+        np.minimum.at(best, wedge[hit], ranges[hit])
+        out = []
+        for j in np.flatnonzero(np.isfinite(best)):  # the first beam of the wedge at its minimum
+            k = np.flatnonzero(hit & (wedge == j) & (ranges == best[j]))[0]
+            bearing = float(pose[2]) + angles[k]
+            out.append((float(pose[0]) + best[j] * math.cos(bearing), float(pose[1]) + best[j] * math.sin(bearing)))
+        return np.asarray(out, np.float64).reshape(-1, 2)
+
+    def step(self, pose, angles, ranges, goal_steps: int) -> np.ndarray:
+        """The memory scan [sectors] float32 m for the control step ``goal_steps`` (0 = the goal's first)
+        at ``pose``: its scan is stored first when ``goal_steps`` is 0 or a multiple of ``every``."""
+        if not self.stored or goal_steps % self.every == 0:
+            self.stored = [self.frame(pose, angles, ranges), *self.stored][: self.frames]
+        return self.scan(pose)
+
+    def scan(self, pose) -> np.ndarray:
+        """[sectors] float32: the distance to the nearest stored point per 360-deg sector of the robot frame
+        of ``pose`` (sector 0 from straight behind, counter-clockwise); max range where none lies."""
+        out = np.full(self.sectors, self.max_range)
+        pts = np.concatenate(self.stored) if self.stored else np.zeros((0, 2))
+        if len(pts):
+            dx, dy = pts[:, 0] - float(pose[0]), pts[:, 1] - float(pose[1])
+            c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
+            x, y = c * dx + s * dy, -s * dx + c * dy
+            sector = np.clip(np.floor((np.arctan2(y, x) + math.pi) / (2 * math.pi / self.sectors)).astype(np.int64),
+                             0, self.sectors - 1)
+            np.minimum.at(out, sector, np.minimum(np.hypot(x, y), self.max_range))
+        return out.astype(np.float32)
