@@ -177,17 +177,18 @@ def test_the_mirror_reverses_the_memory_sectors():
     gen = torch.Generator().manual_seed(5)
     preset = load_robot("go2", **{"observation.memory_frames": 2})
     m = WallMemory.from_preset(preset, 4, beam_angles(360.0, preset.lidar.beams), torch.device("cpu"))
-    pts = torch.rand(4, 2, 60, 2, generator=gen) * 8 - 4
+    pts = torch.rand(4, 2, 2, 60, generator=gen) * 8 - 4  # [k, frames, (x, y), points]
     valid = torch.rand(4, 2, 60, generator=gen) < 0.8
     pose = torch.cat([torch.rand(4, 2, generator=gen) - 0.5, (torch.rand(4, 1, generator=gen) * 2 - 1) * math.pi], 1)
     width = 2 * math.pi / preset.lidar.sectors
-    rel = pts - pose[:, None, None, :2]
-    bearing = torch.atan2(rel[..., 1], rel[..., 0]) - pose[:, None, None, 2]
+    rel = pts - pose[:, None, :2, None]
+    bearing = torch.atan2(rel[:, :, 1], rel[:, :, 0]) - pose[:, 2, None, None]
     u = torch.remainder(bearing + math.pi, 2 * math.pi) / width
     valid &= (u - u.round()).abs() * width > 1e-3  # keep the points off the sector boundaries
-    flip = torch.tensor([1.0, -1.0])
-    mirrored = m.scan(pts * flip, valid, pose * torch.tensor([1.0, -1.0, -1.0]))
-    assert torch.allclose(mirrored, m.scan(pts, valid, pose).flip(1), atol=1e-5)
+    pts = torch.where(valid[:, :, None], pts, torch.full_like(pts, math.inf))  # inf: no hit
+    flip = torch.tensor([1.0, -1.0])[None, None, :, None]
+    mirrored = m.scan(pts * flip, pose * torch.tensor([1.0, -1.0, -1.0]))
+    assert torch.allclose(mirrored, m.scan(pts, pose).flip(1), atol=1e-5)
     mirror = mirror_for(preset, 1.0)
     obs = torch.rand(3, preset.obs_dim)
     tail = slice(preset.trail_end, preset.obs_dim)
