@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from test_pose_trail import forward_actions  # seeded, forward-biased actions: episodes end, slots reset
 
 from flashnav.learn.mirror import mirror_for
 from flashnav.learn.networks import IPAPRec, ObsLayout
@@ -24,13 +25,6 @@ from flashnav.sim.observation import beam_angles
 
 #: a point this close (radians) to a sector boundary may fall on either side in float32 and float64
 EDGE = 1e-4
-
-
-def forward_actions(gen: torch.Generator, n: int) -> torch.Tensor:
-    """Seeded random actions biased forward (episodes end in collisions and at goals: resets happen)."""
-    action = torch.rand(n, 2, generator=gen) * 2 - 1
-    action[:, 0] = action[:, 0] * 0.5 + 0.5
-    return action
 
 
 def reference_frame(preset, ranges: list[float], pose) -> list[tuple[float, float]]:
@@ -327,3 +321,16 @@ def test_bench_sim_times_the_memory_beside_the_static_step(tmp_path, capsys):
     capsys.readouterr()
     assert main(["bench", "sim", "--quick", "--memory", "-1", "--no-irsim"]) == 2
     assert "--memory must be >= 0, got 0, 0 and -1" in " ".join(capsys.readouterr().err.split())
+
+
+def test_the_metadata_reader_falls_back_and_names_a_bad_memory_record():
+    from flashnav.policy_meta import memory_scan_shape
+
+    assert memory_scan_shape({}) == (0, 1)  # a file written before the memory existed
+    assert memory_scan_shape({"preset": {"observation": {"memory_frames": 6, "memory_every": 4}}}) == (6, 4)
+    assert memory_scan_shape({"observation": {"memory_scan": {"frames": 3, "every": 2}},
+                              "preset": {"observation": {"memory_frames": 6}}}) == (3, 2)
+    with pytest.raises(ValueError, match=r"p.onnx: the policy's metadata records memory_every 0; expected an integer >= 1"):
+        memory_scan_shape({"observation": {"memory_scan": {"frames": 3, "every": 0}}}, "p.onnx")
+    with pytest.raises(ValueError, match=r"memory_frames '2'; expected an integer >= 0"):
+        memory_scan_shape({"observation": {"memory_scan": {"frames": "2", "every": 1}}})
