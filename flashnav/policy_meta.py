@@ -66,12 +66,7 @@ def pose_trail_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tup
 
     Raises ValueError naming ``path`` when a recorded value is not an integer (count >= 0, every >= 1)."""
     count = _recorded_count(meta, "pose_trail", "count", path)
-    every = ((meta.get("observation") or {}).get("pose_trail") or {}).get("every")
-    if every is None:
-        every = ((meta.get("preset") or {}).get("observation") or {}).get("trail_every", 1)
-    if not isinstance(every, int) or isinstance(every, bool) or every < 1:
-        raise ValueError(f"{path}: the policy's metadata records trail_every {every!r}; expected an integer >= 1")
-    return count, every
+    return count, _recorded_int(meta, "pose_trail", "every", "trail_every", 1, path)
 
 
 def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, int]:
@@ -81,24 +76,25 @@ def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tu
     memory existed).
 
     Raises ValueError naming ``path`` when a recorded value is not an integer (frames >= 0, every >= 1)."""
-    frames = ((meta.get("observation") or {}).get("memory_scan") or {}).get("frames")
-    if frames is None:
-        frames = ((meta.get("preset") or {}).get("observation") or {}).get("memory_frames", 0)
-    every = ((meta.get("observation") or {}).get("memory_scan") or {}).get("every")
-    if every is None:
-        every = ((meta.get("preset") or {}).get("observation") or {}).get("memory_every", 1)
-    for name, value, least in (("memory_frames", frames, 0), ("memory_every", every, 1)):
-        if not isinstance(value, int) or isinstance(value, bool) or value < least:
-            raise ValueError(f"{path}: the policy's metadata records {name} {value!r}; expected an integer >= {least}")
-    return frames, every
+    return (_recorded_int(meta, "memory_scan", "frames", "memory_frames", 0, path),
+            _recorded_int(meta, "memory_scan", "every", "memory_every", 1, path))
 
 
 def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | Path) -> int:
     """``observation.<option>.<field>`` of the metadata, else the preset block's ``observation.<option>``,
     else 0; a ValueError naming ``path`` unless it is an integer >= 0."""
-    recorded = ((meta.get("observation") or {}).get(option) or {}).get(field)
+    return _recorded_int(meta, option, field, option, 0, path)
+
+
+def _recorded_int(meta: dict[str, Any], block: str, field: str, preset_key: str, least: int,
+                  path: str | Path) -> int:
+    """``observation.<block>.<field>`` of the metadata, else the preset block's ``observation.<preset_key>``,
+    else ``least`` (files written before the option existed); a ValueError naming ``path`` and ``preset_key``
+    unless it is an integer >= ``least``."""
+    recorded = ((meta.get("observation") or {}).get(block) or {}).get(field)
     if recorded is None:
-        recorded = ((meta.get("preset") or {}).get("observation") or {}).get(option, 0)
-    if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < 0:
-        raise ValueError(f"{path}: the policy's metadata records {option} {recorded!r}; expected an integer >= 0")
+        recorded = ((meta.get("preset") or {}).get("observation") or {}).get(preset_key, least)
+    if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < least:
+        raise ValueError(f"{path}: the policy's metadata records {preset_key} {recorded!r}; expected an integer "
+                         f">= {least}")
     return recorded
