@@ -134,12 +134,13 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
     one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows
            if r["maps"] == 1 and r["agents"] == 0 and r.get("memory", 0) == 0}
     many = any(r["maps"] > 1 for r in rows)
+    moving = any(r["agents"] > 0 for r in rows)
     remembers = any(r.get("memory", 0) > 0 for r in rows)
-    moving = any(r["agents"] > 0 for r in rows) or remembers  # the 'x static' column
+    vs_static = moving or remembers  # the 'x static' column: rows with agents or the memory scan
     tracked = any(r.get("tracks", 0) > 0 for r in rows)
     t = Table(title="whole env step, random actions (full 1,080-beam scans)")
     for col in ("robot", "raycaster", "envs", *(("maps",) if many else ()), *(("agents",) if moving else ()),
-                *(("tracks",) if tracked else ()), *(("memory",) if remembers else ()), "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if moving else ())):
+                *(("tracks",) if tracked else ()), *(("memory",) if remembers else ()), "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if vs_static else ())):
         t.add_column(col, justify="right")
     for r in rows:
         ref = base.get(key(r))
@@ -152,7 +153,7 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:
             cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and r["maps"] > 1 else "-")
-        if moving:
+        if vs_static:
             extra = r["agents"] > 0 or r.get("memory", 0) > 0
             cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and extra else "-")
         t.add_row(*cells)
@@ -160,7 +161,7 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         t.add_row(p["robot"], "ir-sim (peer)", "1", *(("1",) if many else ()), *(("0",) if moving else ()),
                   *(("0",) if tracked else ()), *(("0",) if remembers else ()),
                   f"{p['env_steps_per_s']:,.1f}", f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-",
-                  *(("-",) if many else ()), *(("-",) if moving else ()))
+                  *(("-",) if many else ()), *(("-",) if vs_static else ()))
     console.print(t)
     if accuracy:
         a = Table(title="range error vs the exact raycaster (random free poses, metres)")
