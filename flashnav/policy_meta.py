@@ -69,15 +69,23 @@ def pose_trail_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tup
     return count, _recorded_int(meta, "pose_trail", "every", "trail_every", 1, path)
 
 
-def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, int]:
-    """``(frames, every)`` of the policy's memory scan (``observation.memory_frames`` stored scans, one every
-    ``observation.memory_every`` control steps, :mod:`flashnav.sim.memory`): the metadata's
-    ``observation.memory_scan``, else the exported preset's, else ``(0, 1)`` (files written before the
-    memory existed).
+def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, int, int]:
+    """``(frames, every, points)`` of the policy's memory scan (``observation.memory_frames`` stored scans, one
+    every ``observation.memory_every`` control steps, each kept as ``points`` hits, :mod:`flashnav.sim.memory`):
+    the metadata's ``observation.memory_scan``, else the exported preset's, else ``(0, 1, 0)`` (files written
+    before the memory existed). ``points`` is 0 without a memory.
 
-    Raises ValueError naming ``path`` when a recorded value is not an integer (frames >= 0, every >= 1)."""
-    return (_recorded_int(meta, "memory_scan", "frames", "memory_frames", 0, path),
-            _recorded_int(meta, "memory_scan", "every", "memory_every", 1, path))
+    Raises ValueError naming ``path`` when a recorded value is not an integer (frames >= 0, every >= 1) or
+    when a policy with a memory does not record its ``points_per_frame`` (>= 1)."""
+    frames = _recorded_int(meta, "memory_scan", "frames", "memory_frames", 0, path)
+    every = _recorded_int(meta, "memory_scan", "every", "memory_every", 1, path)
+    if not frames:
+        return frames, every, 0
+    points = ((meta.get("observation") or {}).get("memory_scan") or {}).get("points_per_frame")
+    if not isinstance(points, int) or isinstance(points, bool) or points < 1:
+        raise ValueError(f"{path}: the policy's metadata records a memory scan of {frames} frames but "
+                         f"observation.memory_scan.points_per_frame {points!r}; expected an integer >= 1")
+    return frames, every, points
 
 
 def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | Path) -> int:

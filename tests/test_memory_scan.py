@@ -326,10 +326,14 @@ def test_bench_sim_times_the_memory_beside_the_static_step(tmp_path, capsys):
 def test_the_metadata_reader_falls_back_and_names_a_bad_memory_record():
     from flashnav.policy_meta import memory_scan_shape
 
-    assert memory_scan_shape({}) == (0, 1)  # a file written before the memory existed
-    assert memory_scan_shape({"preset": {"observation": {"memory_frames": 6, "memory_every": 4}}}) == (6, 4)
-    assert memory_scan_shape({"observation": {"memory_scan": {"frames": 3, "every": 2}},
-                              "preset": {"observation": {"memory_frames": 6}}}) == (3, 2)
+    assert memory_scan_shape({}) == (0, 1, 0)  # a file written before the memory existed
+    assert memory_scan_shape({"preset": {"observation": {"memory_frames": 0, "memory_every": 4}}}) == (0, 4, 0)
+    assert memory_scan_shape({"observation": {"memory_scan": {"frames": 3, "every": 2, "points_per_frame": 60}},
+                              "preset": {"observation": {"memory_frames": 6}}}) == (3, 2, 60)
+    # a memory without its points per frame is not guessed (a wrong count misreads every stored scan)
+    with pytest.raises(ValueError, match=r"p.onnx: the policy's metadata records a memory scan of 6 frames but "
+                                         r"observation.memory_scan.points_per_frame None; expected an integer >= 1"):
+        memory_scan_shape({"preset": {"observation": {"memory_frames": 6, "memory_every": 4}}}, "p.onnx")
     with pytest.raises(ValueError, match=r"p.onnx: the policy's metadata records memory_every 0; expected an integer >= 1"):
         memory_scan_shape({"observation": {"memory_scan": {"frames": 3, "every": 0}}}, "p.onnx")
     with pytest.raises(ValueError, match=r"memory_frames '2'; expected an integer >= 0"):

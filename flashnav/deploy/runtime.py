@@ -93,8 +93,8 @@ class PolicyRuntime:
         self.scan_history = scan_history_frames(meta, path)  # k previous frames after the paper's layout
         self.agent_tracks = agent_track_count(meta, path)  # M people of a tracker
         self.pose_trail, self.trail_every = pose_trail_shape(meta, path)  # P breadcrumbs
-        self.memory_frames, self.memory_every = memory_scan_shape(meta, path)  # the memory scan, last
-        self.memory_points = int(((meta.get("observation") or {}).get("memory_scan") or {}).get("points_per_frame", 1))
+        # the memory scan, last: F stored scans, one every E control steps, P hits each
+        self.memory_frames, self.memory_every, self.memory_points = memory_scan_shape(meta, path)
         memory = self.layout.sectors if self.memory_frames else 0
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
                               - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory)
