@@ -131,26 +131,29 @@ def test_a_wall_between_robot_and_goal_counts_the_way_round():
     assert geodesic < 0.5 * straight_line
 
 
-def test_progress_rewards_telescope_to_the_path_length_gained():
+@pytest.mark.parametrize("c", [1.0, 0.9])
+def test_progress_rewards_telescope_to_the_path_length_gained(c):
+    """c = reward.progress_discount: the discounted sum telescopes to progress (d_0 - c^T d_T) (c = 1: the path
+    length gained)."""
     grid = blocked_room(0.05)
-    env = NavVecEnv(geo_robot(), 64, grid=grid, seed=5)
+    env = NavVecEnv(geo_robot(**{"reward.progress_discount": c}), 64, grid=grid, seed=5)
     env.reset(seed=5)
     d0 = env.shaping.distance.clone()
     total = torch.zeros(64)
     alive = torch.ones(64, dtype=torch.bool)
     gen = torch.Generator().manual_seed(0)
-    for _ in range(30):
+    for t in range(30):
         actions = torch.rand(64, 2, generator=gen) * 2 - 1
         _, reward, term, trunc, info = env.step(actions)
         ended = term | trunc
-        total += torch.where(alive & ~ended, reward, torch.zeros(64))
+        total += torch.where(alive & ~ended, reward * c ** t, torch.zeros(64))
         d_last = torch.where(alive & ~ended, env.shaping.distance, torch.zeros(64))
         alive &= ~ended
         if alive.any():
             d_alive = env.shaping.distance
     assert alive.sum() > 10
-    c = env.preset.reward.progress
-    assert torch.allclose(total[alive], c * (d0[alive] - d_alive[alive]), atol=1e-3)
+    k = env.preset.reward.progress
+    assert torch.allclose(total[alive], k * (d0[alive] - c ** 30 * d_alive[alive]), atol=1e-3)
     assert (env.shaping.distance <= MARGIN_M + env.sampler.d_max + 1e-5).all()
     del d_last
 
@@ -161,6 +164,7 @@ def test_geodesic_progress_with_straight_line_sampling_needs_one_map_and_evaluat
     preset = geo_robot()
     plain = robot("geodesic")
     assert evaluation_preset(preset).reward == plain.reward and evaluation_preset(plain) is plain
+    assert evaluation_preset(geo_robot(**{"reward.progress_discount": 0.99})).reward == plain.reward
     # the evaluation preset draws exactly the episodes of the plain geodesic task
     grid = serpentine(0.05)
     a = EpisodeSampler(grid, evaluation_preset(preset), torch.device("cpu")).sample(64, torch.Generator().manual_seed(7))

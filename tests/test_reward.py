@@ -1,6 +1,7 @@
 """Flags and reward of one step (flashnav.sim.reward): the paper's order, checked on hand-made cases, and
 the env's transitions against them."""
 
+import pytest
 import torch
 
 from flashnav.presets import load_robot
@@ -56,3 +57,42 @@ def test_env_steps_agree_with_outcome():
         assert torch.equal(term, info["success"] | info["collision"])
         ended_total += int(term.sum())
     assert ended_total > 0  # the random walk did end episodes, so the checks above bit
+
+
+def test_a_progress_discount_makes_the_shaping_potential_based():
+    """With c = gamma the shaping is gamma Phi(s') - Phi(s), Phi = -progress d: its discounted sum over any run of
+    live steps telescopes to progress (d_0 - gamma^T d_T), whatever the route (Ng et al. 1999); c = 1 is the
+    paper's term exactly."""
+    gamma = 0.99
+    pbrs = load_robot("turtlebot2", **{"reward.progress_discount": gamma})
+    assert P.reward.progress_discount == 1.0
+    env = make_env(pbrs, 64, seed=5)
+    paper = make_env("turtlebot2", 64, seed=5)
+    env.reset(seed=5)
+    paper.reset(seed=5)
+    d0 = env.goal_distance.clone()
+    total, weight = torch.zeros(64, dtype=torch.float64), 1.0
+    alive = torch.ones(64, dtype=torch.bool)
+    gen = torch.Generator().manual_seed(1)
+    for _ in range(40):
+        before = env.goal_distance.clone()
+        action = torch.rand(64, 2, generator=gen) * 2 - 1
+        _, reward, term, trunc, _ = env.step(action)
+        _, paper_reward, *_ = paper.step(action)
+        live = ~(term | trunc)
+        # the same transitions as the paper's env; only the live steps' shaping differs, by (1 - c) d_new
+        d = env.goal_distance
+        assert torch.allclose(reward[live], pbrs.reward.progress * (before - gamma * d)[live])
+        assert torch.allclose((reward - paper_reward)[live], (pbrs.reward.progress * (1 - gamma) * d)[live])
+        assert torch.equal(reward[~live], paper_reward[~live])
+        alive &= live
+        total += weight * reward.double() * alive
+        weight *= gamma
+        if alive.any():
+            d_alive = d.clone()
+    steps = 40
+    expected = pbrs.reward.progress * (d0.double() - gamma ** steps * d_alive.double())
+    assert alive.sum() > 5  # some slots drove all 40 steps, so the telescoping sum is checked
+    assert torch.allclose(total[alive], expected[alive], atol=1e-4)
+    with pytest.raises(ValueError, match="progress_discount"):
+        load_robot("turtlebot2", **{"reward.progress_discount": 1.5})

@@ -53,14 +53,15 @@ def drive_bound(preset: RobotPreset) -> float:
 
 
 def evaluation_preset(preset: RobotPreset) -> RobotPreset:
-    """``preset`` with the paper's straight-line progress and the task's own episode draws: what an
-    evaluation plays. The reward does not change what is measured, but the geodesic metric plays every
-    pair from its source end, and ``episode.hard_share`` re-weights the draws, which would change the
-    episodes; evaluations keep the task's."""
-    if preset.reward.progress_metric == "euclidean" and preset.episode.hard_share == 0:
+    """``preset`` with the paper's straight-line progress (``progress_discount`` 1) and the task's own episode
+    draws: what an evaluation plays. The reward does not change what is measured (its returns read as the
+    paper's), but the geodesic metric plays every pair from its source end, and ``episode.hard_share``
+    re-weights the draws, which would change the episodes; evaluations keep the task's."""
+    r = preset.reward
+    if r.progress_metric == "euclidean" and r.progress_discount == 1.0 and preset.episode.hard_share == 0:
         return preset
     return preset.model_copy(update={
-        "reward": preset.reward.model_copy(update={"progress_metric": "euclidean"}),
+        "reward": r.model_copy(update={"progress_metric": "euclidean", "progress_discount": 1.0}),
         "episode": preset.episode.model_copy(update={"hard_share": 0.0})})
 
 

@@ -3,7 +3,8 @@
 In the paper's order: the goal is reached when the goal distance is below ``episode.goal_threshold``
 (+goal, terminated); otherwise a footprint that touches a wall or the map's edge (``collision_static``)
 or a moving agent (``collision_agent``) ends the episode with the collision reward; otherwise the step
-earns the shaping term ``progress x (d_old - d_new)``. Reaching the horizon without a terminal event is a
+earns the shaping term ``progress x (d_old - c d_new)``, ``c = reward.progress_discount`` (1, the paper's; the
+learner's discount gamma makes the term potential-based, Ng, Harada and Russell 1999). Reaching the horizon without a terminal event is a
 truncation. ``d`` is the straight-line goal distance (the paper's), or with ``reward.progress_metric:
 geodesic`` the path length to the goal through the robot's free space (:class:`Shaping`,
 :mod:`flashnav.sim.goal_fields`). With agents and ``reward.agent_proximity > 0`` (off by default) the
@@ -30,7 +31,7 @@ class Shaping:
 
     def __init__(self, preset: RobotPreset, frame_maps: Sequence[OccupancyMap], samplers, num_envs: int,
                  device: torch.device):
-        self.weight = preset.reward.progress
+        self.weight, self.discount = preset.reward.progress, preset.reward.progress_discount
         self.fields = self.distance = self.source = None
         if preset.reward.progress_metric == "geodesic":
             if preset.episode.goal_sampling == "geodesic":
@@ -57,9 +58,9 @@ class Shaping:
         """The shaping term [k] of slots ``sel`` moving to ``xy`` [k, 2] (straight-line distance from
         ``straight_old`` to ``straight``); geodesic progress updates its distances."""
         if self.fields is None:
-            return self.weight * (straight_old - straight)
+            return self.weight * (straight_old - self.discount * straight)
         d = self.fields.distance(xy, self.source[sel], maps, straight, unknown=self.distance[sel])
-        gain = self.weight * (self.distance[sel] - d)
+        gain = self.weight * (self.distance[sel] - self.discount * d)
         self.distance[sel] = d
         return gain
 
