@@ -17,7 +17,8 @@ else progress * (d_old - c d_new), d the straight-line goal distance (``reward.p
 the path length), c = ``reward.progress_discount`` (1, the paper's). Reaching the horizon without a terminal
 event is a truncation. Finished slots are reset in the same step (Gymnasium's SAME_STEP autoreset):
 ``info["final_obs"]`` holds the observation *before* the reset for every slot (equal to ``obs`` where nothing
-finished) and ``info["_final_obs"]`` marks the slots that finished, so ``info["final_obs"]`` is always the correct next observation for replay.
+finished) and ``info["_final_obs"]`` marks the slots that finished, so ``info["final_obs"]`` is always the
+correct next observation for replay.
 
 Frames: the state tensors (``pose``, ``goal``) are float32 metres in the *simulator frame*, world
 coordinates minus ``frame_origin`` (float64). That is (0, 0) - world coordinates as they are - for
