@@ -81,7 +81,7 @@ def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tu
     every = _recorded_int(meta, "memory_scan", "every", "memory_every", 1, path)
     if not frames:
         return frames, every, 0
-    points = ((meta.get("observation") or {}).get("memory_scan") or {}).get("points_per_frame")
+    points = _metadata_field(meta, "memory_scan", "points_per_frame")
     if not isinstance(points, int) or isinstance(points, bool) or points < 1:
         raise ValueError(f"{path}: the policy's metadata records a memory scan of {frames} frames but "
                          f"observation.memory_scan.points_per_frame {points!r}; expected an integer >= 1")
@@ -94,12 +94,17 @@ def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | P
     return _recorded_int(meta, option, field, option, 0, path)
 
 
+def _metadata_field(meta: dict[str, Any], block: str, field: str) -> Any:
+    """``observation.<block>.<field>`` of the metadata, None where any level is missing."""
+    return ((meta.get("observation") or {}).get(block) or {}).get(field)
+
+
 def _recorded_int(meta: dict[str, Any], block: str, field: str, preset_key: str, least: int,
                   path: str | Path) -> int:
     """``observation.<block>.<field>`` of the metadata, else the preset block's ``observation.<preset_key>``,
     else ``least`` (files written before the option existed); a ValueError naming ``path`` and ``preset_key``
     unless it is an integer >= ``least``."""
-    recorded = ((meta.get("observation") or {}).get(block) or {}).get(field)
+    recorded = _metadata_field(meta, block, field)
     if recorded is None:
         recorded = ((meta.get("preset") or {}).get("observation") or {}).get(preset_key, least)
     if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < least:
