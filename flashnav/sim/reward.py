@@ -5,8 +5,8 @@ In the paper's order: the goal is reached when the goal distance is below ``epis
 or a moving agent (``collision_agent``) ends the episode with the collision reward; otherwise the step
 earns the shaping term ``progress x (d_old - c d_new)``, ``c = reward.progress_discount`` (1, the paper's; the
 learner's discount gamma makes the term potential-based, Ng, Harada and Russell 1999). Reaching the horizon
-without a terminal event is a truncation. ``d`` is the straight-line goal distance (the paper's), or with ``reward.progress_metric:
-geodesic`` the path length to the goal through the robot's free space (:class:`Shaping`,
+without a terminal event is a truncation. ``d`` is the straight-line goal distance (the paper's), or with
+``reward.progress_metric: geodesic`` the path length to the goal through the robot's free space (:class:`Shaping`,
 :mod:`flashnav.sim.goal_fields`). With agents and ``reward.agent_proximity > 0`` (off by default) the
 shaping term also pays ``agent_proximity`` per metre by which the robot is nearer an agent than
 ``agent_proximity_distance``.
