@@ -205,6 +205,9 @@ def test_resolve_maps_directory_glob_and_list(tmp_path, maps):
         resolve_maps(str(tmp_path / "*.yml"), "turtlebot2")
     with pytest.raises(ValueError, match="at least one map"):
         resolve_maps([], "turtlebot2")
+    with pytest.raises(ValueError, match=r"'.*no_such_dir': no such directory or file; .*turtlebot2"):
+        resolve_maps(str(tmp_path / "no_such_dir"), "turtlebot2")
+    assert [g.name for g in resolve_maps("go2", "turtlebot2")] == ["go2"]  # one bundled name is still one map
 
 
 # ---- configuration and training over many maps ---------------------------------------------------

@@ -107,8 +107,9 @@ def resolve_maps(maps, default: str) -> list[OccupancyMap]:
         default: the bundled map for a ``None`` entry.
 
     Raises:
-        ValueError: an empty sequence, a directory with no map YAML, a pattern matching no file, or
-            an entry :func:`resolve_map` refuses (the message names it).
+        ValueError: an empty sequence, a directory with no map YAML, a pattern matching no file, a
+            single string naming nothing that exists, or an entry :func:`resolve_map` refuses (the message
+            names it).
     """
     if isinstance(maps, (str, Path)):
         text = str(maps)
@@ -125,6 +126,11 @@ def resolve_maps(maps, default: str) -> list[OccupancyMap]:
             if not files:
                 raise ValueError(f"maps pattern {text!r} matches no file")
             return [resolve_map(Path(f), default) for f in files]
+        if not path.exists() and text not in bundled_map_names():
+            raise ValueError(
+                f"maps {text!r}: no such directory or file; maps are a directory of ROS map YAML files, a glob "
+                f"pattern (quote it), or one map: a bundled name ({', '.join(bundled_map_names())}) or a .yaml path"
+            )
         return [resolve_map(maps, default)]
     if isinstance(maps, OccupancyMap):
         return [maps]
