@@ -50,12 +50,18 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
 
 
 def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
-                       thresholds: tuple[float, ...] = THRESHOLDS, x: str = "train_seconds") -> Path:
+                       thresholds: tuple[float, ...] = THRESHOLDS, x: str = "train_seconds",
+                       ymin: float = 0.0) -> Path:
     """Save a PNG of evaluation success against ``x`` (``train_seconds`` or ``env_steps``), one line
     per run (``bench train`` JSON records: ``robot``, ``algorithm``, ``seed`` or ``label``, and
-    ``curve``), one panel per robot x algorithm, with each run's first crossing of ``thresholds`` marked."""
+    ``curve``), one panel per robot x algorithm, with each run's first crossing of ``thresholds`` marked.
+    Runs with an ``arm`` name share one colour and one legend entry per arm (``NAME (n runs)``);
+    success is drawn from ``ymin`` % up."""
     if x not in ("train_seconds", "env_steps"):
         raise ValueError(f"plot_training_runs: x must be train_seconds or env_steps, got {x!r}")
+    arms = list(dict.fromkeys(r["arm"] for r in runs if r.get("arm")))
+    arm_colour = {a: plt.get_cmap("tab10")(i % 10) for i, a in enumerate(arms)}
+    arm_count = {a: sum(r.get("arm") == a for r in runs) for a in arms}
     hits_key = "time_to_threshold" if x == "train_seconds" else "env_steps_to_threshold"
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in runs:
@@ -64,10 +70,17 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
         raise ValueError("no runs to plot")
     fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False, sharey=True)
     for ax, ((robot, algo), members) in zip(axes[0], groups.items()):
+        labelled = set()
         for r in members:
             t = [p[x] for p in r["curve"]]
             s = [100 * p["success_rate"] for p in r["curve"]]
-            (line,) = ax.plot(t, s, lw=1.2, label=r.get("label") or f"seed {r.get('seed', '?')}")
+            arm = r.get("arm")
+            if arm:
+                label = None if arm in labelled else f"{arm} ({arm_count[arm]} runs)"
+                labelled.add(arm)
+                (line,) = ax.plot(t, s, lw=0.9, alpha=0.75, color=arm_colour[arm], label=label)
+            else:
+                (line,) = ax.plot(t, s, lw=1.2, label=r.get("label") or f"seed {r.get('seed', '?')}")
             for th in thresholds:
                 hit = (r.get(hits_key) or {}).get(str(th))
                 if hit is not None:
@@ -79,6 +92,8 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
         if x == "env_steps":
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
         ax.grid(alpha=0.3)
+        pad = 0.04 * (100 - ymin) + 0.1
+        ax.set_ylim(ymin - pad, 100 + pad)
         ax.legend(fontsize=8, loc="lower right")
     axes[0][0].set_ylabel("evaluation success (%)")
     if title:

@@ -124,3 +124,33 @@ def test_bench_plot_names_a_bad_file(tmp_path, capsys):
     assert cli_main(["bench", "plot", str(old), "--out", str(tmp_path / "y.png")]) == 2
     assert "old.json: its curves have no env_steps; use --x seconds" in capsys.readouterr().out
     assert cli_main(["bench", "plot", str(old), "--x", "seconds", "--out", str(tmp_path / "y.png")]) == 0
+
+
+def test_bench_plot_draws_arms_one_colour_each(tmp_path, capsys, monkeypatch):
+    runs = []
+    for i, rates in enumerate(([0.0, 0.97, 1.0], [0.0, 0.5, 0.98], [0.9, 1.0])):
+        d = tmp_path / f"run{i}"
+        d.mkdir()
+        r = _curve_run(i, rates)
+        (d / "metrics.json").write_text(json.dumps({"config": {"robot": "turtlebot2", "algorithm": "fastdsac",
+                                                               "seed": i}, "curve": r["curve"]}))
+        runs.append(str(d))
+    import flashnav.viz as viz
+
+    seen = {}
+    real = viz.plot_training_runs
+
+    def spy(runs_, out, title="", **kw):
+        seen.update(arms=[r.get("arm") for r in runs_], **kw)
+        return real(runs_, out, title, **kw)
+
+    monkeypatch.setattr(viz, "plot_training_runs", spy)
+    png = tmp_path / "arms.png"
+    assert cli_main(["bench", "plot", "--arm", "scratch", runs[0], runs[1], "--arm", "fine-tuned", runs[2],
+                     "--ymin", "90", "--out", str(png)]) == 0
+    assert seen["arms"] == ["scratch", "scratch", "fine-tuned"] and seen["ymin"] == 90.0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert cli_main(["bench", "plot", "--arm", "lonely", "--out", str(png)]) == 2
+    assert "--arm lonely names no run" in capsys.readouterr().out
+    assert cli_main(["bench", "plot", "--out", str(png)]) == 2
+    assert "give run folders or bench files" in capsys.readouterr().out

@@ -29,11 +29,16 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_bench_train)
     q = bsub.add_parser("plot", help="draw the success curves of `bench train --json` files and/or "
                                      "`flashnav train` run folders")
-    q.add_argument("sources", nargs="+", metavar="JSON_OR_RUN_DIR",
+    q.add_argument("sources", nargs="*", metavar="JSON_OR_RUN_DIR",
                    help="a file written by flashnav bench train --json, or a run folder (its metrics.json)")
+    q.add_argument("--arm", nargs="+", action="append", default=[], metavar=("NAME", "JSON_OR_RUN_DIR"),
+                   help="NAME and its sources: one colour and one legend entry per arm instead of per run "
+                        "(repeat for each arm, e.g. --arm fine-tuned runs/ft-s* --arm scratch runs/sc-s*)")
     q.add_argument("--out", required=True, metavar="PNG")
     q.add_argument("--x", choices=("env-steps", "seconds"), default="env-steps",
                    help="horizontal axis: environment steps (default; machine-independent) or training seconds")
+    q.add_argument("--ymin", type=float, default=0.0,
+                   help="lowest success (%%) drawn, e.g. 90 to see the plateau under 100 %% (default 0)")
     q.set_defaults(func=run_bench_plot)
 
 
@@ -121,8 +126,13 @@ def run_bench_plot(args) -> int:
     from flashnav.viz import plot_training_runs
 
     x = "env_steps" if args.x == "env-steps" else "train_seconds"
+    bad = [a[0] for a in args.arm if len(a) < 2]
+    if bad or not (args.sources or args.arm):
+        print(f"flashnav bench plot: --arm {bad[0]} names no run" if bad else
+              "flashnav bench plot: give run folders or bench files, or --arm NAME SOURCE...")
+        return 2
     runs, dates = [], []
-    for source in args.sources:
+    for arm, source in [(None, s) for s in args.sources] + [(a[0], s) for a in args.arm for s in a[1:]]:
         try:
             found, date = load_curves(Path(source))
         except (OSError, ValueError, KeyError) as e:
@@ -132,10 +142,10 @@ def run_bench_plot(args) -> int:
         if not all(x in p for r in found for p in r["curve"]):
             print(f"flashnav bench plot: {source}: its curves have no {x}; use --x seconds")
             return 2
-        runs += found
+        runs += [dict(r, arm=arm) if arm else r for r in found]
         dates.append(date)
     title = f"success curves, {', '.join(sorted(set(dates)))}; dots: first 90/95/100 % crossing"
-    print(f"success curves: {plot_training_runs(runs, args.out, title, x=x)}")
+    print(f"success curves: {plot_training_runs(runs, args.out, title, x=x, ymin=args.ymin)}")
     return 0
 
 

@@ -1,0 +1,47 @@
+"""scripts/plateau_hits.py: the climb to a plateau and the wait on it for a first 100 % (issue 15 done-means 3)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+
+import plateau_hits  # noqa: E402
+
+
+def curve(rates: list[float], every: int = 5120) -> list[dict]:
+    return [{"env_steps": every * (i + 1), "success_rate": r} for i, r in enumerate(rates)]
+
+
+def test_the_plateau_starts_at_the_level_and_ends_at_the_first_100():
+    at, rates, hit = plateau_hits.plateau(curve([0.5, 0.96, 0.97, 0.99, 1.0, 0.98]), 0.97)
+    assert (at, rates, hit) == (3 * 5120, [0.97, 0.99, 1.0], True)
+    at, rates, hit = plateau_hits.plateau(curve([0.5, 0.98, 0.99]), 0.97)
+    assert (at, rates, hit) == (2 * 5120, [0.98, 0.99], False)
+    assert plateau_hits.plateau(curve([0.5, 0.9]), 0.97) == (None, [], False)
+
+
+def write_run(root: Path, name: str, rates: list[float]) -> str:
+    d = root / name
+    d.mkdir()
+    (d / "metrics.json").write_text(json.dumps({"curve": curve(rates)}))
+    return str(d)
+
+
+def test_the_chance_per_evaluation_is_hits_over_plateau_evaluations(tmp_path, capsys):
+    a = write_run(tmp_path, "a", [0.98, 0.99, 1.0])          # 3 plateau evaluations, a hit
+    b = write_run(tmp_path, "b", [0.5, 0.97, 0.98, 0.99])    # 3, no hit
+    plateau_hits.main([f"arm={a},{b}"])
+    row = capsys.readouterr().out.splitlines()[1].split()
+    # runs 2; climb mean (5120 + 10240) / 2; 6 plateau evaluations; chance 1/6; wait 5120 * 6 env steps
+    assert row[:3] == ["arm", "2", "7,680"] and row[3] == "6" and row[5] == "0.167" and row[6] == "30,720"
+
+
+def test_a_missing_run_is_named(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        plateau_hits.main([f"arm={tmp_path / 'nope'}"])
+    assert "nope/metrics.json: no such file" in capsys.readouterr().err
