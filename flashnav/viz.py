@@ -55,13 +55,12 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
     """Save a PNG of evaluation success against ``x`` (``train_seconds`` or ``env_steps``), one line
     per run (``bench train`` JSON records: ``robot``, ``algorithm``, ``seed`` or ``label``, and
     ``curve``), one panel per robot x algorithm, with each run's first crossing of ``thresholds`` marked.
-    Runs with an ``arm`` name share one colour and one legend entry per arm (``NAME (n runs)``);
+    Runs with an ``arm`` name share one colour and one legend entry per arm (``NAME (n runs)``, n in that panel);
     success is drawn from ``ymin`` % up."""
     if x not in ("train_seconds", "env_steps"):
         raise ValueError(f"plot_training_runs: x must be train_seconds or env_steps, got {x!r}")
     arms = list(dict.fromkeys(r["arm"] for r in runs if r.get("arm")))
     arm_colour = {a: plt.get_cmap("tab10")(i % 10) for i, a in enumerate(arms)}
-    arm_count = {a: sum(r.get("arm") == a for r in runs) for a in arms}
     hits_key = "time_to_threshold" if x == "train_seconds" else "env_steps_to_threshold"
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in runs:
@@ -76,7 +75,7 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
             s = [100 * p["success_rate"] for p in r["curve"]]
             arm = r.get("arm")
             if arm:
-                label = None if arm in labelled else f"{arm} ({arm_count[arm]} runs)"
+                label = None if arm in labelled else f"{arm} ({sum(m.get('arm') == arm for m in members)} runs)"
                 labelled.add(arm)
                 (line,) = ax.plot(t, s, lw=0.9, alpha=0.75, color=arm_colour[arm], label=label)
             else:

@@ -4,19 +4,21 @@
 
 A run that stops at its first 100 % evaluation (``flashnav train``'s default) spends its time in two parts:
 climbing to a plateau just under 100 % and then waiting, evaluation after evaluation, for one that fails none of
-the fixed episodes. For each arm (a name and its runs' directories, comma-separated) this prints, from every
-run's ``metrics.json`` curve: the env steps to the plateau (the first evaluation at or above ``--plateau``), the
-evaluations on the plateau up to and including the first 100 % (runs that never reach 100 % count all theirs),
-the mean success of those evaluations, and the chance that one plateau evaluation reads 100 % (runs that reached
-it / evaluations on the plateau: the maximum-likelihood rate of a geometric wait), with the wait it implies in
-env steps. Two arms with the same chance differ only by their climb.
+the fixed episodes. For each arm (a name and its runs' directories, comma-separated; a ``flashnav bench train
+--json`` file counts its runs) this prints, from every run's curve (read by :func:`flashnav.bench.runs.load_runs`):
+the env steps to the plateau (the first evaluation at or above ``--plateau``), the evaluations on the plateau up
+to and including the first 100 % (runs that never reach 100 % count all theirs), the mean success of those
+evaluations, and the chance that one plateau evaluation reads 100 % (runs that reached it / evaluations on the
+plateau: the maximum-likelihood rate of a geometric wait), with the wait it implies in env steps. Two arms with
+the same chance differ only by their climb.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from flashnav.bench.runs import load_runs
 
 
 def plateau(curve: list[dict], level: float) -> tuple[int | None, list[float], bool]:
@@ -44,29 +46,27 @@ def main(argv: list[str] | None = None) -> None:
         name, _, dirs = arm.partition("=")
         if not dirs:
             p.error(f"{arm!r}: give ARM=RUN_DIR[,RUN_DIR...]")
-        climbs, evals, rates, hits, spacing = [], 0, [], 0, None
-        for d in dirs.split(","):
-            f = Path(d) / "metrics.json"
-            if not f.is_file():
-                p.error(f"{f}: no such file (is {d} a finished run directory?)")
-            curve = json.loads(f.read_text())["curve"]
+        try:
+            curves = [r["curve"] for d in dirs.split(",") for r in load_runs(Path(d))]
+        except ValueError as e:
+            p.error(str(e))
+        climbs, rates, hits, spacing = [], [], 0, None
+        for curve in curves:
             at, r, hit = plateau(curve, args.plateau)
             if at is None:
                 continue
             climbs.append(at)
-            evals += len(r)
             rates += r
             hits += hit
             if spacing is None and len(curve) > 1:
                 spacing = curve[1]["env_steps"] - curve[0]["env_steps"]  # env steps between evaluations
-        n = len(dirs.split(","))
         if not climbs:
-            print(f"{name:<12} {n:>4} {'never on the plateau':>28}")
+            print(f"{name:<12} {len(curves):>4} {'never on the plateau':>28}")
             continue
-        chance = hits / evals if evals else 0.0
+        chance = hits / len(rates)
         wait = f"{spacing / chance:,.0f}" if chance and spacing else "-"
-        print(f"{name:<12} {n:>4} {sum(climbs) / len(climbs):>28,.0f} {evals:>14} {sum(rates) / len(rates):>12.1%} "
-              f"{chance:>18.3f} {wait:>25}")
+        print(f"{name:<12} {len(curves):>4} {sum(climbs) / len(climbs):>28,.0f} {len(rates):>14} "
+              f"{sum(rates) / len(rates):>12.1%} {chance:>18.3f} {wait:>25}")
 
 
 if __name__ == "__main__":

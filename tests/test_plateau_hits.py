@@ -28,7 +28,8 @@ def test_the_plateau_starts_at_the_level_and_ends_at_the_first_100():
 def write_run(root: Path, name: str, rates: list[float]) -> str:
     d = root / name
     d.mkdir()
-    (d / "metrics.json").write_text(json.dumps({"curve": curve(rates)}))
+    (d / "metrics.json").write_text(json.dumps({"config": {"robot": "turtlebot2", "algorithm": "fastdsac", "seed": 0},
+                                                "curve": curve(rates)}))
     return str(d)
 
 
@@ -44,4 +45,4 @@ def test_the_chance_per_evaluation_is_hits_over_plateau_evaluations(tmp_path, ca
 def test_a_missing_run_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
         plateau_hits.main([f"arm={tmp_path / 'nope'}"])
-    assert "nope/metrics.json: no such file" in capsys.readouterr().err
+    assert "nope: not a flashnav train run folder with metrics.json" in capsys.readouterr().err
