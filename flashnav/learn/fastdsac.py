@@ -12,6 +12,7 @@ Shapes: N envs, B batch, A actions.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import torch
 import torch.nn.functional as F
@@ -147,18 +148,33 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
             "target_q_mean": target.mean(), "running_std": running_std.clone(), "critic_grad_norm": grad_norm}
 
 
+def cvar_std_factor(level: float) -> float:
+    """k with ``CVaR_level(N(mu, sigma^2)) = mu - k sigma`` (the mean of the worst ``level`` share of the
+    returns): ``k = pdf(Phi^-1(level)) / level``; 0 at level 1 (the mean), 0.80 at 0.5, 1.27 at 0.25."""
+    if not 0.0 < level <= 1.0:
+        raise ValueError(f"risk_cvar must be in (0, 1], got {level}")
+    if level == 1.0:
+        return 0.0
+    normal = NormalDist()
+    return normal.pdf(normal.inv_cdf(level)) / level
+
+
 def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
     """Actor: minimise ``alpha log pi - min(mu_1, mu_2)`` (mean of both without CDQ) at ``a ~ pi(.|s)``, minus
     ``hp.mean_action_q`` times the same value at the deterministic action ``tanh(mu)``; then one temperature
-    step with ``-alpha (log pi + H_target)``."""
+    step with ``-alpha (log pi + H_target)``. With ``hp.risk_cvar`` < 1 each critic's value is the CVaR of its
+    Gaussian, ``mu_k - k sigma_k`` (:func:`cvar_std_factor`), before the min."""
     hp = state.hp
     mu, log_std = policy_log_std(state.actor(batch.obs), hp)
     action, log_prob = squashed_gaussian(mu, log_std, torch.randn(mu.shape, generator=state.update_gen,
                                                                   device=mu.device), hp.action_headroom)
 
+    risk = cvar_std_factor(hp.risk_cvar)
+
     def value(a: torch.Tensor) -> torch.Tensor:                                               # [B]
-        q_mu, _ = gaussian_head(state.critic(batch.obs, a, detach_params=True))              # [2, B]
-        return q_mu.min(dim=0).values if hp.cdq else q_mu.mean(dim=0)
+        q_mu, q_std = gaussian_head(state.critic(batch.obs, a, detach_params=True))          # [2, B]
+        q = q_mu - risk * q_std if risk > 0 else q_mu
+        return q.min(dim=0).values if hp.cdq else q.mean(dim=0)
 
     loss = (state.algo.temperature.alpha * log_prob - value(action)).mean()
     if hp.mean_action_q > 0:  # the evaluated (deterministic) action's value too

@@ -137,6 +137,7 @@ class FastDSACHParams(LearnerHParams):
     alpha_init: float = Field(gt=0, description="initial entropy temperature alpha")
     target_entropy_ratio: float = Field(description="target entropy = -ratio * action_dim (nats)")
     mean_action_q: float = Field(0.0, ge=0, description="weight of a second actor objective, the critics' value at the deterministic action tanh(mu) - the action that is evaluated and exported - beside the sampled action's (0 = off, the paper and the references; docs/learners.md S15)")
+    risk_cvar: float = Field(1.0, gt=0, le=1, description="the actor climbs the CVaR at this level of each critic's Gaussian return, mu - sigma pdf(q)/level with q the level's normal quantile, instead of its mean: a risk-averse policy below 1 (1 = the mean, the paper and the references; docs/learners.md S24)")
 
     @model_validator(mode="after")
     def _check(self):
