@@ -11,9 +11,9 @@ to and including the first 100 % (runs that never reach 100 % count all theirs),
 evaluations, and the chance that one plateau evaluation reads 100 % (runs that reached it / evaluations on the
 plateau: the maximum-likelihood rate of a geometric wait), with the wait it implies in env steps, and the mean
 number of evaluation episodes failed per plateau evaluation (each run's ``eval.episodes``; "-" where the records
-do not keep it). Two arms with the same
-chance differ only by their climb. The mean failures and the chance need not move together: a policy whose
-failures are the same few episodes every time fails fewer on average and still seldom reads 100 %.
+do not keep it). Two arms with the same chance differ only by their climb. The mean failures and the chance need
+not move together: a policy whose failures are the same few episodes every time can fail fewer on average and
+still seldom read 100 %.
 ``--failures OUT.png`` draws, per arm, the share of plateau evaluations that failed 0, 1, 2, ... episodes.
 """
 
