@@ -1,11 +1,15 @@
 """Learner hyperparameters and options: the presets hold the paper's appendix A numbers, overrides are
 validated by name, and each optional departure (policy averaging, learning-rate decay, late batch, the goal's
-sine and cosine, action headroom) does what its documentation says and nothing when off."""
+sine and cosine, action headroom, FastDSAC's risk-averse actor) does what its documentation says and nothing when
+off."""
+
+import math
 
 import pytest
 import torch
 
-from flashnav.learn import common
+from flashnav.learn import common, fastdsac
+from flashnav.learn.networks import gaussian_head
 from flashnav.learn.hparams import load_hparams
 from flashnav.names import ALGORITHMS
 from tests.test_learners import A, B, LAYOUT, N, learner, params, random_batch, random_obs
@@ -163,3 +167,44 @@ def test_action_headroom_one_is_todays_learner_step_for_step():
         a.update(random_batch(i)), b.update(random_batch(i))
         a.act(random_batch(i).obs[:N]), b.act(random_batch(i).obs[:N])
     assert all(torch.equal(x, y) for x, y in zip(params(a.state.actor), params(b.state.actor)))
+
+
+# --- FastDSAC: a risk-averse actor (algo.risk_cvar, docs/learners.md S24) ----------------------------
+
+def test_cvar_factor_is_the_mean_of_the_worst_share_of_a_gaussian():
+    """k against a brute-force reference: the mean of the lowest ``level`` share of 2e6 N(0, 1) draws is -k."""
+    draws = torch.randn(2_000_000, generator=torch.Generator().manual_seed(0), dtype=torch.float64).sort().values
+    for level in (0.05, 0.25, 0.5, 0.9):
+        tail = draws[: int(level * draws.numel())].mean().item()
+        assert fastdsac.cvar_std_factor(level) == pytest.approx(-tail, abs=5e-3), level
+    assert fastdsac.cvar_std_factor(1.0) == 0.0
+    with pytest.raises(ValueError, match="risk_cvar"):
+        fastdsac.cvar_std_factor(0.0)
+
+
+@pytest.mark.parametrize("level", [1.0, 0.25])
+def test_the_risk_averse_actor_climbs_each_critics_cvar(level):
+    """The actor loss with ``risk_cvar`` written out: alpha log pi - min_k (mu_k - k(level) sigma_k); at level 1
+    exactly today's loss (the mean)."""
+    lrn = learner("fastdsac", risk_cvar=level)
+    batch = random_batch(6)
+    st, hp = lrn.state, lrn.hp
+    rng = st.update_gen.get_state()
+    with torch.no_grad():
+        eps = torch.randn((batch.obs.shape[0], A), generator=st.update_gen)
+        mu, log_std = fastdsac.policy_log_std(st.actor(batch.obs), hp)
+        action = torch.tanh(mu + log_std.exp() * eps)
+        log_prob = (-0.5 * eps.pow(2) - log_std - 0.5 * math.log(2 * math.pi)
+                    - torch.log(1 - action.pow(2) + 1e-6)).sum(-1)
+        q_mu, q_std = gaussian_head(st.critic(batch.obs, action))
+        k = {1.0: 0.0, 0.25: 1.2711}[level]
+        expected = (st.algo.temperature.alpha * log_prob - (q_mu - k * q_std).min(dim=0).values).mean()
+    st.update_gen.set_state(rng)
+    got = fastdsac.update_actor(st, batch)["actor_loss"]
+    assert torch.allclose(got, expected, rtol=1e-4, atol=1e-5), (float(got), float(expected))
+    if level < 1.0:
+        assert k * q_std.mean() > 1e-3     # the critics' std is not ~0, so this test tells the two losses apart
+    with pytest.raises(ValueError, match="risk_cvar"):
+        learner("fastdsac", risk_cvar=1.5)
+    with pytest.raises(ValueError, match="risk_cvar"):
+        learner("fastsac", risk_cvar=0.5)   # FastSAC's critic is C51, no Gaussian: no such key
