@@ -12,6 +12,9 @@ from typing import Callable
 import torch
 
 from flashnav.metrics import THRESHOLDS, reaches
+
+#: An evaluation lists its failed episodes' indices (``failed_episodes``) when at most this many failed.
+FAILED_LISTED_MAX = 32
 from flashnav.sim.env import NavVecEnv
 
 
@@ -25,7 +28,7 @@ def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, see
     finished slots are never re-sampled. ``dense=True`` is the plain way, kept as the benchmark
     baseline (``flashnav bench eval``) and the tests' reference: every slot steps (and autoresets)
     until each has finished once. Returns success_rate, collision_rate, timeout_rate (fractions of the
-    N episodes), mean_return (undiscounted) and mean_steps.
+    N episodes), mean_return (undiscounted), mean_steps and failed_episodes (:func:`episode_rates`).
     """
     if dense:
         return _evaluate_dense(policy, env, seed)
@@ -97,14 +100,19 @@ def _evaluate_dense(policy, env: NavVecEnv, seed: int) -> dict[str, float]:
     return episode_rates(success, collision, returns, steps)
 
 
-def episode_rates(success, collision, returns, steps) -> dict[str, float]:
-    """The rates :func:`evaluate` returns, from one outcome per episode ([N] bool / float tensors)."""
+def episode_rates(success, collision, returns, steps) -> dict[str, float | list[int] | None]:
+    """The rates :func:`evaluate` returns, from one outcome per episode ([N] bool / float tensors), and
+    ``failed_episodes``: the indices of the episodes that did not succeed (episode k = slot k of the set),
+    ascending, or None where more than :data:`FAILED_LISTED_MAX` failed - which episodes a policy near 100 %
+    keeps failing, evaluation after evaluation."""
+    failed = (~success).nonzero().flatten()
     return {
         "success_rate": success.float().mean().item(),
         "collision_rate": collision.float().mean().item(),
         "timeout_rate": (~success & ~collision).float().mean().item(),
         "mean_return": returns.mean().item(),
         "mean_steps": steps.mean().item(),
+        "failed_episodes": failed.tolist() if failed.numel() <= FAILED_LISTED_MAX else None,
     }
 
 

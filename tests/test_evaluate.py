@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from flashnav.evaluate import evaluate, evaluate_episodes
+from flashnav.evaluate import FAILED_LISTED_MAX, episode_rates, evaluate, evaluate_episodes
 from flashnav.sim.env import make_env
 
 
@@ -33,6 +33,19 @@ def test_evaluate_equals_the_dense_reference(robot):
     assert fast["mean_return"] == pytest.approx(slow["mean_return"], abs=1e-5)
     assert fast["mean_steps"] == pytest.approx(slow["mean_steps"])
     assert 0 < fast["success_rate"] < 1 and fast["collision_rate"] > 0  # the comparison covers both outcomes
+
+
+def test_an_evaluation_lists_the_episodes_it_failed():
+    env = make_env("turtlebot2", 24, seed=0)
+    e = evaluate_episodes(heading_controller, env, seed=3)
+    failed = [k for k in range(24) if not bool(e["success"][k])]    # episode by episode
+    assert 0 < len(failed) <= FAILED_LISTED_MAX
+    assert evaluate(heading_controller, env, seed=3)["failed_episodes"] == failed
+    assert evaluate(heading_controller, env, seed=3, dense=True)["failed_episodes"] == failed
+    many = torch.zeros(FAILED_LISTED_MAX + 1, dtype=torch.bool)       # too many to list: None, not a cut list
+    z = torch.zeros(FAILED_LISTED_MAX + 1)
+    assert episode_rates(many, many, z, z)["failed_episodes"] is None
+    assert episode_rates(~many, many, z, z)["failed_episodes"] == []
 
 
 def test_each_episode_replayed_alone_from_its_start_ends_the_same_way():

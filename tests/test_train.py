@@ -111,6 +111,10 @@ def test_train_command_writes_artefacts(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["time_to_threshold"]) == {"0.9", "0.95", "1.0"}
     assert metrics["env_steps"] == 128
+    for point in metrics["curve"]:   # each evaluation names its failed episodes (8 episodes: at most 8, listed)
+        failed = point["failed_episodes"]
+        assert failed == sorted(set(failed)) and all(0 <= k < 8 for k in failed)
+        assert len(failed) == round((1 - point["success_rate"]) * 8)
     assert cli_main(["eval", str(out / "policy.pt"), "--episodes", "8", "--json", str(tmp_path / "e.json")]) == 0
     rates = json.loads((tmp_path / "e.json").read_text())
     assert rates["success_rate"] + rates["collision_rate"] + rates["timeout_rate"] == pytest.approx(1.0)
