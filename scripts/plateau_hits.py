@@ -15,11 +15,14 @@ do not keep it). Two arms with the same chance differ only by their climb. The m
 not move together: a policy whose failures are the same few episodes every time can fail fewer on average and
 still seldom read 100 %.
 ``--failures OUT.png`` draws, per arm, the share of plateau evaluations that failed 0, 1, 2, ... episodes.
+``--which`` lists, run by run, the episodes its plateau evaluations failed and in how many of them (runs whose
+curves name their failed episodes, ``failed_episodes``: flashnav train since session 37).
 """
 
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 from pathlib import Path
 
 from flashnav.bench.runs import load_runs
@@ -37,6 +40,22 @@ def plateau(curve: list[dict], level: float) -> tuple[int | None, list[float], b
         if c["success_rate"] >= 1.0:
             return curve[start]["env_steps"], rates, True
     return curve[start]["env_steps"], rates, False
+
+
+def which_failed(curve: list[dict], level: float) -> tuple[int, Counter] | None:
+    """(plateau evaluations that name their failed episodes, how many of them failed each episode), over the
+    same evaluations as :func:`plateau`; None where the run never reaches the plateau or none names them."""
+    start = next((i for i, c in enumerate(curve) if c["success_rate"] >= level), None)
+    if start is None:
+        return None
+    named, counts = 0, Counter()
+    for c in curve[start:]:
+        if c.get("failed_episodes") is not None:
+            named += 1
+            counts.update(c["failed_episodes"])
+        if c["success_rate"] >= 1.0:
+            break
+    return (named, counts) if named else None
 
 
 def failed_episodes(rates: list[float], episodes: int) -> list[int]:
@@ -80,6 +99,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--plateau", type=float, default=0.97, help="success rate that starts the plateau (default 0.97)")
     p.add_argument("--failures", type=Path, metavar="OUT.png",
                    help="also draw each arm's distribution of failed episodes per plateau evaluation")
+    p.add_argument("--which", action="store_true",
+                   help="also list, run by run, which episodes its plateau evaluations failed and how often")
     args = p.parse_args(argv)
     print(f"{'arm':<12} {'runs':>4} {'to plateau (mean env steps)':>28} {'plateau evals':>14} {'mean success':>13} "
           f"{'P(100 %) per eval':>18} {'implied wait (env steps)':>25} {'failed / eval':>14}")
@@ -115,6 +136,16 @@ def main(argv: list[str] | None = None) -> None:
               f"{sum(rates) / len(rates):>12.1%} {chance:>18.3f} {wait:>25} {failed:>14}")
         if fails:
             drawn[name] = fails
+        if args.which:
+            for r in runs:
+                seen = which_failed(r["curve"], args.plateau)
+                label = r.get("label") or f"{r.get('source', '?')} seed {r.get('seed')}"
+                if seen is None:
+                    print(f"  {label}: no plateau evaluation names its failed episodes")
+                    continue
+                named, counts = seen
+                listed = ", ".join(f"#{k} {n}/{named}" for k, n in counts.most_common())
+                print(f"  {label}: {named} plateau evaluations; failed {listed or 'none'}")
     if args.failures and drawn:
         plot_failures(drawn, args.failures)
         print(f"failures per plateau evaluation: {args.failures}")

@@ -25,13 +25,17 @@ def test_the_plateau_starts_at_the_level_and_ends_at_the_first_100():
     assert plateau_hits.plateau(curve([0.5, 0.9]), 0.97) == (None, [], False)
 
 
-def write_run(root: Path, name: str, rates: list[float], episodes: int | None = 100) -> str:
+def write_run(root: Path, name: str, rates: list[float], episodes: int | None = 100,
+              failed: list[list[int] | None] | None = None) -> str:
     d = root / name
     d.mkdir()
     config = {"robot": "turtlebot2", "algorithm": "fastdsac", "seed": 0}
     if episodes is not None:
         config["eval"] = {"episodes": episodes}
-    (d / "metrics.json").write_text(json.dumps({"config": config, "curve": curve(rates)}))
+    points = curve(rates)
+    for point, f in zip(points, failed or []):
+        point["failed_episodes"] = f
+    (d / "metrics.json").write_text(json.dumps({"config": config, "curve": points}))
     return str(d)
 
 
@@ -68,3 +72,16 @@ def test_a_missing_run_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
         plateau_hits.main([f"arm={tmp_path / 'nope'}"])
     assert "nope: not a flashnav train run folder with metrics.json" in capsys.readouterr().err
+
+
+def test_which_episodes_each_run_fails_on_its_plateau(tmp_path, capsys):
+    # evaluations 2-5 are the plateau (>= 0.97) up to the first 100 %; the first and the last are not counted
+    a = write_run(tmp_path, "a", [0.5, 0.98, 0.98, 0.99, 1.0, 0.97],
+                  failed=[None, [7, 9], [7, 11], [7], [], [1, 2, 3]])
+    b = write_run(tmp_path, "b", [0.98, 0.99])                      # an older run: no episodes named
+    assert plateau_hits.which_failed(json.loads((Path(a) / "metrics.json").read_text())["curve"], 0.97) == (
+        4, {7: 3, 9: 1, 11: 1})
+    plateau_hits.main(["--which", f"arm={a},{b}"])
+    out = capsys.readouterr().out
+    assert "a: 4 plateau evaluations; failed #7 3/4, #9 1/4, #11 1/4" in out
+    assert "b: no plateau evaluation names its failed episodes" in out
