@@ -1,6 +1,6 @@
 """How long a run waits on its plateau for its first 100 % (issue 15 done-means 3, issue 16 item 4).
 
-    .venv/bin/python scripts/plateau_hits.py [--plateau 0.97] [--failures OUT.png] ARM=RUN_DIR[,RUN_DIR...] [ARM=...]
+    .venv/bin/python scripts/plateau_hits.py [--plateau 0.97] [--failures OUT.png] [--which] ARM=RUN_DIR[,RUN_DIR...] [ARM=...]
 
 A run that stops at its first 100 % evaluation (``flashnav train``'s default) spends its time in two parts:
 climbing to a plateau just under 100 % and then waiting, evaluation after evaluation, for one that fails none of
@@ -28,34 +28,31 @@ from pathlib import Path
 from flashnav.bench.runs import load_runs
 
 
+def plateau_points(curve: list[dict], level: float) -> list[dict] | None:
+    """The evaluations from the first one >= ``level`` to the first 1.0 inclusive (or to the end); None where
+    no evaluation reaches ``level``."""
+    start = next((i for i, c in enumerate(curve) if c["success_rate"] >= level), None)
+    if start is None:
+        return None
+    end = next((i for i in range(start, len(curve)) if curve[i]["success_rate"] >= 1.0), len(curve) - 1)
+    return curve[start:end + 1]
+
+
 def plateau(curve: list[dict], level: float) -> tuple[int | None, list[float], bool]:
     """(env steps at the first evaluation >= level or None, the success rates from there to the first
     1.0 inclusive, whether a 1.0 was reached)."""
-    start = next((i for i, c in enumerate(curve) if c["success_rate"] >= level), None)
-    if start is None:
+    points = plateau_points(curve, level)
+    if points is None:
         return None, [], False
-    rates = []
-    for c in curve[start:]:
-        rates.append(c["success_rate"])
-        if c["success_rate"] >= 1.0:
-            return curve[start]["env_steps"], rates, True
-    return curve[start]["env_steps"], rates, False
+    rates = [c["success_rate"] for c in points]
+    return points[0]["env_steps"], rates, rates[-1] >= 1.0
 
 
 def which_failed(curve: list[dict], level: float) -> tuple[int, Counter] | None:
     """(plateau evaluations that name their failed episodes, how many of them failed each episode), over the
-    same evaluations as :func:`plateau`; None where the run never reaches the plateau or none names them."""
-    start = next((i for i, c in enumerate(curve) if c["success_rate"] >= level), None)
-    if start is None:
-        return None
-    named, counts = 0, Counter()
-    for c in curve[start:]:
-        if c.get("failed_episodes") is not None:
-            named += 1
-            counts.update(c["failed_episodes"])
-        if c["success_rate"] >= 1.0:
-            break
-    return (named, counts) if named else None
+    evaluations of :func:`plateau_points`; None where the run never reaches the plateau or none names them."""
+    named = [c["failed_episodes"] for c in plateau_points(curve, level) or [] if c.get("failed_episodes") is not None]
+    return (len(named), Counter(k for f in named for k in f)) if named else None
 
 
 def failed_episodes(rates: list[float], episodes: int) -> list[int]:
