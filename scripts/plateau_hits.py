@@ -25,7 +25,7 @@ import argparse
 from collections import Counter
 from pathlib import Path
 
-from flashnav.bench.runs import load_runs
+from flashnav.bench.runs import load_runs, run_label
 
 
 def plateau_points(curve: list[dict], level: float) -> list[dict] | None:
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.which:
             for r in runs:
                 seen = which_failed(r["curve"], args.plateau)
-                label = r.get("label") or f"{r.get('source', '?')} seed {r.get('seed')}"
+                label = run_label(r)
                 if seen is None:
                     print(f"  {label}: no plateau evaluation names its failed episodes")
                     continue

@@ -52,12 +52,17 @@ def load_runs(source: Path) -> list[dict]:
                          f"--json file ({type(e).__name__}: {e})") from None
 
 
+def run_label(r: dict) -> str:
+    """A run record's name: its folder's (``label``), else its bench file's stem and seed."""
+    return r.get("label") or f"{r.get('source', '?')} seed {r['seed']}"
+
+
 def run_row(r: dict, last: int = LAST) -> dict:
     """One run's row: env steps to each threshold (None: not reached), best, the mean and the minimum of
     the last ``last`` evaluations, the env steps where the training episodes reached 100 %, env steps run."""
     if last < 1:
         raise ValueError(f"--last must be >= 1, got {last}")
-    label = r.get("label") or f"{r.get('source', '?')} seed {r['seed']}"
+    label = run_label(r)
     curve = r["curve"]
     if not curve:
         raise ValueError(f"{label}: no evaluations in its curve")
