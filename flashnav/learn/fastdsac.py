@@ -12,6 +12,7 @@ Shapes: N envs, B batch, A actions.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from statistics import NormalDist
 
 import torch
@@ -148,9 +149,11 @@ def update_critic(state: LearnerState, batch: Transition) -> dict[str, torch.Ten
             "target_q_mean": target.mean(), "running_std": running_std.clone(), "critic_grad_norm": grad_norm}
 
 
+@lru_cache(maxsize=None)
 def cvar_std_factor(level: float) -> float:
     """k with ``CVaR_level(N(mu, sigma^2)) = mu - k sigma`` (the mean of the worst ``level`` share of the
-    returns): ``k = pdf(Phi^-1(level)) / level``; 0 at level 1 (the mean), 0.80 at 0.5, 1.27 at 0.25."""
+    returns): ``k = pdf(Phi^-1(level)) / level``; 0 at level 1 (the mean), 0.80 at 0.5, 1.27 at 0.25. Cached:
+    every actor update asks for the run's one level."""
     if not 0.0 < level <= 1.0:
         raise ValueError(f"risk_cvar must be in (0, 1], got {level}")
     if level == 1.0:
