@@ -12,10 +12,10 @@ from typing import Callable
 import torch
 
 from flashnav.metrics import THRESHOLDS, reaches
+from flashnav.sim.env import NavVecEnv
 
 #: An evaluation lists its failed episodes' indices (``failed_episodes``) when at most this many failed.
 FAILED_LISTED_MAX = 32
-from flashnav.sim.env import NavVecEnv
 
 
 @torch.no_grad()
