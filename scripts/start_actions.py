@@ -7,8 +7,10 @@ For each exported POLICY, on the fixed evaluation set ``flashnav train`` evaluat
 pairs, evaluation seed ``--seed``, the policy's robot and bundled map), the deterministic action at each episode's
 first observation: the share of starts where it turns on the spot (forward command ``a_v <= -0.9``: under 5 % of top
 speed; the action is in [-1, 1], -1 = stand still) or drives at top speed (``a_v >= 0.99``), and the mean
-|turn command|, split by whether the goal lies ahead (within 90 deg of the start heading) or behind. A policy that
-drives off at speed from starts facing a wall collides in its first steps; a healthy one turns first.
+|turn command|, split by whether the goal lies ahead (within 90 deg of the start heading) or behind, and the share of
+starts where each command is saturated (``|a| >= 0.999``: the actor's pre-tanh output beyond 3.8, where tanh passes on
+under 0.2 % of its gradient). A policy that drives off at speed from starts facing a wall collides in its first steps;
+a healthy one turns first.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from flashnav.sim.goal_fields import evaluation_preset
 
 TURN_ON_SPOT = -0.9  # a_v at or below this: under 5 % of the top forward speed (the range [-1, 1] maps to [0, v_max])
 TOP_SPEED = 0.99
+SATURATED = 0.999  # |tanh(mu)| >= this: |mu| >= 3.8, d tanh / d mu <= 0.002
 
 
 def start_actions(policy, preset, episodes: int, seed: int) -> dict:
@@ -38,7 +41,9 @@ def start_actions(policy, preset, episodes: int, seed: int) -> dict:
     out = {"episodes": episodes}
     for name, sel in (("all", np.ones_like(ahead)), ("goal ahead", ahead), ("goal behind", ~ahead)):
         out[name] = {"starts": int(sel.sum()), "turn_on_spot": float(np.mean(a_v[sel] <= TURN_ON_SPOT)),
-                     "top_speed": float(np.mean(a_v[sel] >= TOP_SPEED)), "mean_abs_turn": float(np.mean(np.abs(a_w[sel])))}
+                     "top_speed": float(np.mean(a_v[sel] >= TOP_SPEED)), "mean_abs_turn": float(np.mean(np.abs(a_w[sel]))),
+                     "saturated_v": float(np.mean(np.abs(a_v[sel]) >= SATURATED)),
+                     "saturated_w": float(np.mean(np.abs(a_w[sel]) >= SATURATED))}
     return out
 
 
@@ -48,7 +53,7 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=1024)
     p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
     args = p.parse_args()
-    print(f"{'policy':45s} {'starts':>12s} {'n':>5s} {'turn on spot':>13s} {'top speed':>10s} {'|turn|':>7s}")
+    print(f"{'policy':45s} {'starts':>12s} {'n':>5s} {'turn on spot':>13s} {'top speed':>10s} {'|turn|':>7s} {'sat v':>6s} {'sat w':>6s}")
     for path in args.policy:
         policy, meta = load_policy(path)
         # the policy's own preset (its observation options), evaluated with the paper's reward and episodes
@@ -56,7 +61,7 @@ def main() -> None:
         for name in ("all", "goal ahead", "goal behind"):
             s = r[name]
             print(f"{path[-45:]:45s} {name:>12s} {s['starts']:5d} {s['turn_on_spot']:13.1%} {s['top_speed']:10.1%} "
-                  f"{s['mean_abs_turn']:7.3f}")
+                  f"{s['mean_abs_turn']:7.3f} {s['saturated_v']:6.1%} {s['saturated_w']:6.1%}")
 
 
 if __name__ == "__main__":

@@ -34,3 +34,11 @@ def test_the_first_action_is_read_from_each_episodes_first_observation():
     assert behind["turn_on_spot"] == 1.0 and behind["top_speed"] == 0.0
     assert r["all"]["turn_on_spot"] == pytest.approx(behind["starts"] / 64)
     assert r["all"]["mean_abs_turn"] == pytest.approx(1.0)
+    # every forward command is at a bound (+-1); so is every turn command but for a goal dead ahead (sign 0)
+    assert r["all"]["saturated_v"] == 1.0 and r["all"]["saturated_w"] == pytest.approx(1.0, abs=1 / 64)
+
+
+def test_saturation_counts_only_commands_at_a_bound():
+    half = lambda obs: torch.full((obs.shape[0], 2), 0.5)  # noqa: E731
+    r = start_actions.start_actions(half, load_robot("turtlebot2"), 16, 5)
+    assert r["all"]["saturated_v"] == 0.0 == r["all"]["saturated_w"]
