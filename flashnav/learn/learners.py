@@ -53,6 +53,8 @@ class Learner:
         self._ops = MODULES[algorithm]
         # the evaluated and exported policy: the trained actor, or its Polyak average (hp.policy_averaging)
         self.policy = DeterministicActor(state.actor if state.averaged_actor is None else state.averaged_actor)
+        # the collector's deterministic action, for the slots that collect without exploring (hp.deterministic_envs)
+        self._collector_policy = DeterministicActor(state.collector)
 
     @property
     def hp(self):
@@ -69,8 +71,14 @@ class Learner:
 
     @torch.no_grad()
     def act(self, obs: torch.Tensor) -> torch.Tensor:
-        """``obs [N, D]`` raw units -> exploration ``action [N, A]`` in [-1, 1] (collector weights)."""
-        return self._ops.act(self.state, obs)
+        """``obs [N, D]`` raw units -> exploration ``action [N, A]`` in [-1, 1] (collector weights). With
+        ``hp.deterministic_envs`` above 0, the last ``deterministic_slots(N)`` slots take the collector's
+        deterministic action instead (their exploration draws are made and dropped, so the others' are unchanged)."""
+        action = self._ops.act(self.state, obs)
+        k = deterministic_slots(self.state.hp.deterministic_envs, obs.shape[0])
+        if k:
+            action[-k:] = self._collector_policy(obs[-k:])
+        return action
 
     def on_episode_end(self, done: torch.Tensor) -> None:
         """``done [N]`` bool (terminated | truncated): resample those envs' exploration scales."""
@@ -103,6 +111,12 @@ class Learner:
         if data.get("algorithm") != self.algorithm:
             raise ValueError(f"state dict is for {data.get('algorithm')!r}, this learner is {self.algorithm!r}")
         common.load_state_from_dict(self.state, upgrade_state_dict(data))
+
+
+def deterministic_slots(share: float, num_envs: int) -> int:
+    """How many of ``num_envs`` slots collect with the deterministic action for ``hp.deterministic_envs`` =
+    ``share``: ``round(share * num_envs)``, at least one for any share above 0."""
+    return max(1, round(share * num_envs)) if share > 0 else 0
 
 
 def upgrade_state_dict(data: dict[str, Any]) -> dict[str, Any]:
