@@ -49,11 +49,12 @@ def evaluate_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVe
 
 @torch.no_grad()
 def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv,
-                  obs: torch.Tensor, guide=None) -> dict[str, torch.Tensor]:
+                  obs: torch.Tensor, guide=None, shield=None) -> dict[str, torch.Tensor]:
     """:func:`evaluate_episodes` from the episodes already placed in ``env`` (by ``reset`` or
     ``set_state``; ``obs`` [N, D] their observations): one episode per slot, same returns. ``guide``:
     a :class:`flashnav.guidance.PathGuide` whose carrots the policy sees instead of the goals (the
-    recorded goal distances stay the environment's)."""
+    recorded goal distances stay the environment's). ``shield``: a callable (running slots [k], actions [k, A])
+    -> actions played instead (:class:`flashnav.shield.SimShield`)."""
     start_pose, goal = env.world_pose(), env.world_goal()
     n, dev = env.num_envs, env.device
     col = env.preset.lidar.sectors  # the goal-distance column
@@ -65,7 +66,8 @@ def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv
     max_goal = obs[:, col].clone()
     active = torch.arange(n, device=dev)
     for _ in range(env.preset.episode.horizon):
-        t = env.step_slots(active, policy(obs if guide is None else guide.observe(obs, active)))
+        action = policy(obs if guide is None else guide.observe(obs, active))
+        t = env.step_slots(active, action if shield is None else shield(active, action))
         max_goal[active] = torch.maximum(max_goal[active], t["obs"][:, col])
         done = t["terminated"] | t["truncated"]
         ended = active[done]

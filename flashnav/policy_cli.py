@@ -41,6 +41,11 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "(success / collision with an agent / with a wall / timeout per scenario); the agents are "
                         "the simulator's defaults whatever the policy trained with, or with --robot PRESET.yaml "
                         "that preset's agent options")
+    p.add_argument("--shield", type=float, default=None, metavar="SECONDS",
+                   help="with --scenario: a people shield in front of the policy (flashnav/shield.py): the policy's "
+                        "action is held SECONDS ahead against every tracked agent walking straight on, and only a "
+                        "predicted contact makes the shield play the nearest action that keeps clear of the agents "
+                        "and the scan's walls (e.g. 2); a deployment mode, reported beside the policy alone")
     _agents_arg(p)
     p.set_defaults(func=run_eval)
 
@@ -142,6 +147,10 @@ def run_eval(args) -> int:
         raise ValueError(f"--guide-from {args.guide_from} goes with --guide LOOKAHEAD_M")
     if args.guide_keep_walls and args.guide_from != "scans":
         raise ValueError("--guide-keep-walls goes with --guide LOOKAHEAD_M --guide-from scans")
+    if args.shield is not None and args.scenario is None:
+        raise ValueError("--shield guards against moving agents: it goes with --scenario NAME")
+    if args.shield is not None and not (math.isfinite(args.shield) and args.shield > 0):
+        raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
     if args.maps is not None:
         from flashnav.eval_maps import run_eval_maps
 
@@ -199,19 +208,29 @@ def run_scenarios(args) -> int:
     policy, meta, robot, device = load_policy_for(args, args.device)  # no env here: each scenario makes its own
     preset = load_robot(robot)
     guide = _scenario_guide(args)
+    shield = None
+    if args.shield is not None:
+        from flashnav.shield import PeopleShield
+
+        shield = PeopleShield(preset, lookahead=args.shield)
     how = "" if args.guide is None else f", guided from the {args.guide_from or 'map'} ({args.guide} m)"
+    how += "" if shield is None else f", behind a people shield ({args.shield:g} s)"
     table = Table(title=f"flashnav eval --scenario: {args.policy} on {preset.name} / {_map_label(args, preset)}, "
                         f"seed {args.seed}{how}")
     for col in ("scenario", "scored / drawn", "success", "agent collision", "wall collision", "timeout"):
         table.add_column(col, justify="right")
+    if shield is not None:
+        table.add_column("shield overruled (steps)", justify="right")
     report = {"robot": preset.name, "map": _map_label(args, preset), "policy": str(args.policy), "seed": args.seed,
               "guide_lookahead_m": args.guide, "guide_from": None if args.guide is None else args.guide_from or "map",
-              "guide_keep_walls": bool(args.guide_keep_walls), "agents": agent_overrides(args), "scenarios": {}}
+              "guide_keep_walls": bool(args.guide_keep_walls), "agents": agent_overrides(args),
+              "shield_s": args.shield, "scenarios": {}}
     for name in names:
-        r = run_scenario(policy, _scenario_env(args, preset, name, device), args.seed, guide=guide)
+        r = run_scenario(policy, _scenario_env(args, preset, name, device), args.seed, guide=guide, shield=shield)
         report["scenarios"][name] = r
         table.add_row(name, f"{r['scored']} / {r['episodes']}", *(f"{100 * r[k]:.1f} %" for k in (
-            "success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate")))
+            "success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate")),
+            *(() if shield is None else (f"{100 * r['shield_overruled']:.1f} %",)))
     Console().print(table)
     if args.json:
         write_json_report(args.json, report)

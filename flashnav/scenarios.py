@@ -60,15 +60,25 @@ def scenario_names(text: str) -> list[str]:
 
 
 @torch.no_grad()
-def run_scenario(policy: Callable[[torch.Tensor], torch.Tensor], env, seed: int, guide=None) -> dict:
+def run_scenario(policy: Callable[[torch.Tensor], torch.Tensor], env, seed: int, guide=None, shield=None) -> dict:
     """One episode per slot of ``env`` (made from a :func:`scenario_preset`) with the deterministic
     ``policy``, played by :func:`flashnav.evaluate.play_episodes` (only running slots are simulated).
     ``guide``: a callable env -> a guide (:mod:`flashnav.guidance`) whose carrots the policy steers at.
-    Returns the rates over the scored episodes (success, agent_collision, wall_collision, timeout; a
-    collision with both counts as an agent collision), ``episodes`` drawn and ``scored``."""
+    ``shield``: a :class:`flashnav.shield.PeopleShield` in front of the policy (on a scenario without agents
+    it has nothing to do). Returns the rates over the scored episodes (success, agent_collision,
+    wall_collision, timeout; a collision with both counts as an agent collision), ``episodes`` drawn and
+    ``scored``; with a shield also ``shield_overruled``, the share of the steps played where it overruled the
+    policy."""
+    from flashnav.shield import SimShield
+
     obs, _ = env.reset(seed=seed)
     scored = scenario_scored(env)
-    return scenario_rates(play_episodes(policy, env, obs, guide=None if guide is None else guide(env)), scored)
+    guard = SimShield(env, shield) if shield is not None and env.agents is not None else None
+    rates = scenario_rates(play_episodes(policy, env, obs, guide=None if guide is None else guide(env), shield=guard),
+                           scored)
+    if shield is not None:
+        rates["shield_overruled"] = guard.overruled / max(guard.steps, 1) if guard is not None else 0.0
+    return rates
 
 
 def scenario_scored(env) -> torch.Tensor:

@@ -1,0 +1,180 @@
+"""A people shield: the policy drives, and the shield overrules it only when it is about to touch a person.
+
+A policy reacts to the people it sees; it does not look ahead. The shield does, with what a people tracker
+reports - each person's position, velocity and radius - and the current scan:
+
+1. the policy's action, held for ``lookahead`` seconds with the robot's motion model (:mod:`flashnav.sim.motion`),
+   against every person walking straight on at their tracked velocity, their radius grown by ``margin``: if the
+   footprint touches nobody, the policy's action is played;
+2. otherwise, of ``v_levels`` x ``w_levels`` constant actions over the action bounds (and the policy's own), the
+   one nearest the policy's (Euclidean, in action units) whose rollout touches nobody and no wall - the scan's
+   points (:func:`scan_points`: the nearest hit of each group of beams, points on a tracked person dropped), so
+   no map is needed - is played; if every rollout touches something, the one whose first contact comes latest
+   (then the nearest).
+
+Walls alone never call the shield: the policy answers for them. Everything is in one planar frame of the
+caller's choosing (the simulator's, or the robot's odometry frame on a robot). Torch ops on [E, ...] batches, so
+the simulator's evaluation shields every episode at once and the deploy node uses E = 1.
+
+Measured on issue 13's scenarios (docs/benchmarks.md "A people shield in front of the policy"): ``flashnav eval
+POLICY --scenario crossing,wander-8 --shield 2``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+from flashnav.config import RobotPreset
+from flashnav.sim.agent_geometry import footprint_hits_discs
+from flashnav.sim.motion import action_to_velocity, integrate
+
+#: a scan point as a disc of this radius, m (touching is not a collision)
+POINT_RADIUS = 0.01
+#: beams per scan point (the nearest hit of each group)
+SCAN_GROUP = 4
+#: a scan point this close to a tracked person's disc (m) is the person, not a wall
+ON_PERSON = 0.1
+
+
+class People(NamedTuple):
+    """What a tracker reports for E robots: ``centres`` [E, M, 2] m, ``velocity`` [E, M, 2] m/s, ``radius``
+    [E, M] m, ``present`` [E, M] bool (rows of absent people are ignored). With ``velocity`` None, ``centres``
+    [E, L, M, 2] are where the people *will be* after each of the shield's L steps (a prediction other than
+    straight on, or the recorded future of a diagnostic: scripts/agent_shield.py)."""
+
+    centres: torch.Tensor
+    velocity: torch.Tensor | None
+    radius: torch.Tensor
+    present: torch.Tensor
+
+    def rows(self, idx: torch.Tensor) -> "People":
+        return People(*(None if t is None else t[idx] for t in self))
+
+    def now(self) -> torch.Tensor:
+        """[E, M, 2]: the centres now (the first predicted step's, for a prediction)."""
+        return self.centres if self.velocity is not None else self.centres[:, 0]
+
+
+class PeopleShield:
+    """The shield of the module docstring for a robot ``preset`` (its motion bounds, footprint and step)."""
+
+    def __init__(self, preset: RobotPreset, lookahead: float = 2.0, margin: float = 0.05, v_levels: int = 5,
+                 w_levels: int = 9):
+        if not (math.isfinite(lookahead) and lookahead > 0):
+            raise ValueError(f"shield lookahead must be > 0 seconds, got {lookahead}")
+        if not (math.isfinite(margin) and margin >= 0):
+            raise ValueError(f"shield margin must be >= 0 metres, got {margin}")
+        if v_levels < 2 or w_levels < 2:
+            raise ValueError(f"shield v_levels and w_levels must be >= 2, got {v_levels} and {w_levels}")
+        self.preset = preset
+        self.dt = preset.episode.dt
+        self.steps = max(1, round(lookahead / self.dt))
+        self.lookahead, self.margin = lookahead, margin
+        self.grid = torch.cartesian_prod(torch.linspace(-1, 1, v_levels), torch.linspace(-1, 1, w_levels))
+
+    def first_contact(self, pose: torch.Tensor, actions: torch.Tensor, people: People,
+                      walls: torch.Tensor | None = None) -> torch.Tensor:
+        """[E, C] long: for ``pose`` [E, 3] and ``actions`` [E, C, 2] each held constant, the first step (0-based)
+        of the rollout at which the footprint touches a predicted person or a wall point of ``walls`` [E, P, 2]
+        (``inf`` rows: no point); ``self.steps`` where it touches nothing."""
+        p, horizon = self.preset, self.steps
+        e, c = actions.shape[:2]
+        v, w = action_to_velocity(actions.reshape(-1, 2), p.motion)
+        x = pose.float().repeat_interleave(c, 0)
+        traj = []
+        for _ in range(horizon):
+            x = integrate(x, v, w, self.dt)
+            traj.append(x)
+        flat = torch.stack(traj, 1).reshape(-1, 3)  # [E * C * L, 3]
+        if people.velocity is None:
+            future = people.centres  # [E, L, M, 2]
+        else:
+            ahead = torch.arange(1, horizon + 1, dtype=people.centres.dtype, device=pose.device) * self.dt
+            future = people.centres[:, None] + people.velocity[:, None] * ahead[None, :, None, None]  # [E, L, M, 2]
+        m = future.shape[2]
+        future = future[:, None].expand(e, c, horizon, m, 2).reshape(-1, m, 2)
+        radius = (people.radius + self.margin)[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
+        present = people.present[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
+        bad = footprint_hits_discs(flat, p.footprint, future, radius, present)
+        if walls is not None and walls.shape[1]:
+            pts = walls[:, None, None].expand(e, c, horizon, *walls.shape[1:]).reshape(-1, *walls.shape[1:])
+            there = torch.isfinite(pts[..., 0])
+            bad |= footprint_hits_discs(flat, p.footprint, torch.where(there[..., None], pts, 0.0),
+                                        torch.full(there.shape, POINT_RADIUS, device=pose.device), there)
+        steps = torch.arange(horizon, device=pose.device)
+        return torch.where(bad.reshape(e * c, horizon), steps, horizon).amin(1).reshape(e, c)
+
+    def filter(self, proposed: torch.Tensor, pose: torch.Tensor, people: People,
+               walls: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(actions [E, 2] to play, [E] bool where the shield overruled the policy) for the policy's ``proposed``
+        [E, 2] at ``pose`` [E, 3]; ``walls`` [E, P, 2]: the scan's points (:func:`scan_points`), or None."""
+        out = proposed.clone()
+        threat = self.first_contact(pose, proposed[:, None], people)[:, 0] < self.steps
+        if not bool(threat.any()):
+            return out, threat
+        idx = torch.nonzero(threat).squeeze(1)
+        grid = self.grid.to(proposed.device)
+        cand = torch.cat([proposed[idx, None], grid.expand(idx.numel(), -1, -1)], 1)  # [T, 1 + G, 2]
+        first = self.first_contact(pose[idx], cand, people.rows(idx), None if walls is None else walls[idx])
+        near = torch.linalg.vector_norm(cand - proposed[idx, None], dim=-1)
+        # rollouts that touch nothing, nearest first; else the latest first contact, then the nearest
+        score = torch.where(first >= self.steps, -1e3 + near, -first.float() + 1e-3 * near)
+        out[idx] = cand[torch.arange(idx.numel(), device=proposed.device), score.argmin(1)]
+        return out, threat
+
+
+def scan_points(pose: torch.Tensor, ranges: torch.Tensor, beam_angles: torch.Tensor, max_range: float,
+                people: People | None = None, group: int = SCAN_GROUP) -> torch.Tensor:
+    """[E, B // group, 2]: the scans ``ranges`` [E, B] m (beams at ``beam_angles`` [B] rad in the robot frame,
+    the sensor at the robot's centre) taken at ``pose`` [E, 3], as points in the pose's frame: the nearest hit
+    of each group of ``group`` consecutive beams at its own bearing; ``inf`` where the group hit nothing
+    (``max_range``) or the point lies within ``ON_PERSON`` of a present person's disc."""
+    e, b = ranges.shape
+    if b % group:
+        raise ValueError(f"scan_points: {b} beams do not split into groups of {group}")
+    near, arg = ranges.reshape(e, -1, group).min(dim=2)
+    angles = beam_angles.to(ranges.device, ranges.dtype).reshape(-1, group).expand(e, -1, -1)
+    bearing = torch.gather(angles, 2, arg[..., None])[..., 0] + pose[:, 2:3]
+    pts = pose[:, None, :2] + near[..., None] * torch.stack([torch.cos(bearing), torch.sin(bearing)], -1)
+    gone = near >= max_range
+    if people is not None and people.radius.shape[1]:
+        gap = torch.linalg.vector_norm(pts[:, :, None] - people.now()[:, None], dim=-1) - people.radius[:, None]
+        gone |= ((gap < ON_PERSON) & people.present[:, None]).any(-1)
+    return torch.where(gone[..., None], torch.full_like(pts, math.inf), pts)
+
+
+class SimShield:
+    """A :class:`PeopleShield` on a simulator ``env`` with agents (:mod:`flashnav.sim.agents`), for the evaluation
+    loop (:func:`flashnav.evaluate.play_episodes` ``shield=``): every step it plays a people tracker - the agents
+    the robot sees in its scan (:class:`flashnav.sim.tracks.TrackerView`, as the policy's agent tracks see them),
+    each with the velocity of its last step if it was seen then too, else 0 - and the shield over the scan's
+    points. One episode per slot, as the evaluation plays them. ``overruled`` / ``steps`` count what it did."""
+
+    def __init__(self, env, shield: PeopleShield):
+        from flashnav.sim.tracks import TrackerView
+
+        if env.agents is None:
+            raise ValueError("the people shield needs agents in the simulator (a --scenario with agents)")
+        self.env, self.shield = env, shield
+        self.view = TrackerView(env.preset, env.beam_angles)
+        self.prev = env.agents.pos.clone()
+        self.seen = torch.zeros_like(env.agents.active)
+        self.overruled = self.steps = 0
+
+    def __call__(self, active: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        env = self.env
+        pose, ranges = env.pose[active], env.scan(active)
+        pos, radius, on = env.agents.pos[active], env.agents.radius[active], env.agents.active[active]
+        seen = self.view.seen_by(pose, pos, radius, on, ranges)
+        velocity = torch.where((seen & self.seen[active])[..., None], (pos - self.prev[active]) / env.preset.episode.dt,
+                               torch.zeros_like(pos))
+        self.prev[active], self.seen[active] = pos, seen
+        people = People(pos, velocity, radius, seen)
+        walls = scan_points(pose, ranges, env.beam_angles, env.preset.lidar.max_range, people)
+        out, overruled = self.shield.filter(action, pose, people, walls)
+        self.overruled += int(overruled.sum())
+        self.steps += active.numel()
+        return out

@@ -1,0 +1,167 @@
+"""flashnav/shield.py: the people shield overrules the policy only for a predicted contact with a person, picks the
+nearest action that keeps clear of people and walls, and its rollouts are the simulator's motion and footprint."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from flashnav.cli import main as cli_main
+from flashnav.presets import load_robot
+from flashnav.scenarios import run_scenario, scenario_preset
+from flashnav.shield import People, PeopleShield, scan_points
+from flashnav.sim.agent_geometry import footprint_hits_discs
+from flashnav.sim.env import make_env
+from flashnav.sim.motion import action_to_velocity, integrate
+
+TB2 = load_robot("turtlebot2")
+
+
+def people(rows: list[list[tuple]]) -> People:
+    """People of E robots from rows (x, y, vx, vy, r) per robot, padded with absent rows."""
+    m = max(1, max(len(r) for r in rows))
+    t = torch.zeros(len(rows), m, 5)
+    present = torch.zeros(len(rows), m, dtype=torch.bool)
+    for i, r in enumerate(rows):
+        for j, row in enumerate(r):
+            t[i, j], present[i, j] = torch.tensor(row, dtype=torch.float32), True
+    return People(t[..., :2], t[..., 2:4], t[..., 4], present)
+
+
+def reference_first_contact(shield: PeopleShield, pose, action, who: People, walls=None) -> int:
+    """One rollout, one step at a time, each person and wall point checked on its own."""
+    v, w = action_to_velocity(action[None], shield.preset.motion)
+    x = pose[None].float()
+    for step in range(shield.steps):
+        x = integrate(x, v, w, shield.dt)
+        t = (step + 1) * shield.dt
+        for j in range(who.centres.shape[0]):
+            if not who.present[j]:
+                continue
+            c = (who.centres[j] + who.velocity[j] * t)[None, None]
+            r = (who.radius[j] + shield.margin)[None, None]
+            if footprint_hits_discs(x, shield.preset.footprint, c, r, torch.ones(1, 1, dtype=torch.bool)):
+                return step
+        for q in ([] if walls is None else walls):
+            if torch.isfinite(q).all() and footprint_hits_discs(x, shield.preset.footprint, q[None, None],
+                                                                torch.full((1, 1), 0.01), torch.ones(1, 1, dtype=torch.bool)):
+                return step
+    return shield.steps
+
+
+def test_first_contact_equals_a_step_by_step_reference_on_random_scenes():
+    gen = torch.Generator().manual_seed(0)
+    shield = PeopleShield(TB2, lookahead=1.5, margin=0.1)
+    e, c, m = 12, 7, 3
+    pose = torch.cat([4 * torch.rand(e, 2, generator=gen), (2 * torch.rand(e, 1, generator=gen) - 1) * math.pi], 1)
+    actions = 2 * torch.rand(e, c, 2, generator=gen) - 1
+    centres = pose[:, None, :2] + 3 * (torch.rand(e, m, 2, generator=gen) - 0.5)
+    who = People(centres, 0.6 * (torch.rand(e, m, 2, generator=gen) - 0.5), 0.2 + 0.2 * torch.rand(e, m, generator=gen),
+                 torch.rand(e, m, generator=gen) < 0.8)
+    walls = pose[:, None, :2] + 2 * (torch.rand(e, 5, 2, generator=gen) - 0.5)
+    walls[0, 2] = math.inf
+    got = shield.first_contact(pose, actions, who, walls)
+    touched = 0
+    for i in range(e):
+        for k in range(c):
+            ref = reference_first_contact(shield, pose[i], actions[i, k], who.rows(torch.tensor(i)), walls[i])
+            assert int(got[i, k]) == ref, (i, k)
+            touched += ref < shield.steps
+    assert 0 < touched < e * c   # the scenes have both
+
+
+def test_without_a_predicted_contact_the_policy_is_left_alone():
+    shield = PeopleShield(TB2, lookahead=2.0)
+    pose = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    proposed = torch.tensor([[1.0, 0.0], [0.3, -0.5]])
+    # nobody; and a person behind the robot walking away from it
+    who = people([[], [(-1.5, 0.0, -0.4, 0.0, 0.3)]])
+    wall = torch.tensor([[[0.3, 0.0]], [[0.3, 0.0]]])   # a wall point right ahead: walls never call the shield
+    out, overruled = shield.filter(proposed, pose, who, wall)
+    assert torch.equal(out, proposed) and not overruled.any()
+
+
+def test_a_person_walking_into_the_robot_is_avoided_with_the_nearest_clear_action():
+    shield = PeopleShield(TB2, lookahead=2.0)
+    pose = torch.zeros(1, 3)
+    proposed = torch.tensor([[1.0, 0.0]])                       # full speed ahead ...
+    who = people([[(1.6, 0.0, -0.5, 0.0, 0.3)]])               # ... into a person walking at the robot
+    assert int(shield.first_contact(pose, proposed[:, None], who)[0, 0]) < shield.steps
+    out, overruled = shield.filter(proposed, pose, who)
+    assert overruled.all() and not torch.equal(out, proposed)
+    assert int(shield.first_contact(pose, out[:, None], who)[0, 0]) == shield.steps   # the played action is clear
+    clear = shield.first_contact(pose, shield.grid[None], who)[0] == shield.steps
+    nearest = torch.linalg.vector_norm(shield.grid[clear] - proposed, dim=1).min()
+    assert float(torch.linalg.vector_norm(out - proposed)) == pytest.approx(float(nearest), abs=1e-6)
+
+
+def test_the_shield_keeps_its_alternatives_off_the_scans_walls():
+    shield = PeopleShield(TB2, lookahead=2.0)
+    pose = torch.zeros(1, 3)
+    proposed = torch.tensor([[1.0, 0.0]])
+    who = people([[(1.0, 1.2, 0.0, -0.5, 0.3)]])   # a person from the left, across the robot's way
+    free, _ = shield.filter(proposed, pose, who)
+    assert float(free[0, 0]) > 0   # it drives on, turning away
+    # a wall where the free choice would drive: points along its path from 0.6 to 1.5 s ahead
+    v, w = action_to_velocity(free, TB2.motion)
+    x, trail = pose, []
+    for _ in range(15):
+        x = integrate(x, v, w, shield.dt)
+        trail.append(x[0, :2])
+    walls = torch.stack(trail[5:])[None]
+    assert int(shield.first_contact(pose, free[:, None], who, walls)[0, 0]) < shield.steps
+    walled, _ = shield.filter(proposed, pose, who, walls)
+    assert not torch.equal(walled, free)
+    assert int(shield.first_contact(pose, walled[:, None], who, walls)[0, 0]) == shield.steps
+
+
+def test_scan_points_are_each_groups_nearest_hit_without_max_range_or_people():
+    pose = torch.tensor([[1.0, 2.0, 0.5]])
+    angles = torch.linspace(-1.0, 1.0, 8)
+    ranges = torch.tensor([[3.0, 2.0, 30.0, 30.0, 1.5, 1.0, 4.0, 4.0]])
+    pts = scan_points(pose, ranges, angles, 30.0, group=2)
+    for g, (r, a) in enumerate([(2.0, angles[1]), (None, None), (1.0, angles[5]), (4.0, angles[6])]):
+        if r is None:
+            assert torch.isinf(pts[0, g]).all()
+            continue
+        want = pose[0, :2] + r * torch.stack([torch.cos(pose[0, 2] + a), torch.sin(pose[0, 2] + a)])
+        assert torch.allclose(pts[0, g], want, atol=1e-6)
+    on_person = people([[(*pts[0, 2].tolist(), 0.0, 0.0, 0.2)]])
+    assert torch.isinf(scan_points(pose, ranges, angles, 30.0, on_person, group=2)[0, 2]).all()
+    with pytest.raises(ValueError, match="groups of 3"):
+        scan_points(pose, ranges, angles, 30.0, group=3)
+
+
+@pytest.mark.parametrize("bad", [dict(lookahead=0.0), dict(lookahead=math.nan), dict(margin=-0.1), dict(v_levels=1)])
+def test_bad_settings_are_refused_by_name(bad):
+    with pytest.raises(ValueError, match="shield"):
+        PeopleShield(TB2, **bad)
+
+
+def drive_at_goal(obs: torch.Tensor) -> torch.Tensor:
+    """A policy that ignores everything but the goal: full speed, turning toward its bearing."""
+    a = torch.zeros(obs.shape[0], 2)
+    a[:, 0], a[:, 1] = 1.0, (obs[:, 31] / (math.pi / 4)).clamp(-1, 1)
+    return a
+
+
+def test_in_the_scenarios_it_cuts_the_agent_collisions_and_leaves_static_episodes_alone():
+    torch.set_num_threads(1)
+    for name in ("wander-8", "crossing"):
+        p = scenario_preset("turtlebot2", name)
+        plain = run_scenario(drive_at_goal, make_env(p, 64, seed=7), 7)
+        shielded = run_scenario(drive_at_goal, make_env(p, 64, seed=7), 7, shield=PeopleShield(p, 2.0))
+        assert shielded["agent_collision_rate"] < 0.6 * plain["agent_collision_rate"], name
+        assert 0 < shielded["shield_overruled"] < 0.5 and shielded["scored"] == plain["scored"]
+    p = scenario_preset("turtlebot2", "static")
+    plain = run_scenario(drive_at_goal, make_env(p, 32, seed=7), 7)
+    shielded = run_scenario(drive_at_goal, make_env(p, 32, seed=7), 7, shield=PeopleShield(p, 2.0))
+    assert shielded.pop("shield_overruled") == 0.0 and shielded == plain
+
+
+def test_eval_refuses_a_shield_without_a_scenario_or_of_no_length(tmp_path, capsys):
+    for argv, words in ((["--shield", "2"], "--scenario"), (["--scenario", "crossing", "--shield", "0"], "> 0")):
+        assert cli_main(["eval", str(tmp_path / "policy.onnx"), *argv]) != 0
+        assert words in capsys.readouterr().err
