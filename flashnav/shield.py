@@ -95,10 +95,13 @@ class PeopleShield:
             ahead = torch.arange(1, horizon + 1, dtype=people.centres.dtype, device=pose.device) * self.dt
             future = people.centres[:, None] + people.velocity[:, None] * ahead[None, :, None, None]  # [E, L, M, 2]
         m = future.shape[2]
-        future = future[:, None].expand(e, c, horizon, m, 2).reshape(-1, m, 2)
-        radius = (people.radius + self.margin)[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
-        present = people.present[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
-        bad = footprint_hits_discs(flat, p.footprint, future, radius, present)
+        if m:
+            future = future[:, None].expand(e, c, horizon, m, 2).reshape(-1, m, 2)
+            radius = (people.radius + self.margin)[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
+            present = people.present[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
+            bad = footprint_hits_discs(flat, p.footprint, future, radius, present)
+        else:   # nobody tracked
+            bad = torch.zeros(flat.shape[0], dtype=torch.bool, device=pose.device)
         if walls is not None and walls.shape[1]:
             pts = walls[:, None, None].expand(e, c, horizon, *walls.shape[1:]).reshape(-1, *walls.shape[1:])
             there = torch.isfinite(pts[..., 0])
@@ -178,3 +181,28 @@ class SimShield:
         self.overruled += int(overruled.sum())
         self.steps += active.numel()
         return out
+
+
+def robot_command(shield: PeopleShield, action, pose, people_rows, angles, ranges) -> tuple[float, float, bool, list]:
+    """The shield on a robot, one control step (:class:`flashnav.deploy.controller.Controller` ``shield=``; numpy in,
+    plain numbers out, so the controller itself stays free of torch): the policy's ``action`` [2] in [-1, 1] at
+    odometry ``pose`` (x, y, yaw), the tracker's ``people_rows`` [M, 5] (x, y, vx, vy, radius in the odometry frame)
+    and the scan as ``angles`` [B] (radians from the heading) and ``ranges`` [B] m (``inf``: no return, NaN: not
+    valid). Returns (v m/s, w rad/s, whether the shield overruled the policy, the action played)."""
+    import numpy as np
+
+    rows = np.asarray(people_rows, np.float64).reshape(-1, 5)
+    here = torch.tensor([pose], dtype=torch.float32)
+    who = People(torch.tensor(rows[None, :, :2], dtype=torch.float32), torch.tensor(rows[None, :, 2:4], dtype=torch.float32),
+                 torch.tensor(rows[None, :, 4], dtype=torch.float32), torch.ones(1, len(rows), dtype=torch.bool))
+    r = np.asarray(ranges, np.float64)
+    keep = np.isfinite(r)
+    bearing = pose[2] + np.asarray(angles, np.float64)[keep]
+    pts = np.stack([pose[0] + r[keep] * np.cos(bearing), pose[1] + r[keep] * np.sin(bearing)], -1)
+    walls = torch.tensor(pts[None], dtype=torch.float32).reshape(1, -1, 2)
+    if len(rows) and walls.shape[1]:
+        gap = torch.linalg.vector_norm(walls[:, :, None] - who.centres[:, None], dim=-1) - who.radius[:, None]
+        walls = walls[:, ~(gap < ON_PERSON).any(-1)[0]]
+    out, overruled = shield.filter(torch.tensor([list(action)], dtype=torch.float32), here, who, walls)
+    v, w = action_to_velocity(out, shield.preset.motion)
+    return float(v[0]), float(w[0]), bool(overruled[0]), [float(a) for a in out[0]]

@@ -165,3 +165,69 @@ def test_eval_refuses_a_shield_without_a_scenario_or_of_no_length(tmp_path, caps
     for argv, words in ((["--shield", "2"], "--scenario"), (["--scenario", "crossing", "--shield", "0"], "> 0")):
         assert cli_main(["eval", str(tmp_path / "policy.onnx"), *argv]) != 0
         assert words in capsys.readouterr().err
+
+
+# --- on a robot: the deploy controller's shield -----------------------------------------------------------------
+
+def _controller(shield_s):
+    from pathlib import Path
+
+    from flashnav.deploy.controller import Controller
+    from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.export import recorded_robot
+
+    rt = PolicyRuntime.load(Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx")
+    shield = None if shield_s is None else PeopleShield(recorded_robot(rt.meta), lookahead=shield_s)
+    return Controller(rt, timeout=0.3, shield=shield)
+
+
+FOV = math.radians(270.0)
+SCAN = dict(angle_min=-FOV / 2 + FOV / 2160, angle_increment=FOV / 1080, range_min=0.0, range_max=20.0)
+
+
+def _drive(ctl, people_rows, steps=3):
+    import numpy as np
+
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.0)
+    ctl.on_goal(4.0, 0.0, now=0.0)
+    out = []
+    for k in range(steps):
+        t = 0.1 * k
+        ctl.on_odom(0.0, 0.0, 0.0, now=t)
+        ctl.on_people(people_rows, now=t)
+        out.append(ctl.on_scan(ranges=np.full(1080, 6.0, np.float32), stamp=t, now=t, **SCAN))
+    return out
+
+
+def test_the_deploy_controller_with_a_shield_drives_as_without_when_nobody_is_near():
+    plain, shielded = _drive(_controller(None), []), _drive(_controller(2.0), [])
+    assert [(c.v, c.w, c.state) for c in plain] == [(c.v, c.w, c.state) for c in shielded]
+    assert plain[0].v > 0.3   # the fixture policy drives at its goal straight ahead
+
+
+def test_the_deploy_controller_with_a_shield_gives_way_to_a_person_walking_at_the_robot():
+    person = [[1.6, 0.0, -0.5, 0.0, 0.3]]   # 1.6 m ahead in the odometry frame, walking at the robot
+    plain = _drive(_controller(None), person)
+    ctl = _controller(2.0)
+    shielded = _drive(ctl, person)
+    assert shielded[0].state == "driving" and shielded[0].v < plain[0].v - 0.1
+    assert ctl.status(0.3)["shielded"] >= 1 and _controller(None).status(0.0)["shielded"] is None
+
+
+def test_the_deploy_controller_with_a_shield_stops_when_the_people_go_stale():
+    import numpy as np
+
+    ctl = _controller(2.0)
+    _drive(ctl, [], steps=1)
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.5)   # odometry and scan fresh, people 0.5 s old
+    stop = ctl.on_scan(ranges=np.full(1080, 6.0, np.float32), stamp=0.5, now=0.5, **SCAN)
+    assert (stop.v, stop.w, stop.state) == (0.0, 0.0, "stale")
+
+
+def test_deploy_refuses_a_shield_of_no_length_by_name(tmp_path, capsys):
+    from pathlib import Path
+
+    policy = Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx"
+    code = cli_main(["deploy", "replay", str(tmp_path / "in.bag"), "--policy", str(policy), "--out",
+                     str(tmp_path / "o.csv"), "--shield", "-1"])
+    assert code != 0 and "--shield must be > 0 seconds" in capsys.readouterr().err

@@ -50,6 +50,10 @@ def _runtime_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--guide", type=float, default=None, metavar="LOOKAHEAD_M",
                    help="mapless guidance (flashnav/mapless.py): aim the policy at the point LOOKAHEAD_M metres along "
                         "a path planned on the walls this goal's scans have shown, not at the goal (e.g. 0.5; no map)")
+    p.add_argument("--shield", type=float, default=None, metavar="SECONDS",
+                   help="a people shield (flashnav/shield.py): each command is held SECONDS ahead against the people "
+                        "of --people walking straight on, and a predicted contact replaces it with the nearest "
+                        "command clear of them and of the scan (e.g. 2); the people topic must then be fresh")
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -106,6 +110,8 @@ def make_controller(args):
         raise ValueError(f"--timeout must be > 0 s, got {args.timeout}")
     if args.guide is not None and not (math.isfinite(args.guide) and args.guide > 0):
         raise ValueError(f"--guide must be > 0 metres, got {args.guide}")
+    if args.shield is not None and not (math.isfinite(args.shield) and args.shield > 0):
+        raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
     x, y, yaw = args.lidar_pose
     rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)
     guide = None
@@ -113,7 +119,16 @@ def make_controller(args):
         from flashnav.mapless import ScanGuide
 
         guide = ScanGuide(footprint_radius(rt.meta), lookahead=args.guide)
-    return Controller(rt, timeout=args.timeout, period=None if args.rate is None else 1.0 / args.rate, guide=guide)
+    shield = None
+    if args.shield is not None:
+        from flashnav.export import recorded_robot
+        from flashnav.shield import PeopleShield
+
+        if "preset" not in rt.meta:
+            raise ValueError(f"--shield needs the robot's preset (footprint, motion) in {args.policy}'s metadata")
+        shield = PeopleShield(recorded_robot(rt.meta), lookahead=args.shield)
+    return Controller(rt, timeout=args.timeout, period=None if args.rate is None else 1.0 / args.rate, guide=guide,
+                      shield=shield)
 
 
 def footprint_radius(meta: dict) -> float:
@@ -132,8 +147,9 @@ def run_ros(args) -> int:
     ctl = make_controller(args)
     node = DeployNode(ctl, scan=args.scan, odom=args.odom, goal=args.goal, cmd=args.cmd, status=args.status,
                       people=args.people)
-    people = f" + {args.people}" if ctl.rt.agent_tracks else ""
+    people = f" + {args.people}" if ctl.rt.agent_tracks or ctl.shield is not None else ""
     guided = "" if ctl.guide is None else f"; mapless guidance, carrots {args.guide:g} m along the path"
+    guided += "" if ctl.shield is None else f"; people shield, {args.shield:g} s ahead"
     print(f"flashnav deploy ros: {args.policy} ({ctl.rt.meta.get('robot')}) at {1 / ctl.period:g} Hz: "
           f"{args.scan} + {args.odom} + {args.goal}{people} -> {args.cmd}{guided}", file=sys.stderr, flush=True)
     node.spin()

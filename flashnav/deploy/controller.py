@@ -35,6 +35,11 @@ A policy with a memory scan (``observation.memory_frames`` F > 0, :mod:`flashnav
 :class:`flashnav.deploy.memory.ScanMemory`: the goal's first control step's scan is stored, then that of
 every ``memory_every``-th control step since the goal (its wall hits in the odometry frame, the last F
 kept); only a new goal forgets them.
+With a ``shield`` (:class:`flashnav.shield.PeopleShield`: a people shield, ``flashnav deploy ros --shield S``) every
+command the policy gives is checked against the tracker's people (:meth:`Controller.on_people`), each walking straight
+on, and the scan's points, and only a predicted contact with a person replaces it (:func:`flashnav.shield.robot_command`);
+the people input is then one more input that must be fresh, whatever the policy observes. The shield is the one part
+of the node that needs torch (imported only with it).
 With a ``guide`` (:class:`flashnav.mapless.ScanGuide`: mapless guidance, ``flashnav deploy ros --guide M``)
 the policy is not aimed at the goal but, at every control step, at a point M metres along a path planned
 on the walls this goal's scans have shown so far (its memory starts afresh with every goal; no map); the
@@ -71,10 +76,11 @@ class Controller:
     """See the module docstring. ``timeout`` seconds: the largest input age that still drives."""
 
     def __init__(self, runtime: PolicyRuntime, timeout: float = 0.5, period: float | None = None,
-                 guide: ScanGuide | None = None):
+                 guide: ScanGuide | None = None, shield=None):
         if not timeout > 0:
             raise ValueError(f"timeout must be > 0 s, got {timeout}")
-        self.rt, self.timeout, self.guide = runtime, float(timeout), guide
+        self.rt, self.timeout, self.guide, self.shield = runtime, float(timeout), guide, shield
+        self.shielded = 0  # control steps whose command the shield replaced
         self.carrot: tuple[float, float] | None = None  # the guide's latest point
         self.period = runtime.control_period if period is None else float(period)
         if not self.period > 0:
@@ -137,7 +143,7 @@ class Controller:
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
         target, goal_distance, memory = self.goal, None, None
-        if self.guide is not None or self.memory is not None:
+        if self.guide is not None or self.memory is not None or self.shield is not None:
             angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
         if self.guide is not None:
             goal_distance = self.rt.goal_in_robot_frame(self.pose, self.goal)[0]
@@ -156,8 +162,18 @@ class Controller:
         self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
         if d.state == "reached":
             return self._stop("reached")
-        self.state, self.velocity = "driving", (d.v, d.w)
-        return Command(d.v, d.w, "driving")
+        v, w = d.v, d.w
+        if self.shield is not None:
+            from flashnav.shield import robot_command
+
+            sv, sw, overruled, played = robot_command(self.shield, d.action, self.pose, self.people, angles, beams)
+            if overruled:  # else the policy's own command, as it came from the network
+                v = min(max(sv, -self.rt.v_limit), self.rt.v_limit)
+                w = min(max(sw, -self.rt.w_limit), self.rt.w_limit)
+                self.shielded += 1
+                self.last_action = played
+        self.state, self.velocity = "driving", (v, w)
+        return Command(v, w, "driving")
 
     def tick(self, now: float) -> Command | None:
         """The watchdog, called often (e.g. 4x the control rate): zero velocity while inputs are stale."""
@@ -173,7 +189,7 @@ class Controller:
     # ---- helpers --------------------------------------------------------------------------------
     def _stale(self, now: float) -> bool:
         return (self.pose is None or now - self.scan_time > self.timeout or now - self.odom_time > self.timeout
-                or (self.rt.agent_tracks > 0 and now - self.people_time > self.timeout))
+                or ((self.rt.agent_tracks > 0 or self.shield is not None) and now - self.people_time > self.timeout))
 
     def _tracks(self) -> np.ndarray | None:
         """The tracker's people in the robot frame of the current pose (None for a policy without tracks)."""
@@ -220,6 +236,7 @@ class Controller:
                 "goal": None if self.goal is None else list(self.goal),
                 "carrot": None if self.carrot is None else [round(c, 4) for c in self.carrot],
                 "command": list(self.velocity), "action": self.last_action, "steps": self.steps,
+                "shielded": self.shielded if self.shield is not None else None,
                 "scan_age": _age(now, self.scan_time), "odom_age": _age(now, self.odom_time),
                 "people_age": _age(now, self.people_time),
                 "last_step_stamp": None if math.isinf(self.last_step_stamp) else self.last_step_stamp}

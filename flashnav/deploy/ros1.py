@@ -102,7 +102,7 @@ class DeployNode:
         rospy.Subscriber(odom, Odometry, self._on_odom, queue_size=1, tcp_nodelay=True)
         rospy.Subscriber(goal, PoseStamped, self._on_goal, queue_size=1, tcp_nodelay=True)
         rospy.Subscriber(scan, LaserScan, self._on_scan, queue_size=1, tcp_nodelay=True)
-        if controller.rt.agent_tracks:  # only a policy that sees tracked people listens for them
+        if controller.rt.agent_tracks or controller.shield is not None:  # people: for the policy or the shield
             from std_msgs.msg import Float32MultiArray
 
             rospy.Subscriber(people, Float32MultiArray, self._on_people, queue_size=1, tcp_nodelay=True)
