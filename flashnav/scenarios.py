@@ -67,7 +67,7 @@ def run_scenario(policy: Callable[[torch.Tensor], torch.Tensor], env, seed: int,
     ``shield``: a :class:`flashnav.shield.PeopleShield` in front of the policy (on a scenario without agents
     it has nothing to do). Returns the rates over the scored episodes (success, agent_collision,
     wall_collision, timeout; a collision with both counts as an agent collision), ``episodes`` drawn and
-    ``scored``; with a shield also ``shield_overruled``, the share of the steps played where it overruled the
+    ``scored``; with a shield also ``shield_overruled``, the share of the steps played where it took over from the
     policy."""
     from flashnav.shield import SimShield
 

@@ -112,8 +112,10 @@ class PeopleShield:
 
     def filter(self, proposed: torch.Tensor, pose: torch.Tensor, people: People,
                walls: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """(actions [E, 2] to play, [E] bool where the shield overruled the policy) for the policy's ``proposed``
-        [E, 2] at ``pose`` [E, 3]; ``walls`` [E, P, 2]: the scan's points (:func:`scan_points`), or None."""
+        """(actions [E, 2] to play, [E] bool where the shield took over) for the policy's ``proposed`` [E, 2] at
+        ``pose`` [E, 3]; ``walls`` [E, P, 2]: the scan's points (:func:`scan_points`), or None. The shield takes over
+        where the policy's action predicts a contact with a person; it then chooses the action, which can be the
+        policy's own when nothing does better ("overruled" in the reports counts these steps)."""
         out = proposed.clone()
         threat = self.first_contact(pose, proposed[:, None], people)[:, 0] < self.steps
         if not bool(threat.any()):
@@ -188,7 +190,7 @@ def robot_command(shield: PeopleShield, action, pose, people_rows, angles, range
     plain numbers out, so the controller itself stays free of torch): the policy's ``action`` [2] in [-1, 1] at
     odometry ``pose`` (x, y, yaw), the tracker's ``people_rows`` [M, 5] (x, y, vx, vy, radius in the odometry frame)
     and the scan as ``angles`` [B] (radians from the heading) and ``ranges`` [B] m (``inf``: no return, NaN: not
-    valid). Returns (v m/s, w rad/s, whether the shield overruled the policy, the action played)."""
+    valid). Returns (v m/s, w rad/s, whether the shield took over (:meth:`PeopleShield.filter`), the action played)."""
     import numpy as np
 
     rows = np.asarray(people_rows, np.float64).reshape(-1, 5)

@@ -191,7 +191,7 @@ def test_deploy_guide_flag_builds_the_scan_guide_or_names_the_bad_value():
     from test_deploy_runtime import POLICY
 
     args = argparse.Namespace(policy=str(POLICY), lidar_pose=[0.0, 0.0, 0.0], lidar_flipped=False, fill=None,
-                              timeout=0.3, rate=None, guide=0.5)
+                              timeout=0.3, rate=None, guide=0.5, shield=None)
     ctl = make_controller(args)
     assert ctl.guide is not None and ctl.guide.lookahead == 0.5 and ctl.guide.radius == pytest.approx(0.2)
     assert make_controller(argparse.Namespace(**{**vars(args), "guide": None})).guide is None
