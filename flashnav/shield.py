@@ -74,6 +74,9 @@ class PeopleShield:
         self.steps = max(1, round(lookahead / self.dt))
         self.lookahead, self.margin = lookahead, margin
         self.grid = torch.cartesian_prod(torch.linspace(-1, 1, v_levels), torch.linspace(-1, 1, w_levels))
+        # the farthest a wall point can be from the robot's centre and still be touched within the look-ahead
+        self.reach = (max(abs(b) for b in preset.motion.v_bounds) * self.steps * self.dt
+                      + preset.footprint.circumscribed_radius + POINT_RADIUS + 1e-3)
 
     def first_contact(self, pose: torch.Tensor, actions: torch.Tensor, people: People,
                       walls: torch.Tensor | None = None) -> torch.Tensor:
@@ -190,16 +193,24 @@ def robot_command(shield: PeopleShield, action, pose, people_rows, angles, range
     plain numbers out, so the controller itself stays free of torch): the policy's ``action`` [2] in [-1, 1] at
     odometry ``pose`` (x, y, yaw), the tracker's ``people_rows`` [M, 5] (x, y, vx, vy, radius in the odometry frame)
     and the scan as ``angles`` [B] (radians from the heading) and ``ranges`` [B] m (``inf``: no return, NaN: not
-    valid). Returns (v m/s, w rad/s, whether the shield took over (:meth:`PeopleShield.filter`), the action played)."""
+    valid). Returns (v m/s, w rad/s, whether the shield took over (:meth:`PeopleShield.filter`), the action played).
+    The scan enters as the simulator's shield sees it (the nearest hit of each group of ``SCAN_GROUP`` beams), less
+    the points farther than the footprint can reach within the look-ahead (``PeopleShield.reach``), which no rollout
+    can touch: a step that takes over costs one to a few tens of milliseconds on one CPU thread, not hundreds."""
     import numpy as np
 
     rows = np.asarray(people_rows, np.float64).reshape(-1, 5)
     here = torch.tensor([pose], dtype=torch.float32)
     who = People(torch.tensor(rows[None, :, :2], dtype=torch.float32), torch.tensor(rows[None, :, 2:4], dtype=torch.float32),
                  torch.tensor(rows[None, :, 4], dtype=torch.float32), torch.ones(1, len(rows), dtype=torch.bool))
-    r = np.asarray(ranges, np.float64)
-    keep = np.isfinite(r)
-    bearing = pose[2] + np.asarray(angles, np.float64)[keep]
+    r = np.asarray(ranges, np.float64).reshape(-1)
+    a = np.asarray(angles, np.float64).reshape(-1)
+    r = np.where(np.isfinite(r), r, np.inf)
+    if r.size % SCAN_GROUP == 0:   # the nearest hit of each group of beams, as the simulator's shield (scan_points)
+        pick = r.reshape(-1, SCAN_GROUP).argmin(1) + SCAN_GROUP * np.arange(r.size // SCAN_GROUP)
+        r, a = r[pick], a[pick]
+    keep = r <= shield.reach   # a point the footprint cannot reach within the look-ahead cannot be touched
+    bearing = pose[2] + a[keep]
     pts = np.stack([pose[0] + r[keep] * np.cos(bearing), pose[1] + r[keep] * np.sin(bearing)], -1)
     walls = torch.tensor(pts[None], dtype=torch.float32).reshape(1, -1, 2)
     if len(rows) and walls.shape[1]:

@@ -231,3 +231,35 @@ def test_deploy_refuses_a_shield_of_no_length_by_name(tmp_path, capsys):
     code = cli_main(["deploy", "replay", str(tmp_path / "in.bag"), "--policy", str(policy), "--out",
                      str(tmp_path / "o.csv"), "--shield", "-1"])
     assert code != 0 and "--shield must be > 0 seconds" in capsys.readouterr().err
+
+
+def test_robot_command_is_the_shield_on_the_scans_grouped_points_pruned_only_where_unreachable():
+    import numpy as np
+
+    from flashnav.shield import SCAN_GROUP, robot_command
+
+    rng = np.random.default_rng(4)
+    shield = PeopleShield(TB2, lookahead=2.0)
+    fov = math.radians(270.0)
+    angles = -fov / 2 + fov / 2160 + np.arange(1080) * fov / 1080
+    took_over = 0
+    for _ in range(12):
+        pose = (float(rng.uniform(-1, 1)), float(rng.uniform(-1, 1)), float(rng.uniform(-math.pi, math.pi)))
+        ranges = rng.uniform(0.4, 6.0, 1080)
+        ranges[rng.random(1080) < 0.1] = np.inf
+        rows = [[pose[0] + rng.uniform(-2, 2), pose[1] + rng.uniform(-2, 2), rng.uniform(-0.5, 0.5),
+                 rng.uniform(-0.5, 0.5), 0.3] for _ in range(3)]
+        action = rng.uniform(-1, 1, 2)
+        v, w, over, played = robot_command(shield, action, pose, rows, angles, ranges)
+        # the reference: every group's nearest point, none pruned, points on a person dropped (scan_points)
+        here = torch.tensor([pose], dtype=torch.float32)
+        t = torch.tensor(rows, dtype=torch.float32)[None]
+        who = People(t[..., :2], t[..., 2:4], t[..., 4], torch.ones(1, 3, dtype=torch.bool))
+        r = torch.tensor(np.where(np.isfinite(ranges), ranges, 1e9), dtype=torch.float32)[None]
+        walls = scan_points(here, r, torch.tensor(angles, dtype=torch.float32), 1e9, who, group=SCAN_GROUP)
+        out, ref_over = shield.filter(torch.tensor(action[None], dtype=torch.float32), here, who, walls)
+        assert over == bool(ref_over[0]) and played == pytest.approx(out[0].tolist(), abs=1e-6)
+        rv, rw = action_to_velocity(out, TB2.motion)
+        assert (v, w) == pytest.approx((float(rv[0]), float(rw[0])), abs=1e-6)
+        took_over += over
+    assert took_over >= 2
