@@ -175,17 +175,23 @@ class SimShield:
     def __call__(self, active: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         env = self.env
         pose, ranges = env.pose[active], env.scan(active)
-        pos, radius, on = env.agents.pos[active], env.agents.radius[active], env.agents.active[active]
-        seen = self.view.seen_by(pose, pos, radius, on, ranges)
-        velocity = torch.where((seen & self.seen[active])[..., None], (pos - self.prev[active]) / env.preset.episode.dt,
-                               torch.zeros_like(pos))
-        self.prev[active], self.seen[active] = pos, seen
-        people = People(pos, velocity, radius, seen)
+        people = self.people(active, pose, ranges)
         walls = scan_points(pose, ranges, env.beam_angles, env.preset.lidar.max_range, people)
         out, overruled = self.shield.filter(action, pose, people, walls)
         self.overruled += int(overruled.sum())
         self.steps += active.numel()
         return out
+
+    def people(self, active: torch.Tensor, pose: torch.Tensor, ranges: torch.Tensor) -> People:
+        """What the tracker reports this step for the running slots ``active`` [k] at ``pose`` [k, 3] with their
+        scans ``ranges`` [k, B]; a diagnostic overrides it for another prediction (scripts/agent_shield.py)."""
+        env = self.env
+        pos, radius, on = env.agents.pos[active], env.agents.radius[active], env.agents.active[active]
+        seen = self.view.seen_by(pose, pos, radius, on, ranges)
+        velocity = torch.where((seen & self.seen[active])[..., None], (pos - self.prev[active]) / env.preset.episode.dt,
+                               torch.zeros_like(pos))
+        self.prev[active], self.seen[active] = pos, seen
+        return People(pos, velocity, radius, seen)
 
 
 def robot_command(shield: PeopleShield, action, pose, people_rows, angles, ranges) -> tuple[float, float, bool, list]:
@@ -204,18 +210,11 @@ def robot_command(shield: PeopleShield, action, pose, people_rows, angles, range
     who = People(torch.tensor(rows[None, :, :2], dtype=torch.float32), torch.tensor(rows[None, :, 2:4], dtype=torch.float32),
                  torch.tensor(rows[None, :, 4], dtype=torch.float32), torch.ones(1, len(rows), dtype=torch.bool))
     r = np.asarray(ranges, np.float64).reshape(-1)
-    a = np.asarray(angles, np.float64).reshape(-1)
-    r = np.where(np.isfinite(r), r, np.inf)
-    if r.size % SCAN_GROUP == 0:   # the nearest hit of each group of beams, as the simulator's shield (scan_points)
-        pick = r.reshape(-1, SCAN_GROUP).argmin(1) + SCAN_GROUP * np.arange(r.size // SCAN_GROUP)
-        r, a = r[pick], a[pick]
-    keep = r <= shield.reach   # a point the footprint cannot reach within the look-ahead cannot be touched
-    bearing = pose[2] + a[keep]
-    pts = np.stack([pose[0] + r[keep] * np.cos(bearing), pose[1] + r[keep] * np.sin(bearing)], -1)
-    walls = torch.tensor(pts[None], dtype=torch.float32).reshape(1, -1, 2)
-    if len(rows) and walls.shape[1]:
-        gap = torch.linalg.vector_norm(walls[:, :, None] - who.centres[:, None], dim=-1) - who.radius[:, None]
-        walls = walls[:, ~(gap < ON_PERSON).any(-1)[0]]
+    r = torch.tensor(np.where(np.isfinite(r), r, np.inf)[None], dtype=torch.float32)
+    a = torch.tensor(np.asarray(angles, np.float64).reshape(-1), dtype=torch.float32)
+    # the simulator's points (scan_points), those beyond the footprint's reach in the look-ahead marked gone ...
+    walls = scan_points(here, r, a, shield.reach, who, SCAN_GROUP if r.shape[1] % SCAN_GROUP == 0 else 1)
+    walls = walls[:, torch.isfinite(walls[0, :, 0])]   # ... and left out: no rollout can touch them, yet each costs
     out, overruled = shield.filter(torch.tensor([list(action)], dtype=torch.float32), here, who, walls)
     v, w = action_to_velocity(out, shield.preset.motion)
     return float(v[0]), float(w[0]), bool(overruled[0]), [float(a) for a in out[0]]

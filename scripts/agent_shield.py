@@ -34,7 +34,7 @@ from flashnav.evaluate import play_episodes
 from flashnav.export import load_policy, recorded_robot
 from flashnav.presets import load_robot
 from flashnav.scenarios import scenario_names, scenario_preset, scenario_rates, scenario_scored
-from flashnav.shield import People, PeopleShield, SimShield, scan_points
+from flashnav.shield import People, PeopleShield, SimShield
 from flashnav.sim.env import make_env
 
 TRACKERS = ("seen", "tracks", "future")
@@ -47,25 +47,17 @@ class PredictedShield(SimShield):
         super().__init__(env, shield)
         self.tracker, self.future, self.t = tracker, future, 0
 
-    def __call__(self, active: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    def people(self, active: torch.Tensor, pose: torch.Tensor, ranges: torch.Tensor) -> People:
+        env = self.env
         if self.tracker == "seen":
-            return super().__call__(active, action)
-        env, steps = self.env, self.shield.steps
-        pose = env.pose[active]
+            return super().people(active, pose, ranges)
         if self.tracker == "tracks":
             obs = env.obs[active]   # the observation the policy acted on
-            centres, velocity, radius, present = tracked_agents(obs, pose, env.preset.observation.agent_tracks)
-            people = People(centres, velocity, radius, present)
-        else:
-            track, on = self.future
-            span = torch.arange(self.t + 1, self.t + 1 + steps).clamp(max=env.preset.episode.horizon)
-            people = People(track[span][:, active].transpose(0, 1), None, env.agents.radius[active], on[self.t + 1][active])
+            return People(*tracked_agents(obs, pose, env.preset.observation.agent_tracks))
+        track, on = self.future
+        span = torch.arange(self.t + 1, self.t + 1 + self.shield.steps).clamp(max=env.preset.episode.horizon)
         self.t += 1
-        walls = scan_points(pose, env.scan(active), env.beam_angles, env.preset.lidar.max_range, people)
-        out, overruled = self.shield.filter(action, pose, people, walls)
-        self.overruled += int(overruled.sum())
-        self.steps += active.numel()
-        return out
+        return People(track[span][:, active].transpose(0, 1), None, env.agents.radius[active], on[self.t][active])
 
 
 def run(policy, preset, episodes: int, seed: int, lookahead: float, tracker: str) -> dict:
