@@ -51,17 +51,22 @@ def reference_first_contact(shield: PeopleShield, pose, action, who: People, wal
     return shield.steps
 
 
-def test_first_contact_equals_a_step_by_step_reference_on_random_scenes():
+@pytest.mark.parametrize("robot", ["turtlebot2", "go2"])
+def test_first_contact_equals_a_step_by_step_reference_on_random_scenes(robot):
+    preset = load_robot(robot)
     gen = torch.Generator().manual_seed(0)
-    shield = PeopleShield(TB2, lookahead=1.5, margin=0.1)
+    shield = PeopleShield(preset, lookahead=1.5, margin=0.1)
     e, c, m = 12, 7, 3
     pose = torch.cat([4 * torch.rand(e, 2, generator=gen), (2 * torch.rand(e, 1, generator=gen) - 1) * math.pi], 1)
     actions = 2 * torch.rand(e, c, 2, generator=gen) - 1
     centres = pose[:, None, :2] + 3 * (torch.rand(e, m, 2, generator=gen) - 0.5)
     who = People(centres, 0.6 * (torch.rand(e, m, 2, generator=gen) - 0.5), 0.2 + 0.2 * torch.rand(e, m, generator=gen),
                  torch.rand(e, m, generator=gen) < 0.8)
-    walls = pose[:, None, :2] + 2 * (torch.rand(e, 5, 2, generator=gen) - 0.5)
+    # wall points near and far: the shield tests only those within its reach, the reference every one
+    walls = pose[:, None, :2] + 2 * (torch.rand(e, 9, 2, generator=gen) - 0.5) * torch.tensor([1.0] * 5 + [3.0] * 4)[:, None]
     walls[0, 2] = math.inf
+    far = torch.linalg.vector_norm(walls - pose[:, None, :2], dim=-1) > shield.reach
+    assert far.any() and (~far & torch.isfinite(walls[..., 0])).any()
     got = shield.first_contact(pose, actions, who, walls)
     touched = 0
     for i in range(e):
@@ -70,6 +75,10 @@ def test_first_contact_equals_a_step_by_step_reference_on_random_scenes():
             assert int(got[i, k]) == ref, (i, k)
             touched += ref < shield.steps
     assert 0 < touched < e * c   # the scenes have both
+    # a prediction given as centres per step is the same people walking straight on
+    ahead = torch.arange(1, shield.steps + 1) * shield.dt
+    stepped = People(centres[:, None] + who.velocity[:, None] * ahead[None, :, None, None], None, who.radius, who.present)
+    assert torch.equal(shield.first_contact(pose, actions, stepped, walls), got)
 
 
 def test_without_a_predicted_contact_the_policy_is_left_alone():
@@ -263,3 +272,24 @@ def test_robot_command_is_the_shield_on_the_scans_grouped_points_pruned_only_whe
         assert (v, w) == pytest.approx((float(rv[0]), float(rw[0])), abs=1e-6)
         took_over += over
     assert took_over >= 2
+
+
+def test_bench_shield_plays_the_scenario_both_ways_and_refuses_one_without_agents(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    from flashnav.export import load_policy, recorded_robot
+
+    fixture = str(Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx")
+    out = tmp_path / "bench.json"
+    assert cli_main(["bench", "shield", fixture, "--episodes", "8", "--repeats", "1", "--json", str(out)]) == 0
+    runs = json.loads(out.read_text())["runs"]
+    alone, shielded = runs["alone"][0], runs["shield"][0]
+    assert alone["shield_seconds"] == 0 < shielded["shield_seconds"] < shielded["seconds"]
+    # the shielded way is flashnav eval --scenario wander-8 --shield 2 on the same episodes
+    policy, meta = load_policy(fixture)
+    p = scenario_preset(recorded_robot(meta), "wander-8")
+    ref = run_scenario(policy, make_env(p, 8, seed=2026), 2026, shield=PeopleShield(p, 2.0))
+    assert {k: shielded[k] for k in ref if k != "shield_overruled"} == {k: v for k, v in ref.items() if k != "shield_overruled"}
+    assert cli_main(["bench", "shield", fixture, "--scenario", "static", "--episodes", "4"]) != 0
+    assert "has no agents" in capsys.readouterr().err

@@ -56,6 +56,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     from flashnav.bench import plan as bench_plan
 
     bench_plan.register_cli(bsub)
+    from flashnav.bench import shield as bench_shield
+
+    bench_shield.register_cli(bsub)
 
 
 def _csv(text: str, cast=str) -> list:
