@@ -43,7 +43,8 @@ class People(NamedTuple):
     """What a tracker reports for E robots: ``centres`` [E, M, 2] m, ``velocity`` [E, M, 2] m/s, ``radius``
     [E, M] m, ``present`` [E, M] bool (rows of absent people are ignored). With ``velocity`` None, ``centres``
     [E, L, M, 2] are where the people *will be* after each of the shield's L steps (a prediction other than
-    straight on, or the recorded future of a diagnostic: scripts/agent_shield.py)."""
+    straight on, or the recorded future of a diagnostic: scripts/agent_shield.py), and ``radius`` may be
+    [E, L, M] too (a prediction whose uncertainty grows with the look-ahead)."""
 
     centres: torch.Tensor
     velocity: torch.Tensor | None
@@ -56,6 +57,10 @@ class People(NamedTuple):
     def now(self) -> torch.Tensor:
         """[E, M, 2]: the centres now (the first predicted step's, for a prediction)."""
         return self.centres if self.velocity is not None else self.centres[:, 0]
+
+    def radius_now(self) -> torch.Tensor:
+        """[E, M]: the radii now (the first predicted step's, for radii per step)."""
+        return self.radius if self.radius.dim() == 2 else self.radius[:, 0]
 
 
 class PeopleShield:
@@ -82,7 +87,9 @@ class PeopleShield:
                       walls: torch.Tensor | None = None) -> torch.Tensor:
         """[E, C] long: for ``pose`` [E, 3] and ``actions`` [E, C, 2] each held constant, the first step (0-based)
         of the rollout at which the footprint touches a predicted person or a wall point of ``walls`` [E, P, 2]
-        (``inf`` rows: no point); ``self.steps`` where it touches nothing."""
+        (``inf`` rows: no point); ``self.steps`` where it touches nothing. The rollouts [E, C, L] meet the people
+        and the points by broadcasting, never copied per rollout step; of the points only those within
+        :attr:`reach` of ``pose`` are tested (exact: no rollout gets nearer the others)."""
         p, horizon = self.preset, self.steps
         e, c = actions.shape[:2]
         v, w = action_to_velocity(actions.reshape(-1, 2), p.motion)
@@ -91,27 +98,38 @@ class PeopleShield:
         for _ in range(horizon):
             x = integrate(x, v, w, self.dt)
             traj.append(x)
-        flat = torch.stack(traj, 1).reshape(-1, 3)  # [E * C * L, 3]
+        rollouts = torch.stack(traj, 1).reshape(e, c, horizon, 3)
         if people.velocity is None:
             future = people.centres  # [E, L, M, 2]
         else:
             ahead = torch.arange(1, horizon + 1, dtype=people.centres.dtype, device=pose.device) * self.dt
             future = people.centres[:, None] + people.velocity[:, None] * ahead[None, :, None, None]  # [E, L, M, 2]
-        m = future.shape[2]
-        if m:
-            future = future[:, None].expand(e, c, horizon, m, 2).reshape(-1, m, 2)
-            radius = (people.radius + self.margin)[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
-            present = people.present[:, None, None].expand(e, c, horizon, m).reshape(-1, m)
-            bad = footprint_hits_discs(flat, p.footprint, future, radius, present)
-        else:   # nobody tracked
-            bad = torch.zeros(flat.shape[0], dtype=torch.bool, device=pose.device)
-        if walls is not None and walls.shape[1]:
-            pts = walls[:, None, None].expand(e, c, horizon, *walls.shape[1:]).reshape(-1, *walls.shape[1:])
-            there = torch.isfinite(pts[..., 0])
-            bad |= footprint_hits_discs(flat, p.footprint, torch.where(there[..., None], pts, 0.0),
-                                        torch.full(there.shape, POINT_RADIUS, device=pose.device), there)
+        radius = people.radius + self.margin
+        radius = radius[:, None] if radius.dim() == 2 else radius  # [E, 1 | L, M]
+        bad = footprint_hits_discs(rollouts, p.footprint, future[:, None], radius[:, None],
+                                   people.present[:, None, None])  # [E, C, L]
+        near = self._near(pose, walls)
+        if near is not None:
+            there = torch.isfinite(near[..., 0])
+            bad |= footprint_hits_discs(rollouts, p.footprint, torch.where(there[..., None], near, 0.0)[:, None, None],
+                                        torch.full(there.shape, POINT_RADIUS, device=pose.device)[:, None, None],
+                                        there[:, None, None])
         steps = torch.arange(horizon, device=pose.device)
-        return torch.where(bad.reshape(e * c, horizon), steps, horizon).amin(1).reshape(e, c)
+        return torch.where(bad, steps, horizon).amin(2)
+
+    def _near(self, pose: torch.Tensor, walls: torch.Tensor | None) -> torch.Tensor | None:
+        """[E, P', 2]: of the points ``walls`` [E, P, 2], those within :attr:`reach` of ``pose`` [E, 3], nearest
+        first, P' the most any row has (``inf`` pads the others); None when no row has one."""
+        if walls is None or not walls.shape[1]:
+            return None
+        d = torch.linalg.vector_norm(walls - pose[:, None, :2].to(walls.dtype), dim=-1).nan_to_num(math.inf)
+        d = torch.where(d <= self.reach, d, math.inf)
+        k = int(torch.isfinite(d).sum(1).max())
+        if k == 0:
+            return None
+        d, idx = d.topk(k, dim=1, largest=False)
+        near = torch.gather(walls, 1, idx[..., None].expand(-1, -1, 2))
+        return torch.where(torch.isfinite(d)[..., None], near, math.inf)
 
     def filter(self, proposed: torch.Tensor, pose: torch.Tensor, people: People,
                walls: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -148,8 +166,8 @@ def scan_points(pose: torch.Tensor, ranges: torch.Tensor, beam_angles: torch.Ten
     bearing = torch.gather(angles, 2, arg[..., None])[..., 0] + pose[:, 2:3]
     pts = pose[:, None, :2] + near[..., None] * torch.stack([torch.cos(bearing), torch.sin(bearing)], -1)
     gone = near >= max_range
-    if people is not None and people.radius.shape[1]:
-        gap = torch.linalg.vector_norm(pts[:, :, None] - people.now()[:, None], dim=-1) - people.radius[:, None]
+    if people is not None and people.present.shape[1]:
+        gap = torch.linalg.vector_norm(pts[:, :, None] - people.now()[:, None], dim=-1) - people.radius_now()[:, None]
         gone |= ((gap < ON_PERSON) & people.present[:, None]).any(-1)
     return torch.where(gone[..., None], torch.full_like(pts, math.inf), pts)
 
@@ -159,7 +177,8 @@ class SimShield:
     loop (:func:`flashnav.evaluate.play_episodes` ``shield=``): every step it plays a people tracker - the agents
     the robot sees in its scan (:class:`flashnav.sim.tracks.TrackerView`, as the policy's agent tracks see them),
     each with the velocity of its last step if it was seen then too, else 0 - and the shield over the scan's
-    points. One episode per slot, as the evaluation plays them. ``overruled`` / ``steps`` count what it did."""
+    points. One episode per slot, as the evaluation plays them. ``overruled`` / ``steps`` count what it did;
+    ``took_over`` [k] bool: where it took over on its last call."""
 
     def __init__(self, env, shield: PeopleShield):
         from flashnav.sim.tracks import TrackerView
@@ -171,14 +190,15 @@ class SimShield:
         self.prev = env.agents.pos.clone()
         self.seen = torch.zeros_like(env.agents.active)
         self.overruled = self.steps = 0
+        self.took_over: torch.Tensor | None = None
 
     def __call__(self, active: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         env = self.env
         pose, ranges = env.pose[active], env.scan(active)
         people = self.people(active, pose, ranges)
         walls = scan_points(pose, ranges, env.beam_angles, env.preset.lidar.max_range, people)
-        out, overruled = self.shield.filter(action, pose, people, walls)
-        self.overruled += int(overruled.sum())
+        out, self.took_over = self.shield.filter(action, pose, people, walls)
+        self.overruled += int(self.took_over.sum())
         self.steps += active.numel()
         return out
 
@@ -212,9 +232,8 @@ def robot_command(shield: PeopleShield, action, pose, people_rows, angles, range
     r = np.asarray(ranges, np.float64).reshape(-1)
     r = torch.tensor(np.where(np.isfinite(r), r, np.inf)[None], dtype=torch.float32)
     a = torch.tensor(np.asarray(angles, np.float64).reshape(-1), dtype=torch.float32)
-    # the simulator's points (scan_points), those beyond the footprint's reach in the look-ahead marked gone ...
-    walls = scan_points(here, r, a, shield.reach, who, SCAN_GROUP if r.shape[1] % SCAN_GROUP == 0 else 1)
-    walls = walls[:, torch.isfinite(walls[0, :, 0])]   # ... and left out: no rollout can touch them, yet each costs
+    # the simulator's points (scan_points); the shield tests only those within its reach (PeopleShield._near)
+    walls = scan_points(here, r, a, math.inf, who, SCAN_GROUP if r.shape[1] % SCAN_GROUP == 0 else 1)
     out, overruled = shield.filter(torch.tensor([list(action)], dtype=torch.float32), here, who, walls)
     v, w = action_to_velocity(out, shield.preset.motion)
     return float(v[0]), float(w[0]), bool(overruled[0]), [float(a) for a in out[0]]

@@ -179,6 +179,20 @@ def test_footprint_disc_collision_matches_the_geometric_reference(footprint):
                                 torch.ones(1, 1, dtype=torch.bool))
 
 
+@pytest.mark.parametrize("footprint", [Footprint(kind="disc", radius=0.2),
+                                       Footprint(kind="rectangle", length=0.8, width=0.41)])
+def test_footprint_disc_collision_broadcasts_leading_dimensions_as_row_by_row(footprint):
+    # the people shield's form: poses [A, B, 3] against discs shared along B ([A, 1, K, 2]), as every pair row by row
+    pose, centres, radii, active = random_discs(60, 4, seed=5, extent=2.0, p_active=0.9)
+    poses = pose.reshape(6, 10, 3)
+    c, r, a = centres[::10][:, None], radii[::10][:, None], active[::10][:, None]   # [6, 1, 4, ...]
+    got = footprint_hits_discs(poses, footprint, c, r, a)
+    assert got.shape == (6, 10)
+    rows = footprint_hits_discs(pose, footprint, c.expand(-1, 10, -1, -1).reshape(60, 4, 2),
+                                r.expand(-1, 10, -1).reshape(60, 4), a.expand(-1, 10, -1).reshape(60, 4))
+    assert torch.equal(got.reshape(60), rows) and 0 < int(rows.sum()) < 60
+
+
 def test_counter_based_draws_are_the_same_bits_in_torch_and_numba():
     from flashnav.sim.agent_draws import hash_uniform as torch_hash
     from flashnav.sim.agent_numba import hash_uniform as numba_hash

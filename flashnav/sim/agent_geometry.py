@@ -61,21 +61,24 @@ def ray_disc_ranges(pose: torch.Tensor, cos_a: torch.Tensor, sin_a: torch.Tensor
 def footprint_hits_discs(pose: torch.Tensor, footprint: Footprint, centres: torch.Tensor, radii: torch.Tensor,
                          active: torch.Tensor) -> torch.Tensor:
     """[n] bool: the footprint at ``pose`` [n, 3] overlaps some active disc (``centres`` [n, K, 2] m,
-    ``radii`` [n, K] m, ``active`` [n, K] bool); touching is not a collision. float64 inside."""
+    ``radii`` [n, K] m, ``active`` [n, K] bool); touching is not a collision. float64 inside. Leading
+    dimensions broadcast: ``pose`` [..., 3] against ``centres`` [..., K, 2], ``radii`` and ``active`` [..., K]
+    give [...] (the people shield's rollouts [E, C, L] against discs per step [E, 1, L, K] or fixed [E, 1, 1, K]
+    without copying either)."""
     p = pose.double()
-    ddx = centres[..., 0].double() - p[:, 0:1]  # [n, K]
-    ddy = centres[..., 1].double() - p[:, 1:2]
+    ddx = centres[..., 0].double() - p[..., 0:1]  # [..., K]
+    ddy = centres[..., 1].double() - p[..., 1:2]
     r = radii.double()
     if footprint.kind == "disc":
         reach = footprint.radius + r
         touch = ddx * ddx + ddy * ddy < reach * reach
     else:
-        c, s = torch.cos(p[:, 2:3]), torch.sin(p[:, 2:3])
+        c, s = torch.cos(p[..., 2:3]), torch.sin(p[..., 2:3])
         lx, ly = ddx * c + ddy * s, ddy * c - ddx * s  # the disc centre in the robot's frame
         gx = (lx.abs() - 0.5 * footprint.length).clamp(min=0.0)
         gy = (ly.abs() - 0.5 * footprint.width).clamp(min=0.0)
         touch = gx * gx + gy * gy < r * r
-    return (touch & active).any(dim=1)
+    return (touch & active).any(dim=-1)
 
 
 def footprint_disc_gap(pose: torch.Tensor, footprint: Footprint, centres: torch.Tensor, radii: torch.Tensor,
