@@ -2,7 +2,7 @@
 (issue 13, done-means 3).
 
     .venv/bin/python scripts/agent_shield.py POLICY [--scenario wander-8[,crossing]] [--episodes 512] [--seed 2026]
-        [--lookahead 2] [--tracker tracks|future] [--json OUT.json]
+        [--lookahead 2] [--tracker seen|tracks|future] [--memory S] [--growth G] [--why] [--json OUT.json]
 
 ``flashnav eval POLICY --scenario S --shield SECONDS`` puts :class:`flashnav.shield.PeopleShield` in front of a
 policy with what a people tracker sees: every agent in the scan, straight on at its last step's velocity. This
@@ -12,7 +12,14 @@ script plays the same shield (the same walls: the scan's points) with the agents
   nearest seen; the policy must have them), straight on;
 - ``--tracker future``: where every agent *will be* over the look-ahead - the scenarios' agents are not reactive,
   so their futures are recorded beforehand, as ``scripts/agent_oracle.py`` does: the bound of any predictor
-  behind this shield.
+  behind this shield;
+- with ``--tracker seen``: ``--memory S`` keeps an agent that left the scan for up to S seconds, walking straight on
+  at its last velocity (a tracker's track outliving the view); ``--growth G`` grows every predicted disc by G metres
+  per second of look-ahead (a prediction whose uncertainty grows: the agents turn).
+
+``--why`` sorts every agent collision by what the shield saw and did the step before it: whether the hitting agent
+was tracked, whether the shield was in charge, and whether any action of its grid was clear (with the steps of
+threat before the contact) - docs/benchmarks.md, "What the shield costs" and after.
 
 The episodes and the scoring are ``flashnav eval --scenario``'s (the simulator alone says success, agent or wall
 collision, or timeout); ``--tracker seen`` repeats ``flashnav eval --shield`` (the check that this loop is the
@@ -23,6 +30,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import statistics
 import time
 
 import torch
@@ -34,45 +43,113 @@ from flashnav.evaluate import play_episodes
 from flashnav.export import load_policy, recorded_robot
 from flashnav.presets import load_robot
 from flashnav.scenarios import scenario_names, scenario_preset, scenario_rates, scenario_scored
-from flashnav.shield import People, PeopleShield, SimShield
+from flashnav.shield import People, PeopleShield, SimShield, scan_points
 from flashnav.sim.env import make_env
 
 TRACKERS = ("seen", "tracks", "future")
 
 
 class PredictedShield(SimShield):
-    """:class:`SimShield` with the agents predicted from the policy's tracks or from their recorded future."""
+    """:class:`SimShield` with the agents predicted from the policy's tracks or from their recorded future, or as
+    they are seen with a memory and growing discs; with ``why`` it also records each step for :func:`why_hits`."""
 
-    def __init__(self, env, shield: PeopleShield, tracker: str, future=None):
+    def __init__(self, env, shield: PeopleShield, tracker: str, future=None, memory: float = 0.0, growth: float = 0.0,
+                 why: bool = False):
         super().__init__(env, shield)
         self.tracker, self.future, self.t = tracker, future, 0
+        self.memory, self.growth = memory, growth
+        self.age = torch.full(env.agents.active.shape, math.inf)   # seconds since each agent was last seen
+        self.last_pos, self.last_vel = env.agents.pos.clone(), torch.zeros_like(env.agents.pos)
+        self.record = {} if why else None   # slot -> [(took over, a clear action played, tracked agents [K])]
+
+    def __call__(self, active: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        if self.record is None:
+            return super().__call__(active, action)
+        env = self.env
+        pose, ranges = env.pose[active], env.scan(active)
+        people = self.people(active, pose, ranges)
+        walls = scan_points(pose, ranges, env.beam_angles, env.preset.lidar.max_range, people)
+        out, over = self.shield.filter(action, pose, people, walls)
+        self.took_over = over
+        clear = self.shield.first_contact(pose, out[:, None], people, walls)[:, 0] >= self.shield.steps
+        for j, slot in enumerate(active.tolist()):
+            self.record.setdefault(slot, []).append((bool(over[j]), bool(clear[j]), people.present[j].clone()))
+        self.overruled += int(over.sum())
+        self.steps += active.numel()
+        return out
 
     def people(self, active: torch.Tensor, pose: torch.Tensor, ranges: torch.Tensor) -> People:
         env = self.env
-        if self.tracker == "seen":
-            return super().people(active, pose, ranges)
         if self.tracker == "tracks":
             obs = env.obs[active]   # the observation the policy acted on
             return People(*tracked_agents(obs, pose, env.preset.observation.agent_tracks))
-        track, on = self.future
-        span = torch.arange(self.t + 1, self.t + 1 + self.shield.steps).clamp(max=env.preset.episode.horizon)
-        self.t += 1
-        return People(track[span][:, active].transpose(0, 1), None, env.agents.radius[active], on[self.t][active])
+        if self.tracker == "future":
+            track, on = self.future
+            span = torch.arange(self.t + 1, self.t + 1 + self.shield.steps).clamp(max=env.preset.episode.horizon)
+            self.t += 1
+            return People(track[span][:, active].transpose(0, 1), None, env.agents.radius[active], on[self.t][active])
+        seen = super().people(active, pose, ranges)
+        if self.memory > 0:
+            dt, now = env.preset.episode.dt, seen.present
+            age = torch.where(now, 0.0, self.age[active] + dt)
+            # a new sighting's velocity is 0 until its second step: the remembered one until then
+            vel = torch.where(now[..., None] & (seen.velocity != 0).any(-1, keepdim=True), seen.velocity,
+                              self.last_vel[active])
+            pos = torch.where(now[..., None], seen.centres, self.last_pos[active] + self.last_vel[active] * dt)
+            self.age[active], self.last_pos[active], self.last_vel[active] = age, pos, vel
+            seen = People(pos, vel, seen.radius, age <= self.memory)
+        if self.growth > 0:
+            ahead = torch.arange(1, self.shield.steps + 1, dtype=seen.centres.dtype) * self.shield.dt
+            seen = People(seen.centres[:, None] + seen.velocity[:, None] * ahead[None, :, None, None], None,
+                          seen.radius[:, None] + self.growth * ahead[None, :, None], seen.present)
+        return seen
 
 
-def run(policy, preset, episodes: int, seed: int, lookahead: float, tracker: str) -> dict:
-    """The scenario rates of ``policy`` behind the shield with ``tracker``'s prediction, plus ``shield_overruled``."""
+def why_hits(guard: PredictedShield, env, ended: dict) -> dict:
+    """Each agent collision sorted by the step before it (:class:`PredictedShield` ``why``): the hitting agent (the
+    nearest at the end) tracked or not, the shield in charge or not, a clear action played or not; and the median
+    steps of threat (the shield in charge) and without a clear action before the contact."""
+    from flashnav.sim.agent_geometry import footprint_disc_gap
+
+    fp, k = env.preset.footprint, env.agents.pos.shape[1]
+    gap = torch.stack([footprint_disc_gap(env.pose, fp, env.agents.pos[:, j:j + 1], env.agents.radius[:, j:j + 1],
+                                          env.agents.active[:, j:j + 1]) for j in range(k)], 1)
+    kinds, threat, unclear = {}, [], []
+    for slot in ended["collision_agent"].nonzero().flatten().tolist():
+        steps = guard.record[slot]
+        over, clear, tracked = steps[-1]
+        key = (f"agent {'tracked' if bool(tracked[int(gap[slot].argmin())]) else 'not tracked'}, "
+               f"shield {'in charge' if over else 'idle'}, {'a clear action' if clear else 'no clear action'}")
+        kinds[key] = kinds.get(key, 0) + 1
+        threat.append(next((i for i, s in enumerate(reversed(steps)) if not s[0]), len(steps)))
+        unclear.append(next((i for i, s in enumerate(reversed(steps)) if s[1]), len(steps)))
+    return {"hits": sum(kinds.values()), "kinds": dict(sorted(kinds.items(), key=lambda kv: -kv[1])),
+            "median_threat_steps": statistics.median(threat) if threat else None,
+            "median_unclear_steps": statistics.median(unclear) if unclear else None}
+
+
+def run(policy, preset, episodes: int, seed: int, lookahead: float, tracker: str, memory: float = 0.0,
+        growth: float = 0.0, why: bool = False) -> dict:
+    """The scenario rates of ``policy`` behind the shield with ``tracker``'s prediction, plus ``shield_overruled``
+    (and with ``why`` the hits sorted, ``why``: :func:`why_hits`)."""
     if tracker not in TRACKERS:
         raise ValueError(f"tracker must be one of {', '.join(TRACKERS)}, got {tracker!r}")
     if tracker == "tracks" and preset.observation.agent_tracks < 1:
         raise ValueError("--tracker tracks reads the policy's agent tracks: this policy has observation.agent_tracks 0")
+    if (memory or growth) and tracker != "seen":
+        raise ValueError(f"--memory and --growth change the seen tracker's prediction: not --tracker {tracker}")
+    if not (memory >= 0 and growth >= 0):
+        raise ValueError(f"--memory and --growth must be >= 0, got {memory} and {growth}")
     future = agent_tracks(preset, episodes, seed, stand_still(preset)) if tracker == "future" else None
     env = make_env(preset, episodes, seed=seed)
     obs, _ = env.reset(seed=seed)
     scored = scenario_scored(env)
-    guard = PredictedShield(env, PeopleShield(preset, lookahead), tracker, future)
-    rates = scenario_rates(play_episodes(policy, env, obs, shield=guard), scored)
+    guard = PredictedShield(env, PeopleShield(preset, lookahead), tracker, future, memory, growth, why)
+    ended = play_episodes(policy, env, obs, shield=guard)
+    rates = scenario_rates(ended, scored)
     rates["shield_overruled"] = guard.overruled / max(guard.steps, 1)
+    if why:
+        rates["why"] = why_hits(guard, env, ended)
     return rates
 
 
@@ -86,11 +163,16 @@ def main() -> None:
     ap.add_argument("--tracker", default="future", choices=TRACKERS,
                     help="seen: every agent the scan sees (flashnav eval --shield); tracks: the policy's own track "
                          "columns; future: where every agent will be (clairvoyant)")
+    ap.add_argument("--memory", type=float, default=0.0, metavar="S",
+                    help="with --tracker seen: keep an agent that left the scan for S seconds, straight on")
+    ap.add_argument("--growth", type=float, default=0.0, metavar="G",
+                    help="with --tracker seen: grow every predicted disc by G metres per second of look-ahead")
+    ap.add_argument("--why", action="store_true", help="sort the agent collisions by what the shield saw and did")
     ap.add_argument("--json", help="write the rates and settings here")
     args = ap.parse_args()
     torch.set_num_threads(1)
     report = {"policy": args.policy, "seed": args.seed, "episodes": args.episodes, "lookahead": args.lookahead,
-              "tracker": args.tracker, "scenarios": {}}
+              "tracker": args.tracker, "memory": args.memory, "growth": args.growth, "scenarios": {}}
     try:
         policy, meta = load_policy(args.policy)
         robot = load_robot(recorded_robot(meta))
@@ -99,11 +181,18 @@ def main() -> None:
             preset = scenario_preset(robot, name)
             if preset.agents.count == 0:
                 raise ValueError(f"scenario {name} has no agents: nothing to shield from")
-            r = run(policy, preset, args.episodes, args.seed, args.lookahead, args.tracker)
+            r = run(policy, preset, args.episodes, args.seed, args.lookahead, args.tracker, args.memory,
+                    args.growth, args.why)
             report["scenarios"][name] = r
             print(f"{name}: success {r['success_rate']:.1%}, agent {r['agent_collision_rate']:.1%}, wall "
                   f"{r['wall_collision_rate']:.1%}, timeout {r['timeout_rate']:.1%} ({r['scored']} scored); "
                   f"overruled {r['shield_overruled']:.1%} of steps; {time.time() - t0:.0f} s", flush=True)
+            if args.why:
+                w = r["why"]
+                print(f"  {w['hits']} agent collisions; median steps before the contact with the shield in charge "
+                      f"{w['median_threat_steps']}, without a clear action {w['median_unclear_steps']}")
+                for kind, count in w["kinds"].items():
+                    print(f"  {count:4d}  {kind}")
     except ValueError as e:
         raise SystemExit(str(e)) from None
     if args.json:
