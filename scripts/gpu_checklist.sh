@@ -25,7 +25,7 @@ nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$OUT
 python3 -c "import torch;print(torch.__version__, torch.cuda.get_device_name())" | tee -a "$OUT/gpu.txt"
 echo "== tests $(el)"
 timeout 90 python3 -m pytest -q -p no:cacheprovider tests/test_raycast_cuda.py tests/test_device_paths.py \
-    tests/test_cuda_graph.py -k "gpu or cuda" 2>&1 | tail -4 | tee "$OUT/tests.txt"
+    tests/test_cuda_graph.py tests/test_shield.py -k "gpu or cuda" 2>&1 | tail -4 | tee "$OUT/tests.txt"
 echo "== bench sim (Go2; TurtleBot2's rows are in docs) $(el)"
 timeout 45 $FN bench sim --device cuda --robots go2 --raycasters exact-cuda,march --num-envs 1024,4096,16384 \
     --seconds 0.5 --no-irsim --json "$OUT/sim.json" 2>&1 | tail -8

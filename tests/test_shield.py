@@ -293,3 +293,23 @@ def test_bench_shield_plays_the_scenario_both_ways_and_refuses_one_without_agent
     assert {k: shielded[k] for k in ref if k != "shield_overruled"} == {k: v for k, v in ref.items() if k != "shield_overruled"}
     assert cli_main(["bench", "shield", fixture, "--scenario", "static", "--episodes", "4"]) != 0
     assert "has no agents" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA (scripts/gpu_checklist.sh runs it on a GPU)")
+def test_the_shield_on_cuda_decides_as_on_the_cpu_and_runs_a_scenario():
+    gen = torch.Generator().manual_seed(3)
+    shield = PeopleShield(TB2, lookahead=2.0)
+    e, m = 64, 4
+    pose = torch.cat([4 * torch.rand(e, 2, generator=gen), (2 * torch.rand(e, 1, generator=gen) - 1) * math.pi], 1)
+    who = People(pose[:, None, :2] + 3 * (torch.rand(e, m, 2, generator=gen) - 0.5),
+                 torch.rand(e, m, 2, generator=gen) - 0.5, 0.2 + 0.1 * torch.rand(e, m, generator=gen),
+                 torch.ones(e, m, dtype=torch.bool))
+    walls = pose[:, None, :2] + 4 * (torch.rand(e, 40, 2, generator=gen) - 0.5)
+    proposed = 2 * torch.rand(e, 2, generator=gen) - 1
+    cpu = shield.filter(proposed, pose, who, walls)
+    cuda = shield.filter(proposed.cuda(), pose.cuda(), People(*(t.cuda() for t in who)), walls.cuda())
+    assert torch.equal(cuda[1].cpu(), cpu[1]) and torch.allclose(cuda[0].cpu(), cpu[0]) and bool(cpu[1].any())
+    p = scenario_preset("turtlebot2", "wander-8")
+    r = run_scenario(lambda obs: drive_at_goal(obs.cpu()).to(obs.device), make_env(p, 32, seed=7, device="cuda"), 7,
+                     shield=PeopleShield(p, 2.0))
+    assert r["scored"] == 32 and 0 < r["shield_overruled"] < 0.5
