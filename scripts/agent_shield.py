@@ -2,7 +2,8 @@
 (issue 13, done-means 3).
 
     .venv/bin/python scripts/agent_shield.py POLICY [--scenario wander-8[,crossing]] [--episodes 512] [--seed 2026]
-        [--lookahead 2] [--tracker seen|tracks|future] [--memory S] [--growth G] [--why] [--json OUT.json]
+        [--lookahead 2] [--tracker seen|tracks|future] [--memory S] [--growth G] [--margin M] [--why]
+        [--json OUT.json]
 
 ``flashnav eval POLICY --scenario S --shield SECONDS`` puts :class:`flashnav.shield.PeopleShield` in front of a
 policy with what a people tracker sees: every agent in the scan, straight on at its last step's velocity. This
@@ -129,7 +130,7 @@ def why_hits(guard: PredictedShield, env, ended: dict) -> dict:
 
 
 def run(policy, preset, episodes: int, seed: int, lookahead: float, tracker: str, memory: float = 0.0,
-        growth: float = 0.0, why: bool = False) -> dict:
+        growth: float = 0.0, why: bool = False, margin: float = 0.05) -> dict:
     """The scenario rates of ``policy`` behind the shield with ``tracker``'s prediction, plus ``shield_overruled``
     (and with ``why`` the hits sorted, ``why``: :func:`why_hits`)."""
     if tracker not in TRACKERS:
@@ -144,7 +145,7 @@ def run(policy, preset, episodes: int, seed: int, lookahead: float, tracker: str
     env = make_env(preset, episodes, seed=seed)
     obs, _ = env.reset(seed=seed)
     scored = scenario_scored(env)
-    guard = PredictedShield(env, PeopleShield(preset, lookahead), tracker, future, memory, growth, why)
+    guard = PredictedShield(env, PeopleShield(preset, lookahead, margin), tracker, future, memory, growth, why)
     ended = play_episodes(policy, env, obs, shield=guard)
     rates = scenario_rates(ended, scored)
     rates["shield_overruled"] = guard.overruled / max(guard.steps, 1)
@@ -167,12 +168,15 @@ def main() -> None:
                     help="with --tracker seen: keep an agent that left the scan for S seconds, straight on")
     ap.add_argument("--growth", type=float, default=0.0, metavar="G",
                     help="with --tracker seen: grow every predicted disc by G metres per second of look-ahead")
+    ap.add_argument("--margin", type=float, default=0.05, metavar="M",
+                    help="metres added to every person's radius (the shield's margin; flashnav eval's is 0.05)")
     ap.add_argument("--why", action="store_true", help="sort the agent collisions by what the shield saw and did")
     ap.add_argument("--json", help="write the rates and settings here")
     args = ap.parse_args()
     torch.set_num_threads(1)
     report = {"policy": args.policy, "seed": args.seed, "episodes": args.episodes, "lookahead": args.lookahead,
-              "tracker": args.tracker, "memory": args.memory, "growth": args.growth, "scenarios": {}}
+              "tracker": args.tracker, "memory": args.memory, "growth": args.growth, "margin": args.margin,
+              "scenarios": {}}
     try:
         policy, meta = load_policy(args.policy)
         robot = load_robot(recorded_robot(meta))
@@ -182,7 +186,7 @@ def main() -> None:
             if preset.agents.count == 0:
                 raise ValueError(f"scenario {name} has no agents: nothing to shield from")
             r = run(policy, preset, args.episodes, args.seed, args.lookahead, args.tracker, args.memory,
-                    args.growth, args.why)
+                    args.growth, args.why, args.margin)
             report["scenarios"][name] = r
             print(f"{name}: success {r['success_rate']:.1%}, agent {r['agent_collision_rate']:.1%}, wall "
                   f"{r['wall_collision_rate']:.1%}, timeout {r['timeout_rate']:.1%} ({r['scored']} scored); "
