@@ -41,11 +41,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "(success / collision with an agent / with a wall / timeout per scenario); the agents are "
                         "the simulator's defaults whatever the policy trained with, or with --robot PRESET.yaml "
                         "that preset's agent options")
-    p.add_argument("--shield", type=float, default=None, metavar="SECONDS",
-                   help="with --scenario: a people shield in front of the policy (flashnav/shield.py): the policy's "
-                        "action is held SECONDS ahead against every tracked agent walking straight on, and only a "
-                        "predicted contact makes the shield play the nearest action that keeps clear of the agents "
-                        "and the scan's walls (e.g. 2); a deployment mode, reported beside the policy alone")
+    _shield_arg(p)
     _agents_arg(p)
     p.set_defaults(func=run_eval)
 
@@ -55,8 +51,25 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gif", action="store_true", help="also write an animated GIF next to --out")
     p.add_argument("--scenario", default=None, metavar="NAME",
                    help="draw the episodes of this scenario (static, wander-4, wander-8, crossing) with its agents")
+    _shield_arg(p)
     _agents_arg(p)
     p.set_defaults(func=run_render)
+
+
+def _shield_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--shield", type=float, default=None, metavar="SECONDS",
+                   help="with --scenario: a people shield in front of the policy (flashnav/shield.py): the policy's "
+                        "action is held SECONDS ahead against every tracked agent walking straight on, and only a "
+                        "predicted contact makes the shield play the nearest action that keeps clear of the agents "
+                        "and the scan's walls (e.g. 2); a deployment mode, reported beside the policy alone")
+
+
+def _check_shield(args) -> None:
+    """``--shield``'s errors, before any work: it needs ``--scenario`` and a look-ahead > 0."""
+    if args.shield is not None and args.scenario is None:
+        raise ValueError("--shield guards against moving agents: it goes with --scenario NAME")
+    if args.shield is not None and not (math.isfinite(args.shield) and args.shield > 0):
+        raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
 
 
 def _agents_arg(p: argparse.ArgumentParser) -> None:
@@ -147,10 +160,7 @@ def run_eval(args) -> int:
         raise ValueError(f"--guide-from {args.guide_from} goes with --guide LOOKAHEAD_M")
     if args.guide_keep_walls and args.guide_from != "scans":
         raise ValueError("--guide-keep-walls goes with --guide LOOKAHEAD_M --guide-from scans")
-    if args.shield is not None and args.scenario is None:
-        raise ValueError("--shield guards against moving agents: it goes with --scenario NAME")
-    if args.shield is not None and not (math.isfinite(args.shield) and args.shield > 0):
-        raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
+    _check_shield(args)
     if args.maps is not None:
         from flashnav.eval_maps import run_eval_maps
 
@@ -260,11 +270,12 @@ def _scenario_guide(args):
 
 def run_render(args) -> int:
     from flashnav.outputs import check_output_file
-    from flashnav.rollout import agent_tracks, rollout, write_gif
+    from flashnav.rollout import agent_tracks, rollout, took_over_points, write_gif
     from flashnav.viz import draw_trajectories
 
     check_output_file(args.out, "--out")
     agent_overrides(args)  # --agents without --scenario: an error before any work
+    _check_shield(args)
     if args.gif:
         check_output_file(Path(args.out).with_suffix(".gif"), "--gif")
     if args.scenario is None:
@@ -274,14 +285,21 @@ def run_render(args) -> int:
 
         policy, meta, robot, device = load_policy_for(args)
         env = _scenario_env(args, load_robot(robot), args.scenario, device)
-    result = rollout(policy, env, args.seed)
+    shield = None
+    if args.shield is not None:
+        from flashnav.shield import PeopleShield
+
+        shield = PeopleShield(env.preset, lookahead=args.shield)
+    result = rollout(policy, env, args.seed, shield=shield)
     poses, length, outcomes = result["poses"], result["length"], result["outcomes"]
     paths = [poses[: length[i], i, :2] for i in range(env.num_envs)]
     tracks = agent_tracks(result)
     counts = {k: outcomes.count(k) for k in ("success", "collision", "timeout")}
-    title = (f"{env.preset.name} / {_map_label(args, env.preset)}: {Path(args.policy).name}, "
+    title = (f"{env.preset.name} / {_map_label(args, env.preset)}: {Path(args.policy).name}"
+             f"{'' if shield is None else f' behind a {args.shield:g}-s shield'}, "
              f"{counts['success']}/{env.num_envs} reached, {counts['collision']} collided")
-    out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title, agents=tracks)
+    out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title, agents=tracks,
+                            shielded=None if shield is None else took_over_points(result))
     print(f"{counts} over {env.num_envs} episodes; trajectories: {out}")
     if args.gif:
         gif = write_gif(env.frame_map, result, env.preset.footprint.circumscribed_radius, Path(args.out).with_suffix(".gif"))

@@ -19,8 +19,10 @@ AGENT_RGB = (148, 103, 189)  # moving agents in the GIF (matplotlib's tab:purple
 
 
 @torch.no_grad()
-def rollout(policy, env, seed: int) -> dict:
-    """One episode per env slot with the deterministic ``policy``.
+def rollout(policy, env, seed: int, shield=None) -> dict:
+    """One episode per env slot with the deterministic ``policy`` (behind ``shield``, a
+    :class:`flashnav.shield.PeopleShield`, if given: then also ``took_over`` [T, N] bool, the steps on which it
+    took over from the policy, rows past an episode's end False).
 
     Returns ``poses [T+1, N, 3]`` (x, y m, yaw rad; rows past an episode's end repeat its last pose),
     ``length [N]`` (valid rows per slot), ``goals [N, 2]`` m and ``outcomes`` (success / collision /
@@ -42,8 +44,16 @@ def rollout(policy, env, seed: int) -> dict:
     if track:
         agents, agent_active = [env.agents.pos.cpu().numpy().copy()], [env.agents.active.cpu().numpy().copy()]
         agent_radius = env.agents.radius.cpu().numpy().copy()
+    guard = None
+    if shield is not None:
+        from flashnav.shield import SimShield
+
+        guard, took_over, every = SimShield(env, shield), [], torch.arange(n, device=env.device)
     for _ in range(preset.episode.horizon):
         action = policy(obs)
+        if guard is not None:
+            action = guard(every, action)
+            took_over.append(guard.took_over.cpu().numpy() & running)
         pose = integrate(env.pose, *action_to_velocity(action.to(env.device), preset.motion), preset.episode.dt)
         obs, _, terminated, truncated, info = env.step(action)
         pose = np.where(running[:, None], pose.cpu().numpy(), poses[-1])
@@ -57,12 +67,25 @@ def rollout(policy, env, seed: int) -> dict:
         for i in np.nonzero(running & done)[0]:
             outcomes[i] = "success" if success[i] else "collision" if collision[i] else "timeout"
         running &= ~done
+        if guard is not None:  # a reset slot's agents are new: no velocity from the old ones
+            guard.seen[torch.as_tensor(done, device=env.device)] = False
         if not running.any():
             break
     out = {"poses": np.stack(poses), "length": length, "goals": goals, "outcomes": outcomes}
     if track:
         out.update(agents=np.stack(agents), agent_active=np.stack(agent_active), agent_radius=agent_radius)
+    if guard is not None:
+        out["took_over"] = np.stack(took_over)
     return out
+
+
+def took_over_points(result: dict) -> np.ndarray:
+    """[P, 2] m: where the robots stood on the steps a shield took over (:func:`rollout` ``shield=``); empty
+    without a shield."""
+    if "took_over" not in result:
+        return np.zeros((0, 2))
+    steps, slots = np.nonzero(result["took_over"])
+    return result["poses"][steps, slots, :2]
 
 
 def agent_tracks(result: dict) -> list[tuple[np.ndarray, float]]:

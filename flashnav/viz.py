@@ -19,9 +19,11 @@ OUTCOME_COLOURS = {"success": "tab:green", "collision": "tab:red", "timeout": "t
 
 
 def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.ndarray, outcomes: list[str],
-                      out: str | Path, title: str = "", agents: list[tuple[np.ndarray, float]] = ()) -> Path:
+                      out: str | Path, title: str = "", agents: list[tuple[np.ndarray, float]] = (),
+                      shielded: np.ndarray | None = None) -> Path:
     """Save a PNG of the map with each path ([T, 2] metres), its start, goal and outcome colour, and
-    each moving agent's track ([T', 2] metres, its radius) with its disc where the track ends.
+    each moving agent's track ([T', 2] metres, its radius) with its disc where the track ends; ``shielded``
+    [P, 2] m: where a people shield took over (black dots on the paths).
 
     Paths and goals are in ``grid``'s coordinates: for an environment's state (``env.pose``,
     ``env.goal``, in its simulator frame) pass ``env.frame_map``, which is ``env.map`` itself unless
@@ -38,9 +40,13 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
         ax.plot(path[:, 0], path[:, 1], color=colour, lw=1.2, alpha=0.85)
         ax.plot(path[0, 0], path[0, 1], "o", color=colour, ms=3)
         ax.plot(goal[0], goal[1], "*", color=colour, ms=8, mec="black", mew=0.4)
+    if shielded is not None and len(shielded):
+        ax.plot(shielded[:, 0], shielded[:, 1], ".", color="black", ms=2.5, zorder=5)
     handles = [plt.Line2D([], [], color=c, label=k) for k, c in OUTCOME_COLOURS.items() if k in outcomes]
     if agents:
         handles.append(plt.Line2D([], [], color=AGENT_COLOUR, ls=":", label="agent"))
+    if shielded is not None and len(shielded):
+        handles.append(plt.Line2D([], [], color="black", marker=".", ls="", label="shield took over"))
     if handles:
         ax.legend(handles=handles, loc="upper right", fontsize=8)
     ax.set_xlabel("x [m]")

@@ -170,6 +170,32 @@ def test_in_the_scenarios_it_cuts_the_agent_collisions_and_leaves_static_episode
     assert shielded.pop("shield_overruled") == 0.0 and shielded == plain
 
 
+def test_rollout_behind_the_shield_plays_the_scenarios_episodes_and_marks_its_take_overs():
+    from flashnav.rollout import rollout, took_over_points
+
+    torch.set_num_threads(1)
+    p = scenario_preset("turtlebot2", "wander-8")
+    r = rollout(drive_at_goal, make_env(p, 24, seed=7), 7, shield=PeopleShield(p, 2.0))
+    ref = run_scenario(drive_at_goal, make_env(p, 24, seed=7), 7, shield=PeopleShield(p, 2.0))
+    assert r["outcomes"].count("success") / 24 == ref["success_rate"]
+    played = int((r["length"] - 1).sum())   # steps of running episodes; rows past an episode's end are never marked
+    assert int(r["took_over"].sum()) / played == ref["shield_overruled"] > 0
+    assert took_over_points(r).shape == (int(r["took_over"].sum()), 2)
+    assert "took_over" not in rollout(drive_at_goal, make_env(p, 4, seed=7), 7)
+
+
+def test_render_draws_the_shields_take_overs_and_refuses_it_without_a_scenario(tmp_path, capsys):
+    from pathlib import Path
+
+    fixture = str(Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx")
+    out = tmp_path / "shield.png"
+    assert cli_main(["render", fixture, "--scenario", "wander-8", "--shield", "2", "--episodes", "4",
+                     "--out", str(out)]) == 0
+    assert out.stat().st_size > 0
+    assert cli_main(["render", fixture, "--shield", "2", "--out", str(tmp_path / "x.png")]) != 0
+    assert "--scenario" in capsys.readouterr().err
+
+
 def test_eval_refuses_a_shield_without_a_scenario_or_of_no_length(tmp_path, capsys):
     for argv, words in ((["--shield", "2"], "--scenario"), (["--scenario", "crossing", "--shield", "0"], "> 0")):
         assert cli_main(["eval", str(tmp_path / "policy.onnx"), *argv]) != 0
