@@ -105,8 +105,9 @@ def agent_tracks(result: dict) -> list[tuple[np.ndarray, float]]:
 
 def write_gif(grid, result: dict, radius: float, out: Path) -> Path:
     """Animated GIF of the rollout: map, paths so far (blue while running, outcome colour after),
-    robots as footprint-sized circles with a heading tick, goals as crosses. Pillow only (matplotlib
-    per frame would be ~50x slower); palette mode and <= GIF_MAX_FRAMES frames keep it small."""
+    robots as footprint-sized circles with a heading tick (black while a people shield is in charge: the
+    rollout's ``took_over``), goals as crosses. Pillow only (matplotlib per frame would be ~50x slower);
+    palette mode and <= GIF_MAX_FRAMES frames keep it small."""
     from matplotlib.colors import to_rgb
     from PIL import Image, ImageDraw
 
@@ -144,8 +145,10 @@ def write_gif(grid, result: dict, radius: float, out: Path) -> Path:
                 draw.line([px(*p) for p in poses[: end + 1, i, :2]], fill=colour, width=1)
             x, y, yaw = poses[end, i]
             cx, cy = px(x, y)
-            draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=colour, width=2)
-            draw.line([(cx, cy), (cx + r * math.cos(yaw), cy - r * math.sin(yaw))], fill=colour, width=2)
+            shielded = "took_over" in result and end < len(result["took_over"]) and result["took_over"][end, i]
+            body = (0, 0, 0) if shielded else colour
+            draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=body, width=2)
+            draw.line([(cx, cy), (cx + r * math.cos(yaw), cy - r * math.sin(yaw))], fill=body, width=2)
             if "agents" in result:  # the slot's agents: their tracks so far, their discs now
                 for j in range(result["agents"].shape[2]):
                     on = result["agent_active"][: end + 1, i, j]

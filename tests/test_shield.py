@@ -190,8 +190,8 @@ def test_render_draws_the_shields_take_overs_and_refuses_it_without_a_scenario(t
     fixture = str(Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx")
     out = tmp_path / "shield.png"
     assert cli_main(["render", fixture, "--scenario", "wander-8", "--shield", "2", "--episodes", "4",
-                     "--out", str(out)]) == 0
-    assert out.stat().st_size > 0
+                     "--out", str(out), "--gif"]) == 0
+    assert out.stat().st_size > 0 and out.with_suffix(".gif").stat().st_size > 0
     assert cli_main(["render", fixture, "--shield", "2", "--out", str(tmp_path / "x.png")]) != 0
     assert "--scenario" in capsys.readouterr().err
 
