@@ -29,6 +29,9 @@ timeout 90 python3 -m pytest -q -p no:cacheprovider tests/test_raycast_cuda.py t
 echo "== bench sim (Go2; TurtleBot2's rows are in docs) $(el)"
 timeout 45 $FN bench sim --device cuda --robots go2 --raycasters exact-cuda,march --num-envs 1024,4096,16384 \
     --seconds 0.5 --no-irsim --json "$OUT/sim.json" 2>&1 | tail -8
+echo "== the people shield's cost on CUDA (bench shield; docs: 7.7x the step alone on the CPU) $(el)"
+timeout 90 $FN bench shield tests/fixtures/deploy_policy/policy.onnx --device cuda --episodes 512 --repeats 1 \
+    --json "$OUT/shield.json" 2>&1 | tail -5
 echo "== generalist cycle on CUDA, 1,024 envs $(el)"
 timeout -s TERM -k 20 60 $FN train --device cuda --recipe generalist --seed 0 algo.num_envs=1024 budget.max_train_seconds=15 \
     eval.every=100000 --out "$OUT/gen" 2>&1 | tail -1

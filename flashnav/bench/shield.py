@@ -27,6 +27,8 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=2026, help="the scenario seed (flashnav eval --seed)")
     p.add_argument("--lookahead", type=float, default=2.0, help="the shield's look-ahead, s (flashnav eval --shield)")
     p.add_argument("--repeats", type=int, default=2, help="timed evaluations per way, interleaved")
+    p.add_argument("--device", default="cpu", help="simulator and shield device (cpu, cuda, cuda:N, auto); ONNX "
+                                                  "policies run on the CPU")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1: the figures of docs/benchmarks.md)")
     p.add_argument("--json", metavar="FILE", help="also write every timed evaluation as JSON")
     p.set_defaults(func=run_bench_shield)
@@ -45,21 +47,25 @@ class _Timed:
         return out
 
 
-def play(policy, preset, episodes: int, seed: int, lookahead: float | None) -> dict:
+def play(policy, preset, episodes: int, seed: int, lookahead: float | None, device="cpu") -> dict:
     """One evaluation of the scenario ``preset`` (alone with ``lookahead`` None): its rates
     (:func:`flashnav.scenarios.scenario_rates`), ``seconds``, ``steps`` (steps of running episodes) and
     ``shield_seconds``."""
+    import torch
+
     from flashnav.evaluate import play_episodes
     from flashnav.scenarios import scenario_rates, scenario_scored
     from flashnav.shield import PeopleShield, SimShield
     from flashnav.sim.env import make_env
 
-    env = make_env(preset, episodes, seed=seed)
+    env = make_env(preset, episodes, seed=seed, device=device)
     obs, _ = env.reset(seed=seed)
     scored = scenario_scored(env)
     guard = None if lookahead is None else _Timed(SimShield(env, PeopleShield(preset, lookahead)))
     start = time.perf_counter()
     ended = play_episodes(policy, env, obs, shield=guard)
+    if env.device.type == "cuda":
+        torch.cuda.synchronize(env.device)
     seconds = time.perf_counter() - start
     return {**scenario_rates(ended, scored), "seconds": seconds, "steps": int(ended["episode_steps"].sum()),
             "shield_seconds": 0.0 if guard is None else guard.seconds}
@@ -79,19 +85,19 @@ def run_bench_shield(args) -> int:
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     torch.set_num_threads(args.threads)
-    policy, _, robot, _ = load_policy_for(args, "cpu")
+    policy, _, robot, device = load_policy_for(args, args.device)
     preset = scenario_preset(robot, args.scenario, own_agents=args.robot is not None)
     if preset.agents.count == 0:
         raise ValueError(f"--scenario {args.scenario} has no agents: the shield has nothing to do there")
     ways = {"alone": None, "shield": args.lookahead}
-    play(policy, preset, min(args.episodes, 16), args.seed, args.lookahead)  # warm-up: JIT caches, allocator
+    play(policy, preset, min(args.episodes, 16), args.seed, args.lookahead, device)  # warm-up: JIT caches, allocator
     runs: dict[str, list[dict]] = {way: [] for way in ways}
     for _ in range(args.repeats):
         for way, lookahead in ways.items():
-            runs[way].append(play(policy, preset, args.episodes, args.seed, lookahead))
+            runs[way].append(play(policy, preset, args.episodes, args.seed, lookahead, device))
     per_step = {way: [r["seconds"] / max(r["steps"], 1) for r in rs] for way, rs in runs.items()}
     base = min(per_step["alone"])
-    machine = machine_name("cpu")
+    machine = machine_name(str(device))
     t = Table(title=f"flashnav bench shield: {args.episodes} episodes of {preset.name} {args.scenario!r} (seed "
                     f"{args.seed}), a {args.lookahead:g}-s shield, {args.repeats} interleaved repeats, "
                     f"{args.threads} torch thread(s), {machine}")
@@ -109,7 +115,7 @@ def run_bench_shield(args) -> int:
         import json
 
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"machine": machine, "threads": args.threads, "scenario": args.scenario, "seed": args.seed,
+            json.dump({"machine": machine, "device": str(device), "threads": args.threads, "scenario": args.scenario, "seed": args.seed,
                        "episodes": args.episodes, "lookahead": args.lookahead, "runs": runs,
                        "x_alone": min(per_step["shield"]) / base}, f, indent=2)
     return 0
