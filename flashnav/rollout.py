@@ -67,8 +67,8 @@ def rollout(policy, env, seed: int, shield=None) -> dict:
         for i in np.nonzero(running & done)[0]:
             outcomes[i] = "success" if success[i] else "collision" if collision[i] else "timeout"
         running &= ~done
-        if guard is not None:  # a reset slot's agents are new: no velocity from the old ones
-            guard.seen[torch.as_tensor(done, device=env.device)] = False
+        if guard is not None:  # the env restarted the finished slots
+            guard.forget(torch.as_tensor(done, device=env.device))
         if not running.any():
             break
     out = {"poses": np.stack(poses), "length": length, "goals": goals, "outcomes": outcomes}

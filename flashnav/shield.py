@@ -177,8 +177,9 @@ class SimShield:
     loop (:func:`flashnav.evaluate.play_episodes` ``shield=``): every step it plays a people tracker - the agents
     the robot sees in its scan (:class:`flashnav.sim.tracks.TrackerView`, as the policy's agent tracks see them),
     each with the velocity of its last step if it was seen then too, else 0 - and the shield over the scan's
-    points. One episode per slot, as the evaluation plays them. ``overruled`` / ``steps`` count what it did;
-    ``took_over`` [k] bool: where it took over on its last call."""
+    points. One episode per slot, as the evaluation plays them (a loop that restarts slots calls :meth:`forget`).
+    ``overruled`` / ``steps`` count what it did; ``took_over`` [k] bool: where it took over on its last call, and
+    ``last`` (pose, people, walls): what it decided that call from (a diagnostic's record: scripts/agent_shield.py)."""
 
     def __init__(self, env, shield: PeopleShield):
         from flashnav.sim.tracks import TrackerView
@@ -191,6 +192,7 @@ class SimShield:
         self.seen = torch.zeros_like(env.agents.active)
         self.overruled = self.steps = 0
         self.took_over: torch.Tensor | None = None
+        self.last: tuple | None = None
 
     def __call__(self, active: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         env = self.env
@@ -198,9 +200,16 @@ class SimShield:
         people = self.people(active, pose, ranges)
         walls = scan_points(pose, ranges, env.beam_angles, env.preset.lidar.max_range, people)
         out, self.took_over = self.shield.filter(action, pose, people, walls)
+        self.last = pose, people, walls
         self.overruled += int(self.took_over.sum())
         self.steps += active.numel()
         return out
+
+    def forget(self, slots: torch.Tensor) -> None:
+        """Slots ``slots`` ([N] bool or [k] long) start a new episode: their agents are new, so no velocity
+        comes from the old episode's positions."""
+        self.seen[slots] = False
+        self.prev[slots] = self.env.agents.pos[slots]
 
     def people(self, active: torch.Tensor, pose: torch.Tensor, ranges: torch.Tensor) -> People:
         """What the tracker reports this step for the running slots ``active`` [k] at ``pose`` [k, 3] with their

@@ -44,7 +44,7 @@ from flashnav.evaluate import play_episodes
 from flashnav.export import load_policy, recorded_robot
 from flashnav.presets import load_robot
 from flashnav.scenarios import scenario_names, scenario_preset, scenario_rates, scenario_scored
-from flashnav.shield import People, PeopleShield, SimShield, scan_points
+from flashnav.shield import People, PeopleShield, SimShield
 from flashnav.sim.env import make_env
 
 TRACKERS = ("seen", "tracks", "future")
@@ -64,19 +64,13 @@ class PredictedShield(SimShield):
         self.record = {} if why else None   # slot -> [(took over, a clear action played, tracked agents [K])]
 
     def __call__(self, active: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        if self.record is None:
-            return super().__call__(active, action)
-        env = self.env
-        pose, ranges = env.pose[active], env.scan(active)
-        people = self.people(active, pose, ranges)
-        walls = scan_points(pose, ranges, env.beam_angles, env.preset.lidar.max_range, people)
-        out, over = self.shield.filter(action, pose, people, walls)
-        self.took_over = over
-        clear = self.shield.first_contact(pose, out[:, None], people, walls)[:, 0] >= self.shield.steps
-        for j, slot in enumerate(active.tolist()):
-            self.record.setdefault(slot, []).append((bool(over[j]), bool(clear[j]), people.present[j].clone()))
-        self.overruled += int(over.sum())
-        self.steps += active.numel()
+        out = super().__call__(active, action)
+        if self.record is not None:
+            pose, people, walls = self.last
+            clear = self.shield.first_contact(pose, out[:, None], people, walls)[:, 0] >= self.shield.steps
+            for j, slot in enumerate(active.tolist()):
+                self.record.setdefault(slot, []).append((bool(self.took_over[j]), bool(clear[j]),
+                                                         people.present[j].clone()))
         return out
 
     def people(self, active: torch.Tensor, pose: torch.Tensor, ranges: torch.Tensor) -> People:

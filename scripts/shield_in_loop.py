@@ -42,9 +42,7 @@ class _Shielded:
         return out
 
     def after_step(self, reward: torch.Tensor, ended: torch.Tensor) -> torch.Tensor:
-        g = self.guard
-        g.seen[ended] = False                   # a new episode: no velocity from the old one's agents
-        g.prev[ended] = self.env.agents.pos[ended]
+        self.guard.forget(ended)   # the env restarted the ended slots
         if self.penalty and self.took_over is not None:
             reward = reward - self.penalty * self.took_over.float()
         return reward

@@ -103,17 +103,19 @@ def test_shield_in_loop_collects_every_step_behind_the_shield_and_charges_its_ta
     assert "of the 256 collected steps" in printed   # every collected step went through the shield
     state = shield_in_loop._Shielded(2.0, 0.5)
     # the charge: P on the steps it took over, nothing elsewhere
-    class Guard:
-        seen, prev = torch.ones(3, 2, dtype=torch.bool), torch.zeros(3, 2, 2)
+    from flashnav.shield import SimShield
 
-    class Env:
-        class agents:
-            pos = torch.ones(3, 2, 2)
-
-    state.env, state.guard, state.took_over = Env, Guard, torch.tensor([True, False, True])
+    p = scenario_preset("turtlebot2", "wander-8")
+    state.attach(make_env(p, 3, seed=1))
+    guard = state.guard
+    assert isinstance(guard, SimShield) and guard.env is state.env
+    guard.seen[:], guard.prev[:] = True, 0.0
+    state.took_over = torch.tensor([True, False, True])
     reward = state.after_step(torch.tensor([1.0, 1.0, -10.0]), torch.tensor([False, False, True]))
     assert torch.equal(reward, torch.tensor([0.5, 1.0, -10.5]))
-    assert Guard.seen[2].tolist() == [False, False] and Guard.seen[0].all() and torch.equal(Guard.prev[2], torch.ones(2, 2))
+    # the ended slot starts afresh: no velocity from its old agents; the others keep their tracks
+    assert not guard.seen[2].any() and guard.seen[0].all() and torch.equal(guard.prev[2], state.env.agents.pos[2])
+    assert not guard.prev[0].any()
 
 
 def test_shield_in_loop_refuses_bad_arguments_by_name():
