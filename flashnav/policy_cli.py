@@ -72,6 +72,15 @@ def _check_shield(args) -> None:
         raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
 
 
+def _people_shield(args, preset):
+    """The :class:`flashnav.shield.PeopleShield` of ``--shield`` for ``preset``, or None without it."""
+    if args.shield is None:
+        return None
+    from flashnav.shield import PeopleShield
+
+    return PeopleShield(preset, lookahead=args.shield)
+
+
 def _agents_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agents", action="append", default=None, metavar="KEY=VALUE",
                    help="with --scenario: change one of the scenario's agent options (README \"Moving agents\"), "
@@ -218,11 +227,7 @@ def run_scenarios(args) -> int:
     policy, meta, robot, device = load_policy_for(args, args.device)  # no env here: each scenario makes its own
     preset = load_robot(robot)
     guide = _scenario_guide(args)
-    shield = None
-    if args.shield is not None:
-        from flashnav.shield import PeopleShield
-
-        shield = PeopleShield(preset, lookahead=args.shield)
+    shield = _people_shield(args, preset)
     how = "" if args.guide is None else f", guided from the {args.guide_from or 'map'} ({args.guide} m)"
     how += "" if shield is None else f", behind a people shield ({args.shield:g} s)"
     table = Table(title=f"flashnav eval --scenario: {args.policy} on {preset.name} / {_map_label(args, preset)}, "
@@ -285,11 +290,7 @@ def run_render(args) -> int:
 
         policy, meta, robot, device = load_policy_for(args)
         env = _scenario_env(args, load_robot(robot), args.scenario, device)
-    shield = None
-    if args.shield is not None:
-        from flashnav.shield import PeopleShield
-
-        shield = PeopleShield(env.preset, lookahead=args.shield)
+    shield = _people_shield(args, env.preset)
     result = rollout(policy, env, args.seed, shield=shield)
     poses, length, outcomes = result["poses"], result["length"], result["outcomes"]
     paths = [poses[: length[i], i, :2] for i in range(env.num_envs)]
