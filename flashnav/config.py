@@ -45,9 +45,12 @@ def error_lines(exc: ValidationError) -> list[str]:
     lines = []
     for item in exc.errors():
         loc = [str(part) for part in item["loc"]]
+        got = ""
         if item["type"] == "unknown_key":
             loc.append((item.get("ctx") or {}).get("key", "?"))
-        lines.append(f"{'.'.join(loc) or '<top>'}: {item['msg'].removeprefix('Value error, ')}")
+        elif isinstance(item.get("input"), (int, float, str)) and len(repr(item["input"])) <= 60:
+            got = f" (got {item['input']!r})"  # a scalar that failed a bound or a type: say which value
+        lines.append(f"{'.'.join(loc) or '<top>'}: {item['msg'].removeprefix('Value error, ')}{got}")
     return lines
 
 

@@ -179,7 +179,8 @@ def apply_override(data: dict[str, Any], key: str, value: Any) -> None:
             raise ValueError(f"overrides must be a mapping of dotted keys, got {overrides!r}")
         overrides[key] = value
     else:
-        set_dotted(data, key, value, known=TrainConfig, create=True)
+        set_dotted(data, key, value, known=TrainConfig, create=True,
+                   other_sections=tuple(p.rstrip(".") for p in OVERRIDE_PREFIXES))
 
 
 def config_from_data(data: dict[str, Any], source: str = "config") -> TrainConfig:

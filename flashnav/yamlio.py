@@ -90,14 +90,15 @@ def parse_assignment(item: str, what: str = "override") -> tuple[str, Any]:
 
 
 def set_dotted(data: dict, dotted: str | list[str], value: Any, *, known: Any = None, create: bool = False,
-               what: str = "override") -> None:
+               what: str = "override", other_sections: tuple[str, ...] = ()) -> None:
     """Set ``data["a"]["b"]["c"] = value`` for ``dotted = "a.b.c"`` (or the parts ``["a", "b", "c"]``,
     where a part may itself hold dots: a key of a map of dotted keys), in place.
 
     ``known``: the names allowed at the leaf's level when it is not in ``data`` yet (a set of names,
     or a pydantic model class whose fields are allowed at the top level); ``create``: make missing
     sections instead of failing. An unknown name is a ValueError that names the key and suggests
-    the closest allowed names. Every override path (``flashnav train key=value``, ``--config``,
+    the closest allowed names; ``other_sections``: top-level section names that the caller routes
+    elsewhere (``algo``, ``robot``), offered in that message. Every override path (``flashnav train key=value``, ``--config``,
     sweep ``--set``, preset and hyperparameter overrides) goes through here.
     """
     import difflib
@@ -111,6 +112,7 @@ def set_dotted(data: dict, dotted: str | list[str], value: Any, *, known: Any = 
     for i, part in enumerate(parents):
         child = node.get(part)
         if child is None and create:
+            _check_section(part, parents[:i], known, what, dotted, other_sections if i == 0 else ())
             child = node[part] = {}
         if not isinstance(child, dict):
             where = ".".join(parents[: i + 1])
@@ -132,6 +134,23 @@ def set_dotted(data: dict, dotted: str | list[str], value: Any, *, known: Any = 
         hint = f"; did you mean {', '.join(close)}?" if close else f"; known: {', '.join(sorted(allowed))}"
         raise ValueError(f"{what} {dotted!r}: unknown key {leaf!r}{hint}")
     node[leaf] = value
+
+
+def _check_section(part: str, path: list[str], known: Any, what: str, dotted: str, others: tuple[str, ...]) -> None:
+    """Before ``set_dotted`` creates section ``part`` below ``path``: where ``known`` is a model that
+    names the fields at that level, ``part`` must be one of those that hold a section (a sub-model)."""
+    import difflib
+
+    if not (isinstance(known, type) and issubclass(known, BaseModel)):
+        return
+    fields = _fields_at(known, path)
+    if not fields or part in fields:
+        return
+    where = ".".join([*path, part])
+    sections = sorted({f for f in fields if _fields_at(known, [*path, f])} | set(others)) or sorted(fields)
+    close = difflib.get_close_matches(part, sorted(fields | set(others)), n=3)
+    hint = f"; did you mean {', '.join(close)}?" if close else f"; sections here: {', '.join(sections)}"
+    raise ValueError(f"{what} {dotted!r}: no section {where!r}{hint}")
 
 
 def _fields_at(model: type[BaseModel], path: list[str]) -> set[str]:

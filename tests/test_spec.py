@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +67,25 @@ def test_set_dotted_sets_creates_and_names_unknown_keys():
         set_dotted(data, "budjet.max_env_steps", 1, known=TrainConfig)
     with pytest.raises(ValueError, match="is not a section"):
         set_dotted({"seed": 3}, "seed.x", 1)
+
+
+def test_an_unknown_section_is_named_not_created():
+    """``create`` makes only the sections the model has: ``foo.bar=1`` names ``foo`` and lists the sections
+    (it once created ``foo`` and then said "unknown key 'bar'; known:" with nothing after it)."""
+    data: dict = {}
+    with pytest.raises(ValueError, match=r"no section 'foo'; sections here: algo, budget, eval, robot"):
+        set_dotted(data, "foo.bar", 1, known=TrainConfig, create=True, other_sections=("algo", "robot"))
+    with pytest.raises(ValueError, match=r"no section 'algoo'; did you mean algo\?"):
+        set_dotted(data, "algoo.batch_size", 1, known=TrainConfig, create=True, other_sections=("algo", "robot"))
+    assert data == {}
+    for bad, said in (("foo.bar=1", "no section 'foo'"), ("evl.episodes=1", "did you mean eval"),
+                      ("algo.batch_size=-3", "algo.batch_size: Input should be greater than 0 (got -3)"),
+                      ("algo.nope=1", "algo override 'nope': unknown key"),
+                      ("robot.footprint.kind=disk", "robot.footprint.kind: Input should be 'disc' or 'rectangle' "
+                                                    "(got 'disk')"),
+                      ("eval.episodes=0", "eval.episodes: Input should be greater than 0 (got 0)")):
+        with pytest.raises(ValueError, match=re.escape(said)):
+            resolve(config_from_cli(assignments=[bad]))
 
 
 def test_parse_assignment_reads_yaml_values_and_names_bad_ones():

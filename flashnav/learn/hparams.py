@@ -12,7 +12,7 @@ from typing import Any, Literal
 
 from pydantic import Field, ValidationError, model_validator
 
-from flashnav.config import Strict
+from flashnav.config import Strict, error_lines
 from flashnav.names import ALGORITHMS, PRECISIONS, RECIPES, check_name
 from flashnav.presets import load_preset_file
 from flashnav.yamlio import set_dotted
@@ -170,11 +170,12 @@ def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
                          "(resolve 'auto' from the device before calling)")
     data = dict(recipe_values(algorithm, robot, recipe))
     for key, value in (overrides or {}).items():
-        set_dotted(data, key, value, known=MODELS[algorithm], what="override")
+        set_dotted(data, key, value, known=MODELS[algorithm], what="algo override")
     try:
         return MODELS[algorithm].model_validate(data)
     except ValidationError as exc:
-        raise ValueError(f"{algorithm}.yaml [{recipe}.{robot}] with overrides {overrides or {}}:\n{exc}") from None
+        problems = "; ".join(f"algo.{line}" for line in error_lines(exc))
+        raise ValueError(f"{algorithm}.yaml [{recipe}.{robot}] with overrides {overrides or {}}: {problems}") from None
 
 
 def recipe_values(algorithm: str, robot: str, recipe: str) -> dict[str, Any]:

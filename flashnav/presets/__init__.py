@@ -14,7 +14,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from flashnav.config import RobotPreset
+from flashnav.config import RobotPreset, error_lines
 from flashnav.names import RECIPES, ROBOTS, check_robot
 from flashnav.yamlio import deep_merge, load_yaml, set_dotted
 
@@ -52,8 +52,9 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
     try:
         return RobotPreset.model_validate(data)
     except ValidationError as exc:
+        problems = "; ".join(f"robot.{line}" for line in error_lines(exc))
         raise ValueError(f"robot preset {source!r}"
-                         + (f" with overrides {overrides}" if overrides else "") + f":\n{exc}") from None
+                         + (f" with overrides {overrides}" if overrides else "") + f": {problems}") from None
 
 
 def with_recipe_setup(data: dict[str, Any], own_maps: bool | None = None) -> dict[str, Any]:
