@@ -43,6 +43,11 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, help="training seed (default 0)")
     p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
     p.add_argument("--config", help="a TrainConfig YAML; flags and overrides apply on top")
+    p.add_argument("--save-every", dest="save_every", type=float, default=600.0, metavar="SECONDS",
+                   help="write the run so far (checkpoint.pt, the best policy, metrics.json with stop_reason "
+                        "'running') to --out after an evaluation at most every SECONDS of wall-clock time "
+                        "(default 600; 0 = after every evaluation), so a crash loses at most that much; the "
+                        "finished run overwrites it")
     p.add_argument("--sequential", action="store_true",
                    help="the plain sequential loop, no collector thread (the default on a CPU; overlap=true asks for "
                         "the thread there)")
@@ -67,6 +72,8 @@ def run_train(args) -> int:
     from flashnav.outputs import check_output_dir
 
     console = Console()
+    if not args.save_every >= 0:
+        raise ValueError(f"--save-every must be >= 0 seconds, got {args.save_every}")
     spec = resolve(config_from_args(args))  # every bad input fails here, before anything is written
     config = spec.config
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -82,13 +89,27 @@ def run_train(args) -> int:
         grids = spec.eval_env_maps()
         console.print(f"evaluating on {len(grids)} maps of eval.maps = {config.eval.maps} "
                       f"({config.eval.episodes} episodes spread over them), not on the training maps")
+    saved: list[int] = []  # env steps of the snapshots written
+
+    def snapshot(so_far) -> None:
+        _write_artefacts(so_far, out)
+        saved.append(so_far.env_steps)
+        progress.console.print(f"saved the run so far to {out} ({so_far.env_steps:,} env steps, best "
+                               f"{so_far.best_success_rate:.1%})", soft_wrap=True)
+
     with TrainProgress(console) as progress, sigterm_as_ctrl_c():
-        result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress, interruptible=True)
+        try:
+            result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress, interruptible=True,
+                           on_snapshot=snapshot, snapshot_every=args.save_every)
+        except Exception:
+            if saved:
+                progress.console.print(f"[red]training failed[/]: the run as it stood at {saved[-1]:,} env steps "
+                                       f"is in {out} (metrics.json stop_reason 'running')")
+            raise
     if result.stop_reason == "interrupted":
         console.print("[yellow]interrupted[/]: writing the run so far (Ctrl-C again aborts)")
 
-    out.mkdir(parents=True, exist_ok=True)  # only now: a failed run leaves no empty folder
-    _write_artefacts(result, out)
+    _write_artefacts(result, out)  # the folder only now (or at the first snapshot): a failed start leaves none
     _summary(console, result, out)
     return 0
 
@@ -114,17 +135,31 @@ def sigterm_as_ctrl_c():
 
 
 def _write_artefacts(result, out: Path) -> None:
+    """The run's files in ``out``, each replaced whole: they are written to a folder of their own beside them
+    and renamed into ``out``, so a crash while writing leaves the previous set (a snapshot) readable."""
+    import shutil
+    import tempfile
+
     from flashnav.checkpoint import save_checkpoint
     from flashnav.export import export_policy
 
+    out.mkdir(parents=True, exist_ok=True)
     config = result.spec.to_dict()
-    dump_yaml(config, out / "config.yaml")
-    with open(out / "metrics.json", "w", encoding="utf-8") as f:
-        json.dump(result.to_dict(), f, indent=2)
-    save_checkpoint(out / "checkpoint.pt", result.learner.state_dict(), config,
-                    {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"},
-                     "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
-    export_policy(result.policy, result.spec.robot, out)  # the best evaluated policy
+    with tempfile.TemporaryDirectory(prefix=".saving-", dir=out) as tmp:
+        tmp = Path(tmp)
+        dump_yaml(config, tmp / "config.yaml")
+        with open(tmp / "metrics.json", "w", encoding="utf-8") as f:
+            json.dump(result.to_dict(), f, indent=2)
+        save_checkpoint(tmp / "checkpoint.pt", result.learner.state_dict(), config,
+                        {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"},
+                         "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
+        export_policy(result.policy, result.spec.robot, tmp)  # the best evaluated policy
+        for path in sorted(tmp.iterdir()):
+            if path.is_file():
+                path.replace(out / path.name)
+            else:
+                shutil.rmtree(out / path.name, ignore_errors=True)
+                path.replace(out / path.name)
 
 
 def _summary(console: Console, result, out: Path) -> None:

@@ -117,23 +117,30 @@ class _Timer:
 
 
 def train(config: TrainConfig | RunSpec | None = None, *, on_eval: Callable[[dict], bool | None] | None = None,
-          on_progress: Callable[[dict], None] | None = None, interruptible: bool = False) -> TrainResult:
+          on_progress: Callable[[dict], None] | None = None, interruptible: bool = False,
+          on_snapshot: Callable[[TrainResult], None] | None = None, snapshot_every: float = 600.0) -> TrainResult:
     """Train one policy; see docs/train-api.md. ``config``: a TrainConfig (resolved here by
     :func:`flashnav.spec.resolve`) or an already resolved RunSpec. ``on_progress`` (optional, outside
     the clock) gets a dict with env_steps, train_seconds and the last evaluation after every cycle.
     ``interruptible``: a KeyboardInterrupt (Ctrl-C) during the cycles ends the run like a budget
     (``stop_reason`` "interrupted", the curve and best policy so far kept) instead of propagating;
     ``flashnav train`` sets it, so a stopped run still writes its artefacts. Off by default: a sweep
-    or script that calls train() keeps Ctrl-C for itself."""
+    or script that calls train() keeps Ctrl-C for itself. ``on_snapshot`` (optional, outside the clock) gets
+    the run so far as a TrainResult with ``stop_reason`` "running" after an evaluation, at most once per
+    ``snapshot_every`` wall-clock seconds (0: after every evaluation), so that a caller can keep it on disk
+    against a crash; ``flashnav train --save-every`` writes it to the run folder."""
+    if not snapshot_every >= 0:
+        raise ValueError(f"snapshot_every must be >= 0 seconds, got {snapshot_every}")
     spec = config if isinstance(config, RunSpec) else resolve(config)
     threads_before = torch.get_num_threads()
     try:
-        return _train(spec, on_eval, on_progress, interruptible, threads_before)
+        return _train(spec, on_eval, on_progress, interruptible, threads_before, on_snapshot, snapshot_every)
     finally:
         torch.set_num_threads(threads_before)
 
 
-def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, threads: int | None = None) -> TrainResult:
+def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, threads: int | None = None,
+           on_snapshot=None, snapshot_every: float = 600.0) -> TrainResult:
     config, preset, hp = spec.config, spec.robot, spec.hparams
     dev = torch.device(spec.device)
     torch.manual_seed(config.seed)
@@ -213,6 +220,33 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="collector") if overlap else None
     stop_reason, env_steps, last_eval = "budget_env_steps", 0, None
     best_rate, best_policy = 0.0, None
+    saved_at = time.monotonic()
+
+    def result(stop_reason: str) -> TrainResult:
+        cycle_stats = {
+            "collector_ms": collect_t.mean_ms,
+            "learner_ms": learn_t.mean_ms,
+            "effective_ms": learning_cycles.mean_ms if learning_cycles.count else cycle_t.mean_ms,
+            "overlap": float(overlap),
+        }
+        return TrainResult(
+            curve=list(curve),
+            time_to_threshold=dict(tracker.seconds),
+            env_steps_to_threshold=dict(tracker.env_steps),
+            training_episodes_to_threshold={"env_steps": dict(train_tracker.env_steps),
+                                            "seconds": dict(train_tracker.seconds)},
+            cycle=cycle_stats,
+            train_seconds=cycle_t.total,
+            env_steps=env_steps,
+            spec=spec,
+            device_name=machine_name(spec.device),
+            threads=learner_threads(spec.device),  # read before train() restores the caller's thread count
+            stop_reason=stop_reason,
+            best_success_rate=best_rate,
+            learner=learner,
+            best_policy=best_policy,
+        )
+
     try:
         for cycle in range(1, cycles + 1):
             learning = replay.size >= hp.learning_start
@@ -258,6 +292,9 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
                 train_tracker.update(last_eval["train_success_rate"], cycle_t.total, env_steps)
             if best_policy is None or last_eval["success_rate"] > best_rate:
                 best_rate, best_policy = last_eval["success_rate"], copy.deepcopy(learner.policy)
+            if on_snapshot is not None and time.monotonic() - saved_at >= snapshot_every:
+                on_snapshot(result("running"))
+                saved_at = time.monotonic()
             if on_eval is not None and on_eval(dict(last_eval)):
                 stop_reason = "callback"
                 break
@@ -280,29 +317,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
         if maps is not None:
             maps.close()
 
-    cycle_stats = {
-        "collector_ms": collect_t.mean_ms,
-        "learner_ms": learn_t.mean_ms,
-        "effective_ms": learning_cycles.mean_ms if learning_cycles.count else cycle_t.mean_ms,
-        "overlap": float(overlap),
-    }
-    return TrainResult(
-        curve=curve,
-        time_to_threshold=dict(tracker.seconds),
-        env_steps_to_threshold=dict(tracker.env_steps),
-        training_episodes_to_threshold={"env_steps": dict(train_tracker.env_steps),
-                                        "seconds": dict(train_tracker.seconds)},
-        cycle=cycle_stats,
-        train_seconds=cycle_t.total,
-        env_steps=env_steps,
-        spec=spec,
-        device_name=machine_name(spec.device),
-        threads=learner_threads(spec.device),  # read before train() restores the caller's thread count
-        stop_reason=stop_reason,
-        best_success_rate=best_rate,
-        learner=learner,
-        best_policy=best_policy,
-    )
+    return result(stop_reason)
 
 
 def run_learner(spec: RunSpec, device: torch.device | str) -> Learner:
