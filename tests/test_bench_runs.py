@@ -40,6 +40,9 @@ def test_rows_read_thresholds_best_and_the_last_evaluations(tmp_path):
     assert g["within_budget"] == 1 and g["best"] == [0.995, 1.0]
     late = run_row(load_runs(_run(tmp_path, "late", _metrics(2, [1.0], to100=250_000)))[0])
     assert group_rows([late])[0]["within_budget"] == 0  # 100 % after the budget does not count
+    assert g["cut_short"] == 1  # b ended at 25,600 env steps without 100 %: never had the whole budget
+    whole = run_row(load_runs(_run(tmp_path, "whole", _metrics(4, [0.99] * 40)))[0])  # 204,800 env steps
+    assert group_rows([whole])[0]["cut_short"] == 0 and group_rows([late])[0]["cut_short"] == 0
 
 
 def test_the_command_prints_both_tables_and_writes_json(tmp_path, capsys):
@@ -51,7 +54,7 @@ def test_the_command_prints_both_tables_and_writes_json(tmp_path, capsys):
     out = tmp_path / "t.json"
     assert cli_main(["bench", "runs", str(a), str(bench), "--json", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "run-a" in text and "bench seed 3" in text and "1/2 (<= 200,704)" in text
+    assert "run-a" in text and "bench seed 3" in text and "1/2 (<= 200,704); 1 cut short" in text
     data = json.loads(out.read_text())
     assert [r["label"] for r in data["runs"]] == ["run-a", "bench seed 3"] and data["groups"][0]["runs"] == 2
 

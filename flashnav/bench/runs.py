@@ -72,12 +72,14 @@ def run_row(r: dict, last: int = LAST) -> dict:
             **{f"to_{t}": r["env_steps_to_threshold"].get(str(t)) for t in THRESHOLDS},
             "best": max(p["success_rate"] for p in curve), "last_mean": sum(tail) / len(tail), "last_min": min(tail),
             "last_n": len(tail), "train_episodes_100": train.get(str(THRESHOLDS[-1])),
-            "env_steps": r.get("env_steps", curve[-1].get("env_steps"))}
+            "env_steps": r.get("env_steps", curve[-1].get("env_steps")), "stop_reason": r.get("stop_reason")}
 
 
 def group_rows(rows: list[dict]) -> list[dict]:
     """Per robot x algorithm: runs, k reached and mean env steps per threshold, 100 % within the paper's
-    budget (k / runs; None where the paper has no recipe for the pair)."""
+    budget (k / runs; None where the paper has no recipe for the pair) and ``cut_short``: the runs without
+    100 % that ended before that budget (stopped by time, interrupted, a snapshot of a run still going), which
+    the budget's k / runs counts as misses although they never had the whole budget."""
     groups: dict[tuple, list[dict]] = {}
     for row in rows:
         groups.setdefault((row["robot"], row["algorithm"]), []).append(row)
@@ -90,6 +92,8 @@ def group_rows(rows: list[dict]) -> list[dict]:
             g[f"to_{t}"] = {"reached": stats.k, "mean": stats.mean}
         top = [x[f"to_{THRESHOLDS[-1]}"] for x in rs]
         g["within_budget"] = None if budget is None else within_budget(top, budget)
+        g["cut_short"] = 0 if budget is None else sum(
+            1 for x in rs if x[f"to_{THRESHOLDS[-1]}"] is None and x["env_steps"] is not None and x["env_steps"] < budget)
         g["best"] = [min(x["best"] for x in rs), max(x["best"] for x in rs)]
         out.append(g)
     return out
@@ -112,19 +116,20 @@ def run_bench_runs(args) -> int:
     groups = group_rows(rows)
     t = Table(title="finished runs: environment steps to success on the fixed evaluation set")
     for col in ("run", "robot", "algo", "seed", "to 90%", "to 95%", "to 100%", "best",
-                f"last {args.last}: mean (min)", "training episodes 100% at", "env steps run"):
+                f"last {args.last}: mean (min)", "training episodes 100% at", "env steps run", "stopped by"):
         t.add_column(col, justify="right")
     for x in rows:
         t.add_row(x["label"], x["robot"], x["algorithm"], str(x["seed"]), *(_steps(x[f"to_{th}"]) for th in THRESHOLDS),
                   f"{x['best']:.2%}", f"{x['last_mean']:.1%} ({x['last_min']:.1%})", _steps(x["train_episodes_100"]),
-                  _steps(x["env_steps"]))
+                  _steps(x["env_steps"]), x["stop_reason"] or "-")
     console.print(t)
     g = Table(title="per robot x algorithm: mean env steps over the runs that reached each threshold (k/n)")
     for col in ("robot", "algo", "runs", "90%", "95%", "100%", "100% within the paper's budget", "best"):
         g.add_column(col, justify="right")
     for x in groups:
         cells = [f"{_steps(x[f'to_{th}']['mean'])} ({x[f'to_{th}']['reached']}/{x['runs']})" for th in THRESHOLDS]
-        budget = "-" if x["budget"] is None else f"{x['within_budget']}/{x['runs']} (<= {x['budget']:,})"
+        budget = "-" if x["budget"] is None else f"{x['within_budget']}/{x['runs']} (<= {x['budget']:,})" + (
+            f"; {x['cut_short']} cut short" if x["cut_short"] else "")
         g.add_row(x["robot"], x["algorithm"], str(x["runs"]), *cells, budget, f"{x['best'][0]:.2%}-{x['best'][1]:.2%}")
     console.print(g)
     if args.json:
