@@ -242,7 +242,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
         "goal_sampling": sampling, "goal_band_m": [preset.episode.min_goal_distance, preset.episode.max_goal_distance],
         "episodes_per_map": args.episodes, "seed": args.seed, "goal_distance_scale": scale,
         "guide_lookahead_m": guide, "guide_from": guide_from if guide is not None else None,
-        "guide_keep_walls": keep_walls,
+        "guide_keep_walls": keep_walls, "robot_overrides": getattr(args, "overrides", None) or [],
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": machine_name(str(device)), "seconds": seconds, **result,
     }
@@ -265,7 +265,8 @@ def print_report(report: dict) -> None:
     console.print(f"{report['policy']} ({report['robot']}) on {len(report['maps'])} maps of "
                   f"{report['maps_arg']}: {report['episodes_per_map']} episodes per map, seed {report['seed']}, "
                   f"goal sampling {report['goal_sampling']} ({report['goal_band_m'][0]:g}-"
-                  f"{report['goal_band_m'][1]:g} m)")
+                  f"{report['goal_band_m'][1]:g} m)"
+                  + (f", with {' '.join(report['robot_overrides'])}" if report.get("robot_overrides") else ""))
     if report.get("guide_lookahead_m") is not None and report.get("guide_from") == "scans":
         console.print(f"mapless guidance: the policy steers at the point {report['guide_lookahead_m']:g} m along a "
                       "path planned on the walls its own scans have shown (no map)")

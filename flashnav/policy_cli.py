@@ -94,6 +94,40 @@ def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
     p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
     p.add_argument("--episodes", type=int, default=episodes, help="episodes, run in parallel (one per env)")
     p.add_argument("--seed", type=int, default=12345, help="start/goal sampling seed")
+    p.add_argument("overrides", nargs="*", metavar="robot.KEY=VALUE",
+                   help="change the simulated robot the policy is played on, as flashnav train's robot.* "
+                        "overrides, e.g. robot.lidar.noise_std=0.03 robot.lidar.dropout=0.05 (a robustness "
+                        "check: sensor noise, another range or field of view); not robot.agents.* (--scenario, "
+                        "--agents) or robot.reward.* (an evaluation counts outcomes, not reward)")
+
+
+#: robot-preset sections an evaluation override may not touch, and where to go instead
+_NOT_OVERRIDABLE = {"agents": "the agents of an evaluation are a scenario's: --scenario NAME [--agents KEY=VALUE]",
+                    "reward": "an evaluation counts success, collision and timeout; the reward does not enter it"}
+
+
+def robot_overrides(args) -> dict:
+    """The ``robot.KEY=VALUE`` arguments of ``eval`` / ``render`` as preset overrides (``{"lidar.noise_std":
+    0.03}``; values read as YAML); anything else is a ValueError that names it."""
+    from flashnav.yamlio import parse_assignment
+
+    out = {}
+    for item in getattr(args, "overrides", None) or []:
+        key, value = parse_assignment(item)
+        if not key.startswith("robot."):
+            raise ValueError(f"override {item!r}: flashnav {args.command} takes robot.KEY=VALUE (the simulated robot "
+                             "and its sensors), e.g. robot.lidar.noise_std=0.03")
+        key = key.removeprefix("robot.")
+        if key.split(".")[0] in _NOT_OVERRIDABLE:
+            raise ValueError(f"override {item!r}: {_NOT_OVERRIDABLE[key.split('.')[0]]}")
+        out[key] = value
+    return out
+
+
+def overrides_label(args) -> str:
+    """``, with robot.lidar.noise_std=0.03`` for titles, or ``""`` without overrides."""
+    items = getattr(args, "overrides", None) or []
+    return f", with {' '.join(items)}" if items else ""
 
 
 def load_policy_and_env(args, device: str = "cpu"):
@@ -120,10 +154,15 @@ def load_policy_for(args, device: str = "cpu"):
         device = resolve_device(device)
     except ValueError as exc:
         raise ValueError(f"--device: {exc}") from None
+    overrides = robot_overrides(args)
     policy, meta = load_policy(args.policy, robot=args.robot)
-    robot = args.robot if args.robot is not None else recorded_robot(meta)
+    robot = load_robot(args.robot if args.robot is not None else recorded_robot(meta), **overrides)
+    if overrides and robot.obs_dim != int(meta["obs_dim"]):
+        raise ValueError(f"{' '.join(args.overrides)}: the robot then produces obs_dim {robot.obs_dim}, but the "
+                         f"policy expects {meta['obs_dim']} (an override may change what the sensors read, not "
+                         "the observation's size)")
     # evaluations play the task with the paper's reward, whatever shaping the policy trained with
-    return policy, meta, evaluation_preset(load_robot(robot)), device
+    return policy, meta, evaluation_preset(robot), device
 
 
 def _map_label(args, preset) -> str:
@@ -195,11 +234,12 @@ def run_eval(args) -> int:
         "map": _map_label(args, env.preset),
         "policy": str(args.policy),
         "seed": args.seed,
+        "robot_overrides": robot_overrides(args),
         "seconds": seconds,
     }
     console = Console()
     console.print(f"{args.policy} on {report['robot']} / {report['map']}: {report['episodes']} episodes, "
-                  f"seed {args.seed}")
+                  f"seed {args.seed}{overrides_label(args)}")
     table = Table(title="flashnav eval")
     table.add_column("metric")
     table.add_column("value", justify="right")
@@ -231,7 +271,7 @@ def run_scenarios(args) -> int:
     how = "" if args.guide is None else f", guided from the {args.guide_from or 'map'} ({args.guide} m)"
     how += "" if shield is None else f", behind a people shield ({args.shield:g} s)"
     table = Table(title=f"flashnav eval --scenario: {args.policy} on {preset.name} / {_map_label(args, preset)}, "
-                        f"seed {args.seed}{how}")
+                        f"seed {args.seed}{how}{overrides_label(args)}")
     for col in ("scenario", "scored / drawn", "success", "agent collision", "wall collision", "timeout"):
         table.add_column(col, justify="right")
     if shield is not None:
@@ -239,7 +279,7 @@ def run_scenarios(args) -> int:
     report = {"robot": preset.name, "map": _map_label(args, preset), "policy": str(args.policy), "seed": args.seed,
               "guide_lookahead_m": args.guide, "guide_from": None if args.guide is None else args.guide_from or "map",
               "guide_keep_walls": bool(args.guide_keep_walls), "agents": agent_overrides(args),
-              "shield_s": args.shield, "scenarios": {}}
+              "shield_s": args.shield, "robot_overrides": robot_overrides(args), "scenarios": {}}
     for name in names:
         r = run_scenario(policy, _scenario_env(args, preset, name, device), args.seed, guide=guide, shield=shield)
         report["scenarios"][name] = r
@@ -297,7 +337,7 @@ def run_render(args) -> int:
     tracks = agent_tracks(result)
     counts = {k: outcomes.count(k) for k in ("success", "collision", "timeout")}
     title = (f"{env.preset.name} / {_map_label(args, env.preset)}: {Path(args.policy).name}"
-             f"{'' if shield is None else f' behind a {args.shield:g}-s shield'}, "
+             f"{'' if shield is None else f' behind a {args.shield:g}-s shield'}{overrides_label(args)}, "
              f"{counts['success']}/{env.num_envs} reached, {counts['collision']} collided")
     out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title, agents=tracks,
                             shielded=None if shield is None else took_over_points(result))

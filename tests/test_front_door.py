@@ -75,7 +75,7 @@ def test_overrides_before_and_after_options_all_apply(tmp_path, capsys):
         main(["train", "eval.episodes=64", "--out", str(out), "stray"])
     assert "unrecognized arguments: stray" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # a command without overrides takes none
-        main(["eval", "p.onnx", "--episodes", "4", "a=b"])
+        main(["demo", "--envs", "4", "a=b"])
     assert "unrecognized arguments: a=b" in capsys.readouterr().err
 
 
