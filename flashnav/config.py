@@ -81,6 +81,10 @@ class Footprint(Strict):
         return self.radius if self.kind == "disc" else 0.5 * math.hypot(self.length, self.width)
 
 
+#: the longest actuation latency a preset may ask for (motion.command_delay, control steps)
+MAX_COMMAND_DELAY = 20
+
+
 class Motion(Strict):
     """Action interface and kinematics. Actions in [-1, 1] map linearly onto [low, high]."""
 
@@ -90,6 +94,18 @@ class Motion(Strict):
     max_linear_velocity: float = Field(gt=0, description="platform limit, m/s (commands are clamped to it)")
     max_angular_velocity: float = Field(gt=0, description="platform limit, rad/s (commands are clamped to it)")
     velocity_state_dims: Literal[2, 3] = Field(2, description="2: (v, w) in the observation; 3: (vx, vy, w)")
+    command_delay: int = Field(0, ge=0, le=MAX_COMMAND_DELAY, description="actuation latency: control steps between "
+                               "a command and its execution (the first ones of an episode execute (0, 0)); 0 = the "
+                               "paper's, a command moves the robot in its own step")
+    max_linear_accel: float | None = Field(None, gt=0, description="m/s^2: the executed linear velocity moves toward "
+                                           "the command by at most this much per second; None = at once (the paper's)")
+    max_angular_accel: float | None = Field(None, gt=0, description="rad/s^2: the same for the turn rate; None = at "
+                                            "once (the paper's)")
+
+    @property
+    def instant(self) -> bool:
+        """True when a command is executed at once and whole (the paper's motion, every preset's default)."""
+        return self.command_delay == 0 and self.max_linear_accel is None and self.max_angular_accel is None
 
     @model_validator(mode="after")
     def _ordered(self) -> "Motion":

@@ -53,7 +53,7 @@ from flashnav.sim.extras import ObservationExtras
 from flashnav.sim.inputs import as_batch, check_finite
 from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
                                   sim_frame)
-from flashnav.sim.motion import action_to_velocity, integrate
+from flashnav.sim.motion import Actuation, action_to_velocity, integrate
 from flashnav.sim.observation import beam_angles, observation_bounds, observe  # noqa: F401 (beam_angles: re-exported)
 from flashnav.sim.raycast import make_raycaster
 from flashnav.sim.reward import Shaping, outcome
@@ -96,13 +96,15 @@ class NavVecEnv(VectorEnv):
         self.goal = torch.zeros(n, 2, **f32)  # m, simulator frame
         self.start_pose = torch.zeros(n, 3, **f32)  # each slot's episode start and goal (episode.retry_failed)
         self.start_goal = torch.zeros(n, 2, **f32)
-        self.velocity = torch.zeros(n, 2, **f32)  # executed (v m/s, w rad/s)
+        self.velocity = torch.zeros(n, 2, **f32)  # executed (v m/s, w rad/s); the observation has the command
         self.steps = torch.zeros(n, dtype=torch.int32, device=self.device)
         self.goal_distance = torch.zeros(n, **f32)
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
         self.extras = ObservationExtras(preset, n, self.beam_angles, self.device)  # all off: the paper's step
+        # latency and acceleration limits between command and motion (sim.motion.Actuation); None: the paper's
+        self.actuation = None if preset.motion.instant else Actuation(preset.motion, n, preset.episode.dt, self.device)
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
@@ -216,6 +218,8 @@ class NavVecEnv(VectorEnv):
         self.start_pose[idx] = pose
         self.start_goal[idx] = goal
         self.velocity[idx] = zeros
+        if self.actuation is not None:
+            self.actuation.reset(idx)
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
         self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)
@@ -332,12 +336,13 @@ class NavVecEnv(VectorEnv):
         return self._advance(idx, actions)
 
     def _advance(self, sel, actions: torch.Tensor) -> dict[str, torch.Tensor]:
-        """One transition of the slots ``sel`` (``slice(None)`` for all, else [k] long indices):
-        motion, scan, goal / collision / reward / flags, observation; writes their state back."""
+        """One transition of the slots ``sel`` (``slice(None)`` for all, else [k] long indices): motion (the
+        command through the preset's actuation, if any), scan, goal / collision / reward / flags, observation (its
+        velocity state the command: what the robot's controller knows); writes their state back."""
         p = self.preset
-        v, w = action_to_velocity(actions, p.motion)
-        pose = integrate(self.pose[sel], v, w, p.episode.dt)
-        velocity = torch.stack([v, w], dim=1)
+        command = torch.stack(action_to_velocity(actions, p.motion), dim=1)  # the observation's velocity state
+        velocity = command if self.actuation is None else self.actuation.execute(sel, command, self.velocity[sel])
+        pose = integrate(self.pose[sel], velocity[:, 0], velocity[:, 1], p.episode.dt)
         steps = self.steps[sel] + 1
         goal = self.goal[sel]
 
@@ -354,7 +359,7 @@ class NavVecEnv(VectorEnv):
             shaping = shaping - p.reward.agent_proximity * near
         out = outcome(p, dist, static, agent, steps, shaping)
         episode_return = self.episode_return[sel] + out["reward"]
-        obs = self._observe(sel, ranges, pose, goal, velocity, start=False, steps=steps)
+        obs = self._observe(sel, ranges, pose, goal, command, start=False, steps=steps)
 
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs

@@ -44,3 +44,39 @@ def integrate(pose: torch.Tensor, v: torch.Tensor, w: torch.Tensor, dt: float) -
     y = y + dt * v * torch.sin(mid)
     yaw = wrap_angle(yaw + dt * w)
     return torch.stack((x, y, yaw), dim=-1)
+
+
+class Actuation:
+    """The robot's actuation between the command and the motion, when a preset asks for more than the paper's
+    instant execution (``motion.command_delay``, ``motion.max_linear_accel`` / ``max_angular_accel``):
+
+    * latency: a command is executed ``command_delay`` control steps after it is given (a queue per slot; an
+      episode starts with the queue at (0, 0), the robot at rest);
+    * acceleration limits: the executed (v, w) moves from the last executed velocity toward the due command by at
+      most ``max_*_accel * dt`` per step.
+
+    Batched over the slots ``sel`` of an env (``slice(None)`` or [k] indices); pure torch on the env's device."""
+
+    def __init__(self, motion: Motion, num_envs: int, dt: float, device: torch.device):
+        self.delay = motion.command_delay
+        self.queue = torch.zeros(num_envs, self.delay, 2, device=device) if self.delay else None
+        limits = [motion.max_linear_accel, motion.max_angular_accel]
+        self.step_limit = (None if all(a is None for a in limits) else
+                           torch.tensor([math.inf if a is None else a * dt for a in limits], device=device))
+
+    def reset(self, idx: torch.Tensor) -> None:
+        """Slots ``idx`` start an episode: nothing pending (their executed velocity is the env's, zeroed)."""
+        if self.queue is not None:
+            self.queue[idx] = 0.0
+
+    def execute(self, sel, command: torch.Tensor, velocity: torch.Tensor) -> torch.Tensor:
+        """[k, 2] the (v, w) the slots ``sel`` execute this step, given this step's ``command`` [k, 2] and their
+        last executed ``velocity`` [k, 2]; the command joins the slots' queues."""
+        if self.queue is not None:
+            pending = self.queue[sel]
+            due = pending[:, 0].clone()  # a copy: the queue is rewritten below
+            self.queue[sel] = torch.cat([pending[:, 1:], command[:, None]], dim=1)
+            command = due
+        if self.step_limit is not None:
+            command = velocity + torch.clamp(command - velocity, -self.step_limit, self.step_limit)
+        return command
