@@ -23,6 +23,7 @@ POLICY --scenario crossing,wander-8 --shield 2``.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 import torch
@@ -74,6 +75,10 @@ class PeopleShield:
             raise ValueError(f"shield margin must be >= 0 metres, got {margin}")
         if v_levels < 2 or w_levels < 2:
             raise ValueError(f"shield v_levels and w_levels must be >= 2, got {v_levels} and {w_levels}")
+        if not preset.motion.instant:
+            warnings.warn(f"{preset.name}: the people shield rolls each command out as executed at once; this robot's "
+                          "motion has latency or acceleration limits (motion.command_delay / max_*_accel), so its "
+                          "rollouts are optimistic", RuntimeWarning, stacklevel=2)
         self.preset = preset
         self.dt = preset.episode.dt
         self.steps = max(1, round(lookahead / self.dt))

@@ -102,3 +102,15 @@ def test_bad_actuation_values_are_named():
     with pytest.raises(ValueError, match="max_linear_accel"):
         load_robot("turtlebot2", **{"motion.max_linear_accel": 0})
     assert math.isinf(float(_env(max_linear_accel=1.0).actuation.step_limit[1]))
+
+
+def test_the_people_shield_warns_that_its_rollouts_assume_instant_motion():
+    from flashnav.shield import PeopleShield
+
+    with pytest.warns(RuntimeWarning, match="rollouts are optimistic"):
+        PeopleShield(load_robot("turtlebot2", **{"motion.command_delay": 1}))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        PeopleShield(load_robot("turtlebot2"))  # the paper's motion: no warning
