@@ -98,8 +98,8 @@ def set_dotted(data: dict, dotted: str | list[str], value: Any, *, known: Any = 
     or a pydantic model class whose fields are allowed at the top level); ``create``: make missing
     sections instead of failing. An unknown name is a ValueError that names the key and suggests
     the closest allowed names; ``other_sections``: top-level section names that the caller routes
-    elsewhere (``algo``, ``robot``), offered in that message. Every override path (``flashnav train key=value``, ``--config``,
-    sweep ``--set``, preset and hyperparameter overrides) goes through here.
+    elsewhere (``algo``, ``robot``), offered in that message. Every override path (``flashnav train
+    key=value``, ``--config``, sweep ``--set``, preset and hyperparameter overrides) goes through here.
     """
     import difflib
 

@@ -137,7 +137,6 @@ def sigterm_as_ctrl_c():
 def _write_artefacts(result, out: Path) -> None:
     """The run's files in ``out``, each replaced whole: they are written to a folder of their own beside them
     and renamed into ``out``, so a crash while writing leaves the previous set (a snapshot) readable."""
-    import shutil
     import tempfile
 
     from flashnav.checkpoint import save_checkpoint
@@ -154,12 +153,8 @@ def _write_artefacts(result, out: Path) -> None:
                         {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"},
                          "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
         export_policy(result.policy, result.spec.robot, tmp)  # the best evaluated policy
-        for path in sorted(tmp.iterdir()):
-            if path.is_file():
-                path.replace(out / path.name)
-            else:
-                shutil.rmtree(out / path.name, ignore_errors=True)
-                path.replace(out / path.name)
+        for path in sorted(tmp.iterdir()):  # files only (export_policy writes no folder)
+            path.replace(out / path.name)
 
 
 def _summary(console: Console, result, out: Path) -> None:
