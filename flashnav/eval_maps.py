@@ -222,6 +222,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     device from :mod:`flashnav.policy_cli` (which checks the arguments and the output file first)."""
     from flashnav.machine import machine_name
     from flashnav.maps.bundled import resolve_maps
+    from flashnav.policy_cli import robot_overrides
     from flashnav.presets import load_robot
 
     sampling = args.goal_sampling or "geodesic"
@@ -242,7 +243,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
         "goal_sampling": sampling, "goal_band_m": [preset.episode.min_goal_distance, preset.episode.max_goal_distance],
         "episodes_per_map": args.episodes, "seed": args.seed, "goal_distance_scale": scale,
         "guide_lookahead_m": guide, "guide_from": guide_from if guide is not None else None,
-        "guide_keep_walls": keep_walls, "robot_overrides": getattr(args, "overrides", None) or [],
+        "guide_keep_walls": keep_walls, "robot_overrides": robot_overrides(args),
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": machine_name(str(device)), "seconds": seconds, **result,
     }
@@ -266,7 +267,7 @@ def print_report(report: dict) -> None:
                   f"{report['maps_arg']}: {report['episodes_per_map']} episodes per map, seed {report['seed']}, "
                   f"goal sampling {report['goal_sampling']} ({report['goal_band_m'][0]:g}-"
                   f"{report['goal_band_m'][1]:g} m)"
-                  + (f", with {' '.join(report['robot_overrides'])}" if report.get("robot_overrides") else ""))
+                  + "".join(f", robot.{k}={v}" for k, v in (report.get("robot_overrides") or {}).items()))
     if report.get("guide_lookahead_m") is not None and report.get("guide_from") == "scans":
         console.print(f"mapless guidance: the policy steers at the point {report['guide_lookahead_m']:g} m along a "
                       "path planned on the walls its own scans have shown (no map)")

@@ -56,3 +56,11 @@ def test_render_and_scenarios_take_them_too(tmp_path, capsys):
                      "robot.lidar.max_range=4"]) == 0
     assert json.loads(report.read_text())["robot_overrides"] == {"lidar.max_range": 4}
     assert "with robot.lidar.max_range=4" in capsys.readouterr().out
+
+
+def test_the_maps_report_carries_them(tmp_path, capsys):
+    out = tmp_path / "m.json"
+    assert cli_main(["eval", POLICY, "--maps", "turtlebot2", "--episodes", "4", "--json", str(out),
+                     "robot.lidar.noise_std=0.05"]) == 0
+    assert json.loads(out.read_text())["robot_overrides"] == {"lidar.noise_std": 0.05}
+    assert "robot.lidar.noise_std=0.05" in capsys.readouterr().out
