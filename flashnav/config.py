@@ -125,12 +125,18 @@ class Lidar(Strict):
     max_range: float = Field(gt=0, description="metres; readings are clipped to it")
     march_step: float = Field(gt=0, description="metres; step of the paper-literal 'march' raycaster")
     noise_std: float = Field(0.0, ge=0, description="Gaussian range noise, metres (0 = off)")
+    noise_std_max: float | None = Field(None, ge=0, description="with it, each episode draws its range noise "
+                                        "uniformly from [noise_std, noise_std_max] metres (for a policy that must "
+                                        "work on sensors of unknown noise); None = noise_std in every episode")
     dropout: float = Field(0.0, ge=0, lt=1, description="probability a beam reads max_range (0 = off)")
 
     @model_validator(mode="after")
     def _pooling(self) -> "Lidar":
         if self.beams % self.sectors:
             raise ValueError(f"lidar.beams ({self.beams}) must be a multiple of lidar.sectors ({self.sectors})")
+        if self.noise_std_max is not None and not self.noise_std_max > self.noise_std:
+            raise ValueError(f"lidar.noise_std_max ({self.noise_std_max}) must be above lidar.noise_std "
+                             f"({self.noise_std}), the range each episode's noise is drawn from")
         return self
 
     @property

@@ -105,6 +105,7 @@ class NavVecEnv(VectorEnv):
         self.extras = ObservationExtras(preset, n, self.beam_angles, self.device)  # all off: the paper's step
         # latency and acceleration limits between command and motion (sim.motion.Actuation); None: the paper's
         self.actuation = None if preset.motion.instant else Actuation(preset.motion, n, preset.episode.dt, self.device)
+        self.noise_std = None if preset.lidar.noise_std_max is None else torch.zeros(n, **f32)  # per episode
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
@@ -182,7 +183,8 @@ class NavVecEnv(VectorEnv):
                  start: bool, steps: torch.Tensor | None = None) -> torch.Tensor:
         """Observations [k, obs_dim] of slots ``sel`` from ranges [k, beams] and their state: the paper's,
         then the opt-in extras (:meth:`ObservationExtras.append`; ``start``: new episodes)."""
-        obs = observe(self.preset, ranges, pose, goal, velocity, self._gen)
+        noise = None if self.noise_std is None else self.noise_std[sel]
+        obs = observe(self.preset, ranges, pose, goal, velocity, self._gen, noise)
         return self.extras.append(obs, sel, self.agents, pose, ranges, start, steps)
 
     # ---- episode control --------------------------------------------------------------------------
@@ -220,6 +222,9 @@ class NavVecEnv(VectorEnv):
         self.velocity[idx] = zeros
         if self.actuation is not None:
             self.actuation.reset(idx)
+        if self.noise_std is not None:  # this episode's range noise, from [noise_std, noise_std_max]
+            lo, hi = self.preset.lidar.noise_std, self.preset.lidar.noise_std_max
+            self.noise_std[idx] = lo + (hi - lo) * torch.rand(idx.numel(), generator=self._gen, device=self.device)
         self.steps[idx] = 0
         self.episode_return[idx] = 0.0
         self.goal_distance[idx] = torch.linalg.vector_norm(goal - pose[:, :2], dim=1)

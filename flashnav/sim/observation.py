@@ -62,11 +62,14 @@ def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[n
                             np.tile(high[:s], mem)]))
 
 
-def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator) -> torch.Tensor:
-    """``ranges`` with the optional range noise and beam dropout (off by default), drawn from ``gen``."""
+def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator,
+                 noise_std: torch.Tensor | None = None) -> torch.Tensor:
+    """``ranges`` with the optional range noise and beam dropout (off by default), drawn from ``gen``;
+    ``noise_std`` [n]: each row's noise level (``lidar.noise_std_max``), else ``lidar.noise_std`` for all."""
     lidar = preset.lidar
-    if lidar.noise_std > 0:
-        noise = torch.randn(ranges.shape, generator=gen, device=ranges.device) * lidar.noise_std
+    if noise_std is not None or lidar.noise_std > 0:
+        std = lidar.noise_std if noise_std is None else noise_std[:, None]
+        noise = torch.randn(ranges.shape, generator=gen, device=ranges.device) * std
         ranges = (ranges + noise).clamp(0.0, lidar.max_range)
     if lidar.dropout > 0:
         drop = torch.rand(ranges.shape, generator=gen, device=ranges.device) < lidar.dropout
@@ -75,11 +78,12 @@ def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator
 
 
 def observe(preset: RobotPreset, ranges: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor,
-            velocity: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
-    """The paper's observations [n, base_obs_dim] from ranges [n, beams] (sensor effects applied here)
-    and the state of n slots: pose [n, 3], goal [n, 2], velocity [n, 2] (the executed command)."""
+            velocity: torch.Tensor, gen: torch.Generator, noise_std: torch.Tensor | None = None) -> torch.Tensor:
+    """The paper's observations [n, base_obs_dim] from ranges [n, beams] (sensor effects applied here, each row's
+    noise level ``noise_std`` [n] if given) and the state of n slots: pose [n, 3], goal [n, 2], velocity [n, 2]
+    (the command sent: with the paper's instant motion, the one executed)."""
     lidar = preset.lidar
-    pooled = apply_sensor(ranges, preset, gen).view(-1, lidar.sectors, lidar.beams_per_sector).amin(dim=2)
+    pooled = apply_sensor(ranges, preset, gen, noise_std).view(-1, lidar.sectors, lidar.beams_per_sector).amin(dim=2)
     delta = goal - pose[:, :2]
     dist = torch.linalg.vector_norm(delta, dim=1)
     angle = wrap_angle(torch.atan2(delta[:, 1], delta[:, 0]) - pose[:, 2])
