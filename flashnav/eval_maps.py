@@ -222,7 +222,6 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     device from :mod:`flashnav.policy_cli` (which checks the arguments and the output file first)."""
     from flashnav.machine import machine_name
     from flashnav.maps.bundled import resolve_maps
-    from flashnav.policy_cli import robot_overrides
     from flashnav.presets import load_robot
 
     sampling = args.goal_sampling or "geodesic"
@@ -243,7 +242,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
         "goal_sampling": sampling, "goal_band_m": [preset.episode.min_goal_distance, preset.episode.max_goal_distance],
         "episodes_per_map": args.episodes, "seed": args.seed, "goal_distance_scale": scale,
         "guide_lookahead_m": guide, "guide_from": guide_from if guide is not None else None,
-        "guide_keep_walls": keep_walls, "robot_overrides": robot_overrides(args),
+        "guide_keep_walls": keep_walls, "robot_overrides": getattr(args, "robot_overrides", None) or {},
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": machine_name(str(device)), "seconds": seconds, **result,
     }

@@ -212,6 +212,7 @@ def run_eval(args) -> int:
     if args.maps is not None:
         from flashnav.eval_maps import run_eval_maps
 
+        args.robot_overrides = robot_overrides(args)  # for its report (eval_maps does not import this module)
         return run_eval_maps(args, *load_policy_for(args, args.device))
     if args.goal_sampling is not None:
         raise ValueError("--goal-sampling goes with --maps (for one map: --maps FILE.yaml)")
