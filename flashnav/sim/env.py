@@ -50,9 +50,8 @@ from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
 from flashnav.sim.extras import ObservationExtras
-from flashnav.sim.inputs import as_batch, check_finite
-from flashnav.sim.mapset import (MapDraw, as_grids, check_map_index, check_map_scale, goals_outside, sample_on_maps,
-                                  sim_frame)
+from flashnav.sim.inputs import as_batch, check_finite, check_state
+from flashnav.sim.mapset import MapDraw, as_grids, check_map_scale, sample_on_maps, sim_frame
 from flashnav.sim.motion import Actuation, action_to_velocity, integrate
 from flashnav.sim.observation import beam_angles, observation_bounds, observe  # noqa: F401 (beam_angles: re-exported)
 from flashnav.sim.raycast import make_raycaster
@@ -260,26 +259,11 @@ class NavVecEnv(VectorEnv):
 
         Raises ValueError naming ``pose`` / ``goal`` / ``map_index`` for another shape, a NaN or
         infinite value, a map index out of range, or a goal outside its map's extent (it could never
-        be reached)."""
-        n = self.num_envs
-        pose = as_batch(self.device, pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
-        goal = as_batch(self.device, goal, "goal", (n, 2), "x, y m", torch.float64)
-        mi = self.map_index if map_index is None else check_map_index(map_index, n, len(self.maps), self.device)
-        outside = goals_outside(self.maps, goal, mi)  # in world coordinates, before the frame shift
-        in_range = ((mi >= 0) & (mi < len(self.maps))).all()
-        ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & in_range
-        if not bool(ok):  # one host sync for all checks; the details only on failure
-            check_finite(pose, "pose")
-            check_finite(goal, "goal")
-            check_map_index(mi.cpu(), n, len(self.maps), torch.device("cpu"))
-            row = int(outside.nonzero()[0, 0])
-            g = self.maps[int(mi[row])]
-            xmin, ymin, xmax, ymax = g.bounds
-            raise ValueError(f"goal[{row}] = {goal[row].tolist()} lies outside the map {g.name!r} "
-                             f"(x in [{xmin:g}, {xmax:g}] m, y in [{ymin:g}, {ymax:g}] m)")
+        be reached; :func:`flashnav.sim.inputs.check_state`)."""
+        pose, goal, mi = check_state(self.maps, pose, goal, map_index, self.map_index)
         self.map_index[:] = mi
         pose, goal = self._world_to_frame(pose, goal)
-        self._place(torch.arange(n, device=self.device), pose.float(), goal.float())
+        self._place(torch.arange(self.num_envs, device=self.device), pose.float(), goal.float())
         return self.obs.clone()
 
     def _world_to_frame(self, pose: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -3,7 +3,12 @@ values, with errors that name the input and the offending row."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
+
+from flashnav.maps.grid import OccupancyMap
+from flashnav.sim.mapset import check_map_index, goals_outside
 
 
 def as_batch(device: torch.device, value, name: str, shape: tuple[int, int], layout: str,
@@ -22,3 +27,28 @@ def check_finite(value: torch.Tensor, name: str) -> None:
     if rows.numel():
         row = int(rows[0, 0])
         raise ValueError(f"{name}[{row}] = {value[row].tolist()} is not finite (NaN or inf)")
+
+
+def check_state(grids: Sequence[OccupancyMap], pose, goal, map_index, current: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A ``NavVecEnv.set_state`` request checked: (pose [N, 3], goal [N, 2], both float64 world coordinates; the
+    slots' map indices [N] long: ``map_index``, or the ``current`` ones where it is None). A ValueError names
+    ``pose`` / ``goal`` / ``map_index`` for another shape, a NaN or infinite value, a map index out of range, or a
+    goal outside its map's extent (it could never be reached)."""
+    n, device = len(current), current.device
+    pose = as_batch(device, pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
+    goal = as_batch(device, goal, "goal", (n, 2), "x, y m", torch.float64)
+    mi = current if map_index is None else check_map_index(map_index, n, len(grids), device)
+    outside = goals_outside(grids, goal, mi)  # in world coordinates, before the frame shift
+    in_range = ((mi >= 0) & (mi < len(grids))).all()
+    ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & in_range
+    if not bool(ok):  # one host sync for all checks; the details only on failure
+        check_finite(pose, "pose")
+        check_finite(goal, "goal")
+        check_map_index(mi.cpu(), n, len(grids), torch.device("cpu"))
+        row = int(outside.nonzero()[0, 0])
+        g = grids[int(mi[row])]
+        xmin, ymin, xmax, ymax = g.bounds
+        raise ValueError(f"goal[{row}] = {goal[row].tolist()} lies outside the map {g.name!r} "
+                         f"(x in [{xmin:g}, {xmax:g}] m, y in [{ymin:g}, {ymax:g}] m)")
+    return pose, goal, mi
