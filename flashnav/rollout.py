@@ -27,11 +27,10 @@ def rollout(policy, env, seed: int, shield=None) -> dict:
     Returns ``poses [T+1, N, 3]`` (x, y m, yaw rad; rows past an episode's end repeat its last pose),
     ``length [N]`` (valid rows per slot), ``goals [N, 2]`` m and ``outcomes`` (success / collision /
     timeout); with moving agents also ``agents`` [T+1, N, K, 2] (their centres, m), ``agent_active``
-    [T+1, N, K] and ``agent_radius`` [N, K] (rows past an episode's end repeat its last row). The terminal pose is recomputed with the env's own motion model: the env has already
-    reset a finished slot when ``step`` returns, but the picture should end where the robot did.
+    [T+1, N, K] and ``agent_radius`` [N, K] (rows past an episode's end repeat its last row). The poses are the
+    step's ``info["final_pose"]``: the env has already reset a finished slot when ``step`` returns, but the
+    picture should end where the robot did.
     """
-    from flashnav.sim.motion import action_to_velocity, integrate
-
     preset = env.preset
     obs, _ = env.reset(seed=seed)
     n = env.num_envs
@@ -54,9 +53,8 @@ def rollout(policy, env, seed: int, shield=None) -> dict:
         if guard is not None:
             action = guard(every, action)
             took_over.append(guard.took_over.cpu().numpy() & running)
-        pose = integrate(env.pose, *action_to_velocity(action.to(env.device), preset.motion), preset.episode.dt)
         obs, _, terminated, truncated, info = env.step(action)
-        pose = np.where(running[:, None], pose.cpu().numpy(), poses[-1])
+        pose = np.where(running[:, None], info["final_pose"].cpu().numpy(), poses[-1])
         poses.append(pose)
         if track:  # a finished slot's agents were re-sampled by the reset: keep its last row
             agents.append(np.where(running[:, None, None], env.agents.pos.cpu().numpy(), agents[-1]))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -114,3 +115,17 @@ def test_the_people_shield_warns_that_its_rollouts_assume_instant_motion():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         PeopleShield(load_robot("turtlebot2"))  # the paper's motion: no warning
+
+
+def test_a_rendered_rollout_ends_where_the_delayed_robot_did():
+    """``rollout`` draws the env's own poses (``info["final_pose"]``), so a robot with latency is drawn where it
+    went, not where an instant robot would have gone."""
+    from flashnav.rollout import rollout
+
+    env = _env(command_delay=3)
+    forward = lambda obs: torch.tensor([1.0, 0.0]).expand(obs.shape[0], 2)  # noqa: E731
+    result = rollout(forward, env, seed=5)
+    first = result["poses"][:4, :, :2]  # the first three steps execute the queue's rests
+    assert (abs(first - first[0]) < 1e-6).all()
+    moved = np.linalg.norm(result["poses"][4, :, :2] - result["poses"][0, :, :2], axis=1)
+    assert moved[result["length"] > 4] == pytest.approx(0.05, abs=1e-5)  # then 0.05 m per step forward

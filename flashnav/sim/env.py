@@ -294,6 +294,7 @@ class NavVecEnv(VectorEnv):
         info = {
             "final_obs": t["obs"],  # a tensor of its own: the reset below writes into self.obs
             "_final_obs": done,
+            "final_pose": t["pose"],  # [N, 3] where each robot ended this step (simulator frame), before any reset
             "success": t["success"],
             "collision": t["collision"],
             "collision_static": t["collision_static"],  # with a wall or the map's edge
@@ -311,8 +312,9 @@ class NavVecEnv(VectorEnv):
         slot's first episode counts and finished slots need not be simulated any further.
 
         Returns [k] tensors for those slots: obs [k, obs_dim], reward, terminated, truncated, success,
-        collision, collision_static, collision_agent, episode_steps, episode_return (the same semantics as :meth:`step`). ``idx`` outside
-        [0, N), not 1-D integer, or ``actions`` of another shape or not finite: a ValueError."""
+        collision, collision_static, collision_agent, episode_steps, episode_return (the same semantics as :meth:`step`),
+        pose [k, 3]. ``idx`` outside [0, N), not 1-D integer, or ``actions`` of another shape or not finite: a
+        ValueError."""
         idx = torch.as_tensor(idx, device=self.device)
         if idx.ndim != 1 or idx.dtype.is_floating_point or idx.dtype == torch.bool or idx.is_complex():
             raise ValueError(f"idx must be a 1-D integer tensor of slot indices, got {idx.dtype} {list(idx.shape)}")
@@ -352,7 +354,7 @@ class NavVecEnv(VectorEnv):
 
         self.pose[sel], self.velocity[sel], self.steps[sel] = pose, velocity, steps
         self.goal_distance[sel], self.episode_return[sel], self.obs[sel] = dist, episode_return, obs
-        return {"obs": obs, **out, "episode_steps": steps, "episode_return": episode_return}
+        return {"obs": obs, **out, "episode_steps": steps, "episode_return": episode_return, "pose": pose}
 
     def close_extras(self, **kwargs) -> None:  # nothing to release: no processes, no files
         pass
