@@ -141,8 +141,9 @@ def load_policy_and_env(args, device: str = "cpu"):
 
 
 def load_policy_for(args, device: str = "cpu"):
-    """(policy, metadata, robot, device): the policy of parsed `eval`-style arguments checked against
-    ``--robot``, else the robot preset recorded in the policy (a RobotPreset or a name); the device resolved."""
+    """(policy, metadata, preset, device): the policy of parsed `eval`-style arguments checked against
+    ``--robot``, else the robot preset recorded in the policy, with the ``robot.*`` overrides (a RobotPreset, as
+    evaluations play it); the device resolved."""
     from flashnav.export import load_policy, recorded_robot
     from flashnav.presets import load_robot
     from flashnav.sim.goal_fields import evaluation_preset
@@ -261,12 +262,10 @@ def run_scenarios(args) -> int:
     from rich.table import Table
 
     from flashnav.outputs import write_json_report
-    from flashnav.presets import load_robot
     from flashnav.scenarios import run_scenario, scenario_names
 
     names = scenario_names(args.scenario)
-    policy, meta, robot, device = load_policy_for(args, args.device)  # no env here: each scenario makes its own
-    preset = load_robot(robot)
+    policy, meta, preset, device = load_policy_for(args, args.device)  # no env here: each scenario makes its own
     guide = _scenario_guide(args)
     shield = _people_shield(args, preset)
     how = "" if args.guide is None else f", guided from the {args.guide_from or 'map'} ({args.guide} m)"
@@ -327,10 +326,8 @@ def run_render(args) -> int:
     if args.scenario is None:
         policy, meta, env = load_policy_and_env(args)
     else:  # only the scenario's env is built
-        from flashnav.presets import load_robot
-
-        policy, meta, robot, device = load_policy_for(args)
-        env = _scenario_env(args, load_robot(robot), args.scenario, device)
+        policy, meta, preset, device = load_policy_for(args)
+        env = _scenario_env(args, preset, args.scenario, device)
     shield = _people_shield(args, env.preset)
     result = rollout(policy, env, args.seed, shield=shield)
     poses, length, outcomes = result["poses"], result["length"], result["outcomes"]
