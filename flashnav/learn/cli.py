@@ -143,14 +143,15 @@ def _write_artefacts(result, out: Path) -> None:
     from flashnav.export import export_policy
 
     out.mkdir(parents=True, exist_ok=True)
-    config = result.spec.to_dict()
+    metrics = result.to_dict()  # once: every snapshot writes it (its "config" is the spec's to_dict)
+    config = metrics["config"]
     with tempfile.TemporaryDirectory(prefix=".saving-", dir=out) as tmp:
         tmp = Path(tmp)
         dump_yaml(config, tmp / "config.yaml")
         with open(tmp / "metrics.json", "w", encoding="utf-8") as f:
-            json.dump(result.to_dict(), f, indent=2)
+            json.dump(metrics, f, indent=2)
         save_checkpoint(tmp / "checkpoint.pt", result.learner.state_dict(), config,
-                        {"metrics": {k: v for k, v in result.to_dict().items() if k != "config"},
+                        {"metrics": {k: v for k, v in metrics.items() if k != "config"},
                          "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
         export_policy(result.policy, result.spec.robot, tmp)  # the best evaluated policy
         for path in sorted(tmp.iterdir()):  # files only (export_policy writes no folder)
