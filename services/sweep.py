@@ -216,12 +216,21 @@ def _fit_target(plan: Plan, target: Target, tracker, resume: bool, train_fn, ver
         tuner = _tuner(plan, target, trainable, tracker.callback(plan.sweep.name, tags), verbose)
     results = tuner.fit()
     expected = plan.sweep.search.n_trials if target.study else plan.n_trials
-    if results.num_terminated + results.num_errors < expected:
-        # Tune catches Ctrl-C (SIGINT), saves its state and returns early with trials still pending:
-        # that target is not done, and the sweep must say so rather than finish.
-        raise KeyboardInterrupt(f"{target.name}: {results.num_terminated + results.num_errors}/{expected} "
-                                "trials ended before the interrupt")
+    ended = sum(1 for result in results if result.error is not None or trial_completed(result))
+    if ended < expected:
+        # Tune catches Ctrl-C (SIGINT), saves its state and returns early, with trials still pending or
+        # stopped mid-seed (Tune marks those TERMINATED too): that target is not done, and the sweep must say
+        # so rather than finish.
+        raise KeyboardInterrupt(f"{target.name}: {ended}/{expected} trials ended before the interrupt")
     return results.num_errors
+
+
+def trial_completed(result) -> bool:
+    """Whether a Tune trial's last report is the final one of its last seed (``final=1``, services.trainable):
+    a trial stopped by Ctrl-C mid-seed ends TERMINATED as well, with an evaluation (``final=0``) or nothing."""
+    metrics, config = result.metrics or {}, result.config or {}
+    seeds = config.get("seeds") or [config.get("seed")]
+    return metrics.get("final") == 1.0 and metrics.get("seed") is not None and int(metrics["seed"]) == int(seeds[-1])
 
 
 def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, dry_run: bool = False,

@@ -204,10 +204,12 @@ DRIVER = textwrap.dedent('''
 
 def test_resume_after_ctrl_c_and_after_kill_reruns_nothing_finished(tmp_path, runs):
     """One sweep of three seeds (one trial at a time), stopped twice and resumed twice (three Ray start-ups, not
-    four: the suite's time). First Ctrl-C while seed 1 trains: Tune catches SIGINT, saves its state and returns
-    early; the sweep must stop as interrupted (parent KILLED, target not done), not finish. Then ``--resume``,
-    killed (SIGKILL: the driver and its in-process Ray die at once) while seed 2 trains. Then ``--resume`` again:
-    every seed finished exactly once, the interrupted ones trained again, the finished one not."""
+    four: the suite's time). First killed (SIGKILL: the driver and its in-process Ray die at once) while seed 1
+    trains. Then ``--resume``, stopped by Ctrl-C while seed 2, the last trial, trains: Tune catches SIGINT, saves
+    its state, marks the stopped trial TERMINATED and returns; the sweep must stop as interrupted (parent KILLED,
+    target not done), not finish (it once counted the stopped trial as finished and said "3/3"). Then
+    ``--resume`` again: every seed finished exactly once, the interrupted ones trained again, the finished one
+    not."""
     sweep = write_sweep(tmp_path / "unit.yaml", seeds=3, max_concurrent_trials=1, retry={"max_failures": 0})
     (tmp_path / "driver.py").write_text(DRIVER)
     marks = tmp_path / "marks"
@@ -232,18 +234,18 @@ def test_resume_after_ctrl_c_and_after_kill_reruns_nothing_finished(tmp_path, ru
                 os.killpg(driver.pid, signal.SIGKILL)  # the driver and its in-process Ray die mid-trial
             driver.wait()
 
-    run_until_seed_starts(1, [], "ctrl-c")
+    run_until_seed_starts(1, [], "kill")
+    run_until_seed_starts(2, ["--resume"], "ctrl-c")
     _, parents, _ = runs_of(runs, "unit")
     assert [p.info.status for p in parents] == ["KILLED"]
     (state_file,) = (runs / "sweeps" / "unit").glob("*/sweep_state.json")
     assert json.loads(state_file.read_text())["done_targets"] == []
-    run_until_seed_starts(2, ["--resume"], "kill")
     assert {seed: len(list(marks.glob(f"start_{seed}_*"))) for seed in range(3)} == {0: 1, 1: 2, 2: 1}
     resumed = subprocess.run(command + ["--resume"], env=env, cwd=tmp_path, capture_output=True, text=True,
                              timeout=240)
     assert resumed.returncode == 0, resumed.stdout[-3000:] + resumed.stderr[-3000:]
     starts = {seed: len(list(marks.glob(f"start_{seed}_*"))) for seed in range(3)}
-    # seed 0 finished before the Ctrl-C: never trained again; seed 1 (stopped by Ctrl-C) and seed 2 (killed):
+    # seed 0 finished before the kill: never trained again; seed 1 (killed) and seed 2 (stopped by Ctrl-C):
     # trained again once each
     assert starts == {0: 1, 1: 2, 2: 2}
     _, parents, children = runs_of(runs, "unit")
