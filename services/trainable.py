@@ -18,6 +18,7 @@ objective metric, provisional until the last seed ends.
 from __future__ import annotations
 
 import csv
+import glob
 import json
 import logging
 import math
@@ -187,11 +188,29 @@ def _plain(value: Any) -> Any:
 # ---------------------------------------------------------------- the trainable
 
 
-def _localise(path: str | None) -> str | None:
-    """A relative preset/map path in the sweep is relative to the working dir Ray shipped to this node."""
-    if path is None or not str(path).endswith((".yaml", ".yml")) or os.path.isabs(path):
-        return path
-    return str(Path(os.environ.get("TUNE_ORIG_WORKING_DIR", os.getcwd())) / path)
+def _localise(value: Any) -> Any:
+    """A relative path in the sweep (preset, map, maps directory or glob, evaluation maps, ``init_from``) is
+    relative to the working dir Ray shipped to this node, not to the trial's own folder; keywords (a bundled
+    map's name, ``validation``, ``family:...``) and generated-map mappings pass through."""
+    if isinstance(value, list):
+        return [_localise(item) for item in value]
+    if not isinstance(value, str) or not value or os.path.isabs(value):
+        return value
+    base = Path(os.environ.get("TUNE_ORIG_WORKING_DIR", os.getcwd()))
+    if value.endswith((".yaml", ".yml")) or (base / value).exists() or glob.glob(str(base / value)):
+        return str(base / value)
+    return value
+
+
+def localise_paths(data: dict) -> dict:
+    """The training config ``data`` with its relative paths made absolute (:func:`_localise`)."""
+    data = dict(data)
+    for key in ("robot", "map", "maps", "init_from"):
+        if key in data:
+            data[key] = _localise(data[key])
+    if isinstance(data.get("eval"), dict) and "maps" in data["eval"]:
+        data["eval"] = {**data["eval"], "maps": _localise(data["eval"]["maps"])}
+    return data
 
 
 def _provenance() -> dict[str, str]:
@@ -235,8 +254,7 @@ def train_trial(config: dict, *, sweep: dict, git_commit: str = "unknown",
         for seed in seeds:
             if seed in done:  # trained before a retry/restore: its run is already in MLflow
                 continue
-            data = spec.train_config(robot, algorithm, seed, device, extra=params)
-            data["robot"], data["map"] = _localise(data["robot"]), _localise(data.get("map"))
+            data = localise_paths(spec.train_config(robot, algorithm, seed, device, extra=params))
             curve: list[dict[str, float]] = []
 
             def on_eval(metrics: dict[str, float], seed: int = seed, curve: list = curve) -> None:
