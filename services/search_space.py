@@ -59,6 +59,11 @@ class Distribution(Strict):
     def args(self) -> Any:
         return getattr(self, self.kind)
 
+    def extremes(self) -> list[Any]:
+        """The values that bound what a trial may draw: every choice, or both ends of a range (what the
+        driver checks before anything runs)."""
+        return list(self.choice) if self.kind == "choice" else list(self.args)
+
 
 class Search(Strict):
     """Optuna search: one study per (robot, algorithm); each trial runs ``seeds_per_trial`` seeds."""

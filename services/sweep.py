@@ -121,15 +121,31 @@ def validate_train_configs(plan: Plan) -> None:
     sweep = plan.sweep
     for robot in sweep.robots:
         for algorithm in sweep.algorithms:
-            extra = ({p: optuna_search.first_value(d) for p, d in sweep.search.space_for(algorithm).items()}
-                     if sweep.search else {})
-            data = sweep.train_config(robot, algorithm, sweep.seed_list[0], "cpu", extra)
-            if data.get("recipe", "auto") == "auto":  # the trials' recipe: their device is not known here
-                data["recipe"] = "paper" if sweep.resources.gpu > 0 else "cpu"
-            try:
-                resolve(config_from_data(data, f"{robot}/{algorithm}"))
-            except ValueError as exc:
-                raise SweepError(f"{plan.source}: {robot}/{algorithm}: not a valid training config:\n{exc}") from None
+            for extra, what in _search_points(sweep, algorithm):
+                data = sweep.train_config(robot, algorithm, sweep.seed_list[0], "cpu", extra)
+                if data.get("recipe", "auto") == "auto":  # the trials' recipe: their device is not known here
+                    data["recipe"] = "paper" if sweep.resources.gpu > 0 else "cpu"
+                try:
+                    resolve(config_from_data(data, f"{robot}/{algorithm}"))
+                except ValueError as exc:
+                    raise SweepError(f"{plan.source}: {robot}/{algorithm}{what}: not a valid training config:"
+                                     f"\n{exc}") from None
+
+
+def _search_points(sweep: Sweep, algorithm: str) -> list[tuple[dict[str, Any], str]]:
+    """The searched values to check, with how to name them: every parameter at its first value, then each
+    parameter in turn at every other choice or at the other end of its range (the rest at their first)."""
+    if not sweep.search:
+        return [({}, "")]
+    space = sweep.search.space_for(algorithm)
+    first = {path: optuna_search.first_value(dist) for path, dist in space.items()}
+    points = [(first, "")]
+    for path, dist in space.items():
+        for value in dist.extremes():
+            if value != first[path]:
+                where = "a choice" if dist.kind == "choice" else "the end of its range"
+                points.append(({**first, path: value}, f" with the searched {path}={value!r} ({where})"))
+    return points
 
 
 def describe(plan: Plan) -> str:

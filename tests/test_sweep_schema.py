@@ -272,6 +272,22 @@ def test_misspelt_hyperparameter_is_refused_before_anything_runs(tmp_path, monke
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.parametrize("space, named", [
+    ("{algo.batch_size: {choice: [256, big]}}", "algo.batch_size='big' (a choice)"),
+    ("{algo.tau: {uniform: [0.05, 5.0]}}", "algo.tau=5.0 (the end of its range)"),
+    ("{algo.batch_size: {choice: [256, -4]}}", "algo.batch_size=-4 (a choice)"),
+])
+def test_every_searched_value_is_checked_not_only_the_first(space, named, tmp_path, monkeypatch, capsys):
+    """A choice or range end that no trial could train with fails the dry run, naming it (it once passed, as
+    only the first choice and the lower bound were checked, and failed in the trial that drew it)."""
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
+    rc = sweep_main(["run", str(ROOT / "sweeps/tb2_optuna.yaml"), "--dry-run",
+                     "--set", f"search.algorithm_parameters.fastdsac={space}"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert f"turtlebot2/fastdsac with the searched {named}" in err, err
+
+
 def test_optuna_dry_run_creates_no_database(tmp_path, monkeypatch):
     monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
     assert sweep_main(["run", str(ROOT / "sweeps/tb2_optuna.yaml"), "--dry-run"]) == 0
