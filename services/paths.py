@@ -49,8 +49,22 @@ def resolve_db_url(url: str | None, default_file: str) -> str:
 
 
 def resolve_tracking_uri(explicit: str | None) -> str:
-    """The sweep's tracking.tracking_uri, else $MLFLOW_TRACKING_URI, else sqlite:///<runs>/mlflow.db."""
-    return resolve_db_url(explicit or os.environ.get("MLFLOW_TRACKING_URI") or None, "mlflow.db")
+    """The sweep's tracking.tracking_uri, else $MLFLOW_TRACKING_URI, else sqlite:///<runs>/mlflow.db.
+
+    A file store (a folder, or file://) is refused with ValueError unless $MLFLOW_ALLOW_FILE_STORE is true:
+    MLflow refuses it then too, but only once Ray is up; where allowed, a relative folder is made absolute."""
+    uri = explicit or os.environ.get("MLFLOW_TRACKING_URI") or None
+    if uri is not None and ("://" not in uri or uri.startswith("file:")):
+        if os.environ.get("MLFLOW_ALLOW_FILE_STORE", "").lower() not in ("1", "true", "yes"):
+            where = "tracking.tracking_uri" if explicit else "$MLFLOW_TRACKING_URI"
+            raise ValueError(f"{where} {uri!r} is an MLflow file store, which MLflow keeps in maintenance mode and "
+                             "refuses to write to: use sqlite:///PATH/mlflow.db (the default: "
+                             f"sqlite:///{runs_dir() / 'mlflow.db'}) or an http(s):// tracking server, or set "
+                             "MLFLOW_ALLOW_FILE_STORE=true")
+        if "://" not in uri:
+            return f"file://{_absolute(uri)}"
+        return uri
+    return resolve_db_url(uri, "mlflow.db")
 
 
 def resolve_storage(path: str | None) -> str:

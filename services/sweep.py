@@ -93,7 +93,10 @@ def make_plan(sweep: Sweep, source: str, resume: bool = False) -> Plan:
     """Resolve every location of one invocation (a new one, or the latest one when resuming)."""
     state = _latest_state(sweep) if resume else {}
     stamp = state.get("stamp") or time.strftime("%Y%m%d-%H%M%S")
-    tracking_uri = state.get("tracking_uri") or resolve_tracking_uri(sweep.tracking.tracking_uri)
+    try:
+        tracking_uri = state.get("tracking_uri") or resolve_tracking_uri(sweep.tracking.tracking_uri)
+    except ValueError as exc:
+        raise SweepError(str(exc)) from None
     ray_storage = state.get("ray_storage") or f"{resolve_storage(sweep.storage).rstrip('/')}/{sweep.name}/{stamp}"
     optuna_url = None
     targets = [Target("grid")]

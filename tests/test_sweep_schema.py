@@ -204,6 +204,26 @@ def test_paths_resolve_absolute(tmp_path, monkeypatch):
     assert runs_dir() == tmp_path / "elsewhere"
 
 
+def test_a_file_store_is_refused_before_ray_starts_unless_allowed(tmp_path, monkeypatch, capsys):
+    """MLflow refuses to write to a file store (maintenance mode) - once Ray was up and the parent run was
+    being made, as a traceback. The dry run names it now, with the ways out."""
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    monkeypatch.delenv("MLFLOW_ALLOW_FILE_STORE", raising=False)
+    monkeypatch.setenv("FLASHNAV_PROJECT_DIR", str(tmp_path))
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
+    for uri in ("mlruns", "file:///tmp/mlruns"):
+        with pytest.raises(ValueError, match="file store.*sqlite:///.*MLFLOW_ALLOW_FILE_STORE=true"):
+            resolve_tracking_uri(uri)
+    rc = sweep_main(["run", str(ROOT / "sweeps/quickstart.yaml"), "--dry-run", "--set", "tracking.tracking_uri=mlruns"])
+    assert rc == 2 and "tracking.tracking_uri 'mlruns' is an MLflow file store" in capsys.readouterr().err
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "./mlruns")
+    with pytest.raises(ValueError, match=r"\$MLFLOW_TRACKING_URI './mlruns'"):
+        resolve_tracking_uri(None)
+    monkeypatch.setenv("MLFLOW_ALLOW_FILE_STORE", "true")  # MLflow's own opt-out: then the folder, made absolute
+    assert resolve_tracking_uri("mlruns") == f"file://{tmp_path}/mlruns"
+    assert resolve_tracking_uri("file:///tmp/mlruns") == "file:///tmp/mlruns"
+
+
 def test_ray_job_without_runs_dir_never_uses_its_temporary_cwd(tmp_path, monkeypatch):
     monkeypatch.delenv("FLASHNAV_RUNS_DIR", raising=False)
     monkeypatch.delenv("FLASHNAV_PROJECT_DIR", raising=False)
