@@ -251,7 +251,11 @@ class MlflowSweepCallback(tune.Callback):
         tags = {**self.tags, PARENT_TAG: self.parent_run_id, "sweep": self.sweep, "role": "trial",
                 "trial_id": trial_tag, "ray_trial_id": trial.trial_id, "robot": str(robot),
                 "algorithm": str(algorithm), "seed": str(seed)}
-        run = self.client.create_run(self.experiment_id, run_name=f"{robot}-{algorithm}-s{seed}", tags=tags)
+        name = f"{robot}-{algorithm}-s{seed}"
+        if trial.config.get("params") is not None:  # a search trial: its number (Tune's), in the name and a tag
+            tags["search_trial"] = number = trial.trial_id.rsplit("_", 1)[-1]
+            name = f"{robot}-{algorithm}-t{number}-s{seed}"
+        run = self.client.create_run(self.experiment_id, run_name=name, tags=tags)
         child = self._open[key] = _Child(run.info.run_id)
         return child
 

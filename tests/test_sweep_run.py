@@ -167,6 +167,11 @@ def test_optuna_sweep_persists_study_and_writes_best_config(tmp_path, runs, ray_
     client, parents, children = runs_of(runs, "unit")
     assert len(children) == 6 and all(c.info.status == "FINISHED" for c in children)  # 3 trials x 2 seeds
     assert len({c.data.tags["trial_id"] for c in children}) == 6
+    # each child names its search trial, so two settings of one seed can be told apart
+    assert len({c.info.run_name for c in children}) == 6
+    assert {c.info.run_name for c in children} == {f"turtlebot2-fastdsac-t{c.data.tags['search_trial']}-s{c.data.tags['seed']}"
+                                                   for c in children}
+    assert len({c.data.tags["search_trial"] for c in children}) == 3
     artifacts = {a.path for a in client.list_artifacts(parents[0].info.run_id)}
     assert {"best_turtlebot2_fastdsac.yaml", "optuna_summary.json", "sweep.yaml"} <= artifacts
     # The same named study again without --resume would silently append: refused.
