@@ -1,4 +1,5 @@
-"""Where a sweep's things go: the project and run directories, and sweep paths made absolute.
+"""Where a sweep's things go: the project and run directories, and sweep paths made absolute; tracking URIs
+checked (a scheme MLflow opens, a server that answers) and redacted for messages.
 
 Everything here is resolved in the driver before anything is shipped to a Ray worker (a worker's
 working directory is a temporary copy that Ray deletes), so nothing lands in Ray's temporary dirs.
@@ -7,6 +8,7 @@ working directory is a temporary copy that Ray deletes), so nothing lands in Ray
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 
@@ -74,3 +76,44 @@ def resolve_storage(path: str | None) -> str:
     if "://" in path:
         return path
     return _absolute(path)
+
+
+#: tracking-URI schemes an MlflowClient opens (a SQLAlchemy dialect suffix, postgresql+psycopg2, is allowed)
+URI_SCHEMES = ("", "file", "sqlite", "http", "https", "postgresql", "mysql", "mssql", "databricks")
+#: seconds an MLflow server gets to answer its health check; MLflow itself retries a dead server
+#: for minutes (7 retries with backoff, 120 s per request), which looks like a hang
+PROBE_TIMEOUT_S = 5.0
+
+
+def redact_uri(uri: str) -> str:
+    return re.sub(r"//[^/@]+@", "//***@", uri)   # never print credentials embedded in a server URI
+
+
+def check_tracking_uri(uri: str, timeout: float = PROBE_TIMEOUT_S) -> None:
+    """ValueError naming the (redacted) URI for a scheme MLflow cannot open, or an http(s) server that
+    does not answer its health check within ``timeout`` seconds."""
+    import urllib.error
+    import urllib.parse
+    import urllib.request
+
+    parsed = urllib.parse.urlparse(uri)
+    scheme = parsed.scheme.split("+")[0].lower()
+    if len(scheme) == 1:  # a Windows drive letter (C:\runs), a plain path to MLflow
+        scheme = ""
+    if scheme not in URI_SCHEMES:
+        raise ValueError(f"tracking URI {redact_uri(uri)}: unsupported scheme {parsed.scheme!r} (use sqlite:///FILE, "
+                         "http(s)://HOST:PORT, file:///DIR, postgresql://..., mysql://...)")
+    if scheme not in ("http", "https"):
+        return
+    # credentials stay out of the probe URL (urllib cannot parse user:password@host anyway)
+    probe = parsed._replace(netloc=parsed.netloc.rpartition("@")[2], path=parsed.path.rstrip("/") + "/health",
+                            query="", fragment="").geturl()
+    try:
+        with urllib.request.urlopen(probe, timeout=timeout):
+            pass
+    except urllib.error.HTTPError:
+        pass  # something answered (an auth proxy, an older server): MLflow reports what follows
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", None) or exc
+        raise ValueError(f"no MLflow server answers at {redact_uri(uri)} within {timeout:g} s ({reason}); "
+                         "start one (flashnav services up) or fix --tracking-uri") from None

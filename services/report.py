@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from services.paths import check_tracking_uri, redact_uri
+from services.report_select import pooling_warnings, select_invocation
 from services.report_tables import (THRESHOLDS, comparison_table, latex_document, load_paper_table, split_platform,
                                     threshold_table, to_csv, to_latex, to_markdown)
 
@@ -32,11 +34,6 @@ FINAL_METRICS = [f"{kind}_{t}" for t in THRESHOLDS for kind in ("time_to", "env_
 CURVE_METRICS = ("success_rate", "mean_return", "train_seconds")
 FORMATS = ("md", "tex", "csv", "html", "png", "svg")
 _INT = re.compile(r"^[+-]?\d+$")
-#: tracking-URI schemes an MlflowClient opens (a SQLAlchemy dialect suffix, postgresql+psycopg2, is allowed)
-URI_SCHEMES = ("", "file", "sqlite", "http", "https", "postgresql", "mysql", "mssql", "databricks")
-#: seconds an MLflow server gets to answer its health check; MLflow itself retries a dead server
-#: for minutes (7 retries with backoff, 120 s per request), which looks like a hang
-PROBE_TIMEOUT_S = 5.0
 #: MLflow's HTTP settings for `flashnav report` (set only where the user has not set them)
 HTTP_ENV = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "30", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2"}
 
@@ -49,40 +46,6 @@ def default_tracking_uri() -> str:
     """$MLFLOW_TRACKING_URI, else the service's embedded store `sqlite:///<cwd>/runs/mlflow.db` (absolute,
     so the same file is found from any process, as the service writes it)."""
     return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{(Path.cwd() / 'runs' / 'mlflow.db').resolve()}"
-
-
-def _redact(uri: str) -> str:
-    return re.sub(r"//[^/@]+@", "//***@", uri)   # never print credentials embedded in a server URI
-
-
-def check_tracking_uri(uri: str, timeout: float = PROBE_TIMEOUT_S) -> None:
-    """ValueError naming the (redacted) URI for a scheme MLflow cannot open, or an http(s) server that
-    does not answer its health check within ``timeout`` seconds."""
-    import urllib.error
-    import urllib.parse
-    import urllib.request
-
-    parsed = urllib.parse.urlparse(uri)
-    scheme = parsed.scheme.split("+")[0].lower()
-    if len(scheme) == 1:  # a Windows drive letter (C:\runs), a plain path to MLflow
-        scheme = ""
-    if scheme not in URI_SCHEMES:
-        raise ValueError(f"tracking URI {_redact(uri)}: unsupported scheme {parsed.scheme!r} (use sqlite:///FILE, "
-                         "http(s)://HOST:PORT, file:///DIR, postgresql://..., mysql://...)")
-    if scheme not in ("http", "https"):
-        return
-    # credentials stay out of the probe URL (urllib cannot parse user:password@host anyway)
-    probe = parsed._replace(netloc=parsed.netloc.rpartition("@")[2], path=parsed.path.rstrip("/") + "/health",
-                            query="", fragment="").geturl()
-    try:
-        with urllib.request.urlopen(probe, timeout=timeout):
-            pass
-    except urllib.error.HTTPError:
-        pass  # something answered (an auth proxy, an older server): MLflow reports what follows
-    except (urllib.error.URLError, OSError, ValueError) as exc:
-        reason = getattr(exc, "reason", None) or exc
-        raise ValueError(f"no MLflow server answers at {_redact(uri)} within {timeout:g} s ({reason}); "
-                         "start one (flashnav services up) or fix --tracking-uri") from None
 
 
 def _cast_param(col: pd.Series) -> pd.Series:
@@ -175,11 +138,12 @@ def _searched(experiment, sweeps) -> str:
 
 
 def load_runs(tracking_uri: str | None = None, experiment: str | list[str] | None = None,
-              sweeps: list[str] | None = None) -> pd.DataFrame:
+              sweeps: list[str] | None = None, invocation: str | None = None) -> pd.DataFrame:
     """Search MLflow for trial runs and normalise them (see normalize_runs).
 
     experiment: name(s) to search (None = all active experiments); sweeps: keep runs whose tag
-    `sweep` is one of these. Uses an MlflowClient for the given URI rather than mlflow.search_runs,
+    `sweep` is one of these; invocation: ``latest`` or a stamp keeps one invocation per sweep
+    (services.report_select; None = every invocation). Uses an MlflowClient for the given URI rather than mlflow.search_runs,
     which reads the process-global tracking URI. Raises NoRunsError naming what was searched.
     """
     from mlflow import MlflowClient
@@ -200,7 +164,7 @@ def load_runs(tracking_uri: str | None = None, experiment: str | list[str] | Non
         missing = [n for n, e in found.items() if e is None]
         if missing:
             names = sorted(e.name for e in client.search_experiments())
-            raise NoRunsError(f"no MLflow experiment named {', '.join(missing)} at {_redact(uri)}; "
+            raise NoRunsError(f"no MLflow experiment named {', '.join(missing)} at {redact_uri(uri)}; "
                               f"experiments there: {', '.join(names) or 'none'}")
         exps = list(found.values())
     else:
@@ -218,10 +182,10 @@ def load_runs(tracking_uri: str | None = None, experiment: str | list[str] | Non
     df = normalize_runs(_runs_to_frame(runs))
     if df.empty:
         found = df.attrs.get("n_runs", 0)
-        raise NoRunsError(f"no trial runs to report at {_redact(uri)} in {_searched(experiments, sweeps)}"
+        raise NoRunsError(f"no trial runs to report at {redact_uri(uri)} in {_searched(experiments, sweeps)}"
                           + (f" ({found} trial runs found, none FINISHED)" if found else ""))
     df["experiment"] = df["experiment_id"].map(names)
-    return df
+    return select_invocation(df, invocation)
 
 
 def curves(tracking_uri: str | None, run_ids) -> pd.DataFrame:
@@ -249,12 +213,13 @@ def provenance(runs: pd.DataFrame, tracking_uri: str = "", experiments=(), sweep
     """What the report was built from: store, selection, run counts, code versions, UTC time."""
     def uniq(col):
         return sorted(str(v) for v in runs[col].dropna().unique()) if col in runs else []
-    return {"tracking_uri": _redact(tracking_uri), "experiments": list(experiments) or uniq("experiment"),
+    return {"tracking_uri": redact_uri(tracking_uri), "experiments": list(experiments) or uniq("experiment"),
             "sweeps": list(sweeps) or uniq("sweep"), "platforms": uniq("device_name"),
             "flashnav_versions": uniq("flashnav_version"), "git_commits": uniq("git_commit"),
             "generated_at": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
             **{k: int(runs.attrs.get(k, len(runs) if k in ("n_runs", "n_finished", "n_trials") else 0))
-               for k in ("n_runs", "n_finished", "n_not_finished", "n_duplicates", "n_trials")}}
+               for k in ("n_runs", "n_finished", "n_not_finished", "n_duplicates", "n_trials")},
+            "warnings": pooling_warnings(runs)}
 
 
 def _markdown(ours, paper, prov, figures, out: Path, steps=None) -> str:
@@ -264,6 +229,7 @@ def _markdown(ours, paper, prov, figures, out: Path, steps=None) -> str:
              f"{', '.join(prov['experiments']) or 'all'}; sweeps: {', '.join(prov['sweeps']) or '—'}; "
              f"{prov['n_runs']} trial runs, {prov['n_not_finished']} not FINISHED and {prov['n_duplicates']} "
              f"duplicates dropped, {prov['n_trials']} trials tabulated.", ""]
+    lines += [f"**Pooled:** {w}" + "  " for w in prov.get("warnings", [])] + [""] * bool(prov.get("warnings"))
     if steps is not None and not steps.empty:
         lines += ["## Environment steps to success threshold", "",
                   "Best / mean environment steps over the seeds that reached the threshold (machine-independent: "
@@ -328,14 +294,19 @@ def build_report(runs: pd.DataFrame, curve_frame: pd.DataFrame | None, out_dir: 
 
 
 def write_report(tracking_uri: str | None, out_dir: str | Path, experiment: str | list[str] | None = None,
-                 sweeps: list[str] | None = None, formats=("md", "tex", "csv", "html")) -> dict:
-    """Load the runs from MLflow, then build_report. Returns {name: Path} of the files written."""
+                 sweeps: list[str] | None = None, formats=("md", "tex", "csv", "html"),
+                 invocation: str | None = None, warn=None) -> dict:
+    """Load the runs from MLflow, then build_report. Returns {name: Path} of the files written; ``warn``
+    (a callable) gets each pooling warning (services.report_select), which the report's header shows too."""
     uri = tracking_uri or default_tracking_uri()
-    runs = load_runs(uri, experiment=experiment, sweeps=sweeps)
+    runs = load_runs(uri, experiment=experiment, sweeps=sweeps, invocation=invocation)
     need_curves = bool({"html", "png", "svg"} & set(formats))
     cf = curves(uri, runs["run_id"].tolist()) if need_curves else None
     exps = [experiment] if isinstance(experiment, str) else list(experiment or [])
-    return build_report(runs, cf, out_dir, formats, provenance(runs, uri, exps, sweeps or []))
+    prov = provenance(runs, uri, exps, sweeps or [])
+    for line in prov["warnings"] if warn else []:
+        warn(line)
+    return build_report(runs, cf, out_dir, formats, prov)
 
 
 def _cli(args) -> int:
@@ -356,7 +327,9 @@ def _cli(args) -> int:
             written.update(write_generalisation(args.generalisation, args.out, formats))
         if not args.generalisation or args.experiment or args.sweeps:  # MLflow runs asked for, or nothing else
             written.update(write_report(uri, args.out, experiment=args.experiment, sweeps=args.sweeps,
-                                        formats=formats))
+                                        formats=formats, invocation=args.invocation,
+                                        warn=lambda line: print(f"flashnav report: warning: {line}",
+                                                                file=sys.stderr)))
     except (NoRunsError, ValueError, MlflowException) as err:
         if getattr(args, "debug", False):
             raise
@@ -379,6 +352,10 @@ def register_cli(subparsers):
     sel.add_argument("--experiment", metavar="NAME", help="MLflow experiment to report (default: all)")
     sel.add_argument("--sweep", metavar="NAME", dest="sweeps", action="extend", nargs="+",
                      help="keep runs tagged sweep=NAME (repeatable)")
+    p.add_argument("--invocation", default=None, metavar="latest|STAMP",
+                   help="one invocation per sweep: the latest, or the stamp of one (a sweep's outputs folder name, "
+                        "e.g. 20261129-231500; its runs' `invocation` tag); default: every invocation, pooled, "
+                        "with a warning")
     p.add_argument("--tracking-uri", default=None, metavar="URI",
                    help="MLflow store (default: $MLFLOW_TRACKING_URI, else sqlite:///<cwd>/runs/mlflow.db)")
     p.add_argument("--out", default="runs/report", metavar="DIR", help="output folder (default: runs/report)")
