@@ -271,6 +271,9 @@ def up(*, mlflow: bool = True, auth: str = "disabled", ray_port: int = 6379, das
         _save_state(state)
         _wait_healthy("ray head", f"{jobs}/api/version", pid, log, timeout)
         echo(f"ray head up: jobs API {jobs}, cluster {HOST}:{ray_port} (pid {pid}, RAY_AUTH_MODE={auth})")
+        if auth == "disabled":
+            echo("note: Ray's internal ports (GCS, raylet, agents) listen on every interface and token auth is off: "
+                 "on a network others can reach, firewall them or use --auth token")
     return state
 
 
