@@ -15,5 +15,5 @@ stop=()
 if ! (command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1); then
   stop=(budget.stop_at_success=0.95)
 fi
-.venv/bin/flashnav train --out "$out" "${stop[@]}"
+.venv/bin/flashnav train --out "$out" --overwrite "${stop[@]}"   # each run of the job replaces the last
 exec .venv/bin/flashnav eval "$out/policy.pt" --episodes 1024 --seed 2026 --json "$out/eval.json"

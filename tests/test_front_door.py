@@ -54,6 +54,18 @@ def test_train_out_is_an_existing_file(tmp_path, capsys):
     assert line.startswith("flashnav train: error: --out ") and "is a file, not a folder" in line
 
 
+def test_train_refuses_a_folder_that_holds_a_run_unless_told(run_dir, tmp_path, capsys):
+    """A finished run is never replaced by accident (it once was: a one-step run overwrote its policy)."""
+    before = {p.name: p.read_bytes() for p in run_dir.iterdir()}
+    line = fails(capsys, "train", "--out", str(run_dir), "budget.max_env_steps=1")
+    assert f"--out {run_dir}: holds a run already (checkpoint.pt, policy.json, policy.onnx, policy.pt)" in line
+    assert "--overwrite" in line
+    assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before
+    (tmp_path / "notes").mkdir()  # a folder of other files is fine
+    (tmp_path / "notes" / "README.txt").write_text("x")
+    assert "holds a run" not in fails(capsys, "train", "--out", str(tmp_path / "notes"), "--device", "tpu9")
+
+
 @pytest.mark.parametrize("argv, named", [
     (["--device", "tpu9"], "device 'tpu9' is not one of auto, cpu, cuda, cuda:N"),
     (["algo.batch_size=[1"], "override 'algo.batch_size=[1': the value is not valid YAML"),

@@ -58,9 +58,10 @@ def test_a_failed_train_command_leaves_its_last_snapshot(tmp_path, monkeypatch, 
     assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt", "config.yaml", "metrics.json", "policy.json",
                                                      "policy.onnx", "policy.pt"]  # no .saving-* left behind
     assert cli_main(["eval", str(out / "policy.onnx"), "--episodes", "4"]) == 0
-    # the finished run replaces the snapshot
+    # the snapshot is a run: kept unless told (--overwrite); the finished run then replaces it
     monkeypatch.undo()
-    assert cli_main(args) == 0
+    assert cli_main(args) == 2 and "holds a run already" in capsys.readouterr().err
+    assert cli_main(args + ["--overwrite"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["stop_reason"] == "budget_env_steps" and metrics["env_steps"] == 320
 

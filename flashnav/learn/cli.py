@@ -18,11 +18,16 @@ from flashnav.names import ALGORITHMS, RECIPE_CHOICES, RECIPE_HELP, THRESHOLDS
 from flashnav.spec import TrainConfig, config_from_cli, resolve
 from flashnav.yamlio import dump_yaml
 
+#: what a run folder holds (``flashnav train --out``): the run's request and resolved config, its curve and
+#: outcome, the learner state, the best policy exported (TorchScript, ONNX) and the policy's metadata
+RUN_FILES = ("config.yaml", "metrics.json", "checkpoint.pt", "policy.pt", "policy.onnx", "policy.json")
+
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train a navigation policy (FastDSAC on TurtleBot2 by default)",
                        description="Train a policy; writes config.yaml, metrics.json, checkpoint.pt, "
-                                   "policy.pt (TorchScript) and policy.onnx to --out.")
+                                   "policy.pt (TorchScript), policy.onnx and policy.json (the policy's metadata: "
+                                   "robot, sensor layout, observation) to --out.")
     p.add_argument("--robot", help="turtlebot2 (default), go2, or a preset YAML")
     p.add_argument("--algo", dest="algorithm", choices=ALGORITHMS, help="learner (default fastdsac)")
     p.add_argument("--recipe", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
@@ -42,6 +47,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "not its replay); its network shapes must match this run's")
     p.add_argument("--seed", type=int, help="training seed (default 0)")
     p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="let --out be a folder that already holds a run (its files are replaced); without it such "
+                        "a folder is refused before training starts")
     p.add_argument("--config", help="a TrainConfig YAML; flags and overrides apply on top")
     p.add_argument("--save-every", dest="save_every", type=float, default=600.0, metavar="SECONDS",
                    help="write the run so far (checkpoint.pt, the best policy, metrics.json with stop_reason "
@@ -79,6 +87,10 @@ def run_train(args) -> int:
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = check_output_dir(args.out or f"runs/train/{spec.robot_name}-{config.algorithm}-s{config.seed}-{stamp}",
                            "--out")
+    held = sorted(name for name in RUN_FILES if (out / name).exists())
+    if held and not args.overwrite:
+        raise ValueError(f"--out {out}: holds a run already ({', '.join(held)}); give a new folder, or --overwrite "
+                         "to replace it")
     console.print(f"[bold]flashnav train[/] {spec.robot_name} / {config.algorithm} ({spec.recipe} recipe, "
                   f"{spec.device}), seed {config.seed} -> {out}")
     if spec.init is not None:
@@ -172,4 +184,4 @@ def _summary(console: Console, result, out: Path) -> None:
                   f"{result.env_steps:,} env steps in {result.train_seconds:.1f} s of training")
     console.print(f"exported policy: the best evaluation ({result.best_success_rate:.1%} success); "
                   f"checkpoint.pt holds the final learner state")
-    console.print(f"artefacts in {out}: config.yaml metrics.json checkpoint.pt policy.pt policy.onnx")
+    console.print(f"artefacts in {out}: {' '.join(RUN_FILES)}")
