@@ -26,8 +26,8 @@ RUN_FILES = ("config.yaml", "metrics.json", "checkpoint.pt", "policy.pt", "polic
 def register_cli(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train a navigation policy (FastDSAC on TurtleBot2 by default)",
                        description="Train a policy; writes config.yaml, metrics.json, checkpoint.pt, "
-                                   "policy.pt (TorchScript), policy.onnx and policy.json (the policy's metadata: "
-                                   "robot, sensor layout, observation) to --out.")
+                                   "policy.pt (TorchScript), policy.onnx and policy.json (a readable copy of the "
+                                   "metadata both policy files embed: robot, sensor layout, observation) to --out.")
     p.add_argument("--robot", help="turtlebot2 (default), go2, or a preset YAML")
     p.add_argument("--algo", dest="algorithm", choices=ALGORITHMS, help="learner (default fastdsac)")
     p.add_argument("--recipe", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
