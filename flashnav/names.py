@@ -64,6 +64,20 @@ THRESHOLDS = (0.9, 0.95, 1.0)
 THRESHOLD_TAGS = ("90", "95", "100")
 
 
+def seed_arg(text: str) -> int:
+    """The argparse type of every ``--seed``: a whole number >= 0 (numpy's generators refuse a negative one,
+    which failed deep in a run with "expected non-negative integer")."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
 def check_name(kind: str, value: str, allowed: tuple[str, ...]) -> str:
     """``value`` if it is one of ``allowed``, else a ValueError naming ``kind`` and the choices."""
     if value not in allowed:

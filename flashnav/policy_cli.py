@@ -11,7 +11,7 @@ import math
 import time
 from pathlib import Path
 
-from flashnav.names import GOAL_SAMPLINGS
+from flashnav.names import GOAL_SAMPLINGS, seed_arg
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -93,7 +93,7 @@ def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
                    help="turtlebot2, go2 or a preset YAML (default: the robot recorded in the policy)")
     p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
     p.add_argument("--episodes", type=int, default=episodes, help="episodes, run in parallel (one per env)")
-    p.add_argument("--seed", type=int, default=12345, help="start/goal sampling seed")
+    p.add_argument("--seed", type=seed_arg, default=12345, help="start/goal sampling seed")
     p.add_argument("overrides", nargs="*", metavar="robot.KEY=VALUE",
                    help="change the simulated robot the policy is played on, as flashnav train's robot.* "
                         "overrides, e.g. robot.lidar.noise_std=0.03 robot.lidar.dropout=0.05 (a robustness "
@@ -318,11 +318,15 @@ def run_render(args) -> int:
     from flashnav.rollout import agent_tracks, rollout, took_over_points, write_gif
     from flashnav.viz import draw_trajectories
 
-    check_output_file(args.out, "--out")
+    out_png = Path(args.out) if Path(args.out).suffix else Path(args.out).with_suffix(".png")  # what is written
+    check_output_file(out_png, "--out")
     agent_overrides(args)  # --agents without --scenario: an error before any work
     _check_shield(args)
     if args.gif:
-        check_output_file(Path(args.out).with_suffix(".gif"), "--gif")
+        if out_png.suffix.lower() == ".gif":
+            raise ValueError(f"--out {args.out}: names the trajectories picture, and --gif writes the animation beside "
+                             f"it as {out_png.name}: give --out {out_png.with_suffix('.png')}")
+        check_output_file(out_png.with_suffix(".gif"), "--gif")
     if args.scenario is None:
         policy, meta, env = load_policy_and_env(args)
     else:  # only the scenario's env is built
@@ -337,10 +341,10 @@ def run_render(args) -> int:
     title = (f"{env.preset.name} / {_map_label(args, env.preset)}: {Path(args.policy).name}"
              f"{'' if shield is None else f' behind a {args.shield:g}-s shield'}{overrides_label(args)}, "
              f"{counts['success']}/{env.num_envs} reached, {counts['collision']} collided")
-    out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, args.out, title=title, agents=tracks,
+    out = draw_trajectories(env.frame_map, paths, result["goals"], outcomes, out_png, title=title, agents=tracks,
                             shielded=None if shield is None else took_over_points(result))
     print(f"{counts} over {env.num_envs} episodes; trajectories: {out}")
     if args.gif:
-        gif = write_gif(env.frame_map, result, env.preset.footprint.circumscribed_radius, Path(args.out).with_suffix(".gif"))
+        gif = write_gif(env.frame_map, result, env.preset.footprint.circumscribed_radius, out_png.with_suffix(".gif"))
         print(f"animation: {gif}")
     return 0

@@ -49,7 +49,7 @@ class EvalSettings(KnownKeys):
 
     episodes: int = Field(1024, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
     every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
-    seed: int = Field(12345, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
+    seed: int = Field(12345, ge=0, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
     maps: str | list[str] | None = Field(
         None, description="evaluate on other maps than the training maps (None): a directory, glob or list of ROS map "
                           "YAML files, or 'validation' (generated, seeds from 800000; flashnav/maps/validation.py), "
@@ -72,7 +72,7 @@ class TrainConfig(KnownKeys):
     algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
     recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
         "auto", description="hyperparameter recipe: " + RECIPE_HELP)
-    seed: int = Field(0, description="training seed")
+    seed: int = Field(0, ge=0, description="training seed")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
     map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")
     maps: str | list[str] | GeneratedMaps | None = Field(

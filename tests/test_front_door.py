@@ -198,3 +198,21 @@ def test_sweep_with_a_duplicate_key(tmp_path, capsys):
     assert main(["sweep", "run", str(path), "--dry-run"]) == 2
     err = capsys.readouterr().err
     assert "duplicate key 'seeds' at line 5 (first at line 4)" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv", [["train"], ["eval", "policy.onnx"], ["render", "policy.onnx", "--out", "x.png"],
+                                  ["demo"], ["bench", "eval", "policy.onnx"]])
+def test_a_negative_seed_is_refused_up_front(argv, capsys):
+    """numpy's generators refuse a negative seed: it failed deep in a training run, after the header."""
+    with pytest.raises(SystemExit) as exit_info:
+        main([*argv, "--seed", "-1"])
+    assert exit_info.value.code == 2
+    assert "argument --seed: must be >= 0, got -1" in capsys.readouterr().err
+
+
+def test_render_writes_what_it_says_and_never_a_gif_over_its_picture(run_dir, tmp_path, capsys):
+    line = fails(capsys, "render", str(run_dir / "policy.pt"), "--out", str(tmp_path / "x.gif"), "--gif")
+    assert "--gif writes the animation beside it as x.gif: give --out" in line and "x.png" in line
+    assert main(["render", str(run_dir / "policy.pt"), "--out", str(tmp_path / "noext"), "--episodes", "2"]) == 0
+    assert f"trajectories: {tmp_path / 'noext.png'}" in capsys.readouterr().out
+    assert (tmp_path / "noext.png").is_file()

@@ -14,6 +14,8 @@ import time
 from rich.console import Console
 from rich.table import Table
 
+from flashnav.names import seed_arg
+
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("eval", help="evaluation wall time: compact (only running episodes) vs dense (every slot)")
@@ -21,7 +23,7 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--robot", default=None, help="default: the robot recorded in the policy")
     p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
     p.add_argument("--episodes", type=int, default=1024, help="episodes, run in parallel (one per env)")
-    p.add_argument("--seed", type=int, default=12345, help="start/goal sampling seed")
+    p.add_argument("--seed", type=seed_arg, default=12345, help="start/goal sampling seed")
     p.add_argument("--device", default="cpu", help="simulator device")
     p.add_argument("--repeats", type=int, default=3, help="timed evaluations per way, interleaved")
     p.set_defaults(func=run_bench_eval)

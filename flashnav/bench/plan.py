@@ -17,6 +17,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from flashnav.names import seed_arg
+
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("plan", help="one mapless-planner replan on a map: scipy graph + Dijkstra vs the numba grid Dijkstra")
@@ -24,7 +26,7 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--radius", type=float, default=0.28, help="metres kept from every wall (TurtleBot2 + margin)")
     p.add_argument("--goals", type=int, default=8, help="goals, random free cells (seeded)")
     p.add_argument("--repeats", type=int, default=3, help="timed rounds over the goals, the two ways interleaved")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_arg, default=0)
     p.set_defaults(func=run_bench_plan)
 
 

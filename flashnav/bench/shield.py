@@ -17,6 +17,8 @@ import time
 from rich.console import Console
 from rich.table import Table
 
+from flashnav.names import seed_arg
+
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("shield", help="the people shield's cost in a scenario evaluation, x the policy alone")
@@ -24,7 +26,7 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--robot", default=None, help="default: the robot recorded in the policy")
     p.add_argument("--scenario", default="wander-8", help="a scenario with agents (flashnav eval --scenario)")
     p.add_argument("--episodes", type=int, default=512, help="episodes, run in parallel (one per env)")
-    p.add_argument("--seed", type=int, default=2026, help="the scenario seed (flashnav eval --seed)")
+    p.add_argument("--seed", type=seed_arg, default=2026, help="the scenario seed (flashnav eval --seed)")
     p.add_argument("--lookahead", type=float, default=2.0, help="the shield's look-ahead, s (flashnav eval --shield)")
     p.add_argument("--repeats", type=int, default=2, help="timed evaluations per way, interleaved")
     p.add_argument("--device", default="cpu", help="simulator and shield device (cpu, cuda, cuda:N, auto); ONNX "

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.table import Table
 
 from flashnav.learn.progress import TrainProgress
-from flashnav.names import ALGORITHMS, RECIPE_CHOICES, RECIPE_HELP, THRESHOLDS
+from flashnav.names import ALGORITHMS, RECIPE_CHOICES, RECIPE_HELP, THRESHOLDS, seed_arg
 from flashnav.spec import TrainConfig, config_from_cli, resolve
 from flashnav.yamlio import dump_yaml
 
@@ -45,7 +45,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--init-from", dest="init_from", metavar="RUN_DIR_OR_CHECKPOINT",
                    help="fine-tune: start from a trained run's learner (weights, optimiser state, temperature; "
                         "not its replay); its network shapes must match this run's")
-    p.add_argument("--seed", type=int, help="training seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, help="training seed (default 0)")
     p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
     p.add_argument("--overwrite", action="store_true",
                    help="let --out be a folder that already holds a run (its files are replaced); without it such "

@@ -21,6 +21,7 @@ from pathlib import Path
 from flashnav.maps.clutter import BORDER_M, connect_free_space, generate_map  # noqa: F401 (the API of old)
 from flashnav.maps.clutter import border_cells
 from flashnav.maps.grid import OccupancyMap
+from flashnav.names import seed_arg
 
 
 # ---- command line ----------------------------------------------------------------------------------
@@ -38,7 +39,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--height", type=float, help="map height, metres (with --family: drawn if omitted)")
     p.add_argument("--resolution", type=float,
                    help="metres per cell (default 0.05; with --family: drawn in 0.025-0.1 m if omitted)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     p.add_argument("--robot-radius", type=float, default=0.3,
                    help="radius of the disc every passage must fit, metres: circumscribed radius + clearance")
     p.add_argument("--density", type=float, default=0.16, help="target occupied fraction of the interior")
