@@ -288,7 +288,8 @@ def recorded_robot(meta: dict[str, Any]) -> "str | RobotPreset":
 
 def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
                 device: torch.device | str = "cpu") -> tuple[Callable[[torch.Tensor], torch.Tensor], dict[str, Any]]:
-    """Load ``policy.pt`` (TorchScript) or ``policy.onnx`` (onnxruntime, CPU).
+    """Load ``policy.pt`` (TorchScript) or ``policy.onnx`` (onnxruntime, CPU); a run folder gives its ``policy.pt``
+    (else its ``policy.onnx``).
 
     Returns ``(policy, metadata)``: ``policy(obs [N, D] float32 tensor) -> action [N, 2]`` float32 in
     [-1, 1] on ``obs.device``; ``metadata`` is the JSON written by :func:`export_policy` (``robot``,
@@ -301,6 +302,12 @@ def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
             mismatch (with ``robot`` at load time, with the observation at call time).
     """
     path = Path(path)
+    if path.is_dir():  # a `flashnav train` run folder: its best policy, TorchScript first
+        found = [path / name for name in ("policy.pt", "policy.onnx") if (path / name).is_file()]
+        if not found:
+            raise FileNotFoundError(f"{path}: a folder without policy.pt or policy.onnx (give a flashnav train run "
+                                    "folder or a policy file)")
+        path = found[0]
     if path.suffix not in (".pt", ".onnx"):
         raise ValueError(f"{path}: unknown policy format {path.suffix!r}; expected policy.pt (TorchScript) or policy.onnx")
     if not path.is_file():

@@ -216,3 +216,16 @@ def test_render_writes_what_it_says_and_never_a_gif_over_its_picture(run_dir, tm
     assert main(["render", str(run_dir / "policy.pt"), "--out", str(tmp_path / "noext"), "--episodes", "2"]) == 0
     assert f"trajectories: {tmp_path / 'noext.png'}" in capsys.readouterr().out
     assert (tmp_path / "noext.png").is_file()
+
+
+def test_init_from_an_exported_policy_says_what_to_give(run_dir, capsys):
+    for name in ("policy.pt", "policy.onnx"):
+        line = fails(capsys, "train", "--init-from", str(run_dir / name))
+        assert "an exported policy, which holds the actor only" in line and "give its run folder or its checkpoint.pt" in line
+
+
+def test_eval_takes_a_run_folder(run_dir, tmp_path, capsys):
+    assert main(["eval", str(run_dir), "--episodes", "4", "--json", str(tmp_path / "e.json")]) == 0
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert "a folder without policy.pt or policy.onnx" in fails(capsys, "eval", str(empty))
