@@ -115,3 +115,21 @@ def test_controller_safety_states():
     assert ctl.shutdown().state == "stopped"
     ctl.on_goal(0.0, 5.0, now=0.9)
     assert ctl.state == "stopped"  # nothing after shutdown
+
+
+def test_no_ros_master_is_named_with_its_uri(monkeypatch):
+    """rospy without a master fails as "Failed to initialize time" or a bare "Connection refused"."""
+    import socket
+
+    from flashnav.deploy.ros1 import RosUnavailable, check_master
+
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        port = listener.getsockname()[1]
+        monkeypatch.setenv("ROS_MASTER_URI", f"http://127.0.0.1:{port}")
+        check_master()  # something answers: no error
+    monkeypatch.setenv("ROS_MASTER_URI", f"http://127.0.0.1:{port}")  # closed now
+    with pytest.raises(RosUnavailable, match=f"no ROS master answers at http://127.0.0.1:{port} .ROS_MASTER_URI; "
+                                             ".*start roscore"):
+        check_master()

@@ -61,6 +61,22 @@ def import_rospy():
                              f"{' '.join(ROS_APT_PACKAGES)} (scripts/bootstrap.sh does this as root)") from None
 
 
+def check_master(timeout: float = 3.0) -> None:
+    """RosUnavailable unless something accepts connections at $ROS_MASTER_URI (rospy's own failure without a
+    master is "Failed to initialize time" or a bare "Connection refused")."""
+    import socket
+    import urllib.parse
+
+    uri = os.environ.get("ROS_MASTER_URI", "http://localhost:11311")
+    parsed = urllib.parse.urlparse(uri)
+    try:
+        with socket.create_connection((parsed.hostname or "localhost", parsed.port or 11311), timeout=timeout):
+            pass
+    except (OSError, ValueError) as exc:
+        raise RosUnavailable(f"no ROS master answers at {uri} (ROS_MASTER_URI; {getattr(exc, 'strerror', None) or exc}): "
+                             "start roscore, or point ROS_MASTER_URI at the robot's master") from None
+
+
 def scan_args(msg) -> tuple:
     """LaserScan -> (angle_min, angle_increment, ranges, range_min, range_max) for the runtime."""
     return msg.angle_min, msg.angle_increment, msg.ranges, msg.range_min, msg.range_max
@@ -88,6 +104,7 @@ class DeployNode:
     def __init__(self, controller: Controller, *, scan: str, odom: str, goal: str, cmd: str, status: str,
                  people: str = "/people", name: str = "flashnav_deploy"):
         self.rospy = rospy = import_rospy()
+        check_master()
         from geometry_msgs.msg import PoseStamped, Twist
         from nav_msgs.msg import Odometry
         from sensor_msgs.msg import LaserScan

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from flashnav.deploy.ros1 import import_rospy
+from flashnav.deploy.ros1 import check_master, import_rospy
 from flashnav.deploy.scan import simulator_scan_fields
 
 
@@ -77,6 +77,7 @@ class SimRobot:
         self.scan_on, self.scan_off_wall, self.scan_off_t = True, None, None
         self.stop_wall = self.stop_t = None
         self.last_scan_wall = self.command_at_scan_off = None
+        check_master()
         if not real_time:
             rospy.set_param("/use_sim_time", True)
         rospy.init_node("flashnav_sim_robot", disable_signals=True)
