@@ -128,6 +128,22 @@ def test_command_line_writes_a_ros_map(tmp_path, capsys):
     assert loaded.name == "gen"
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["--width", "-8", "--height", "6", "--out", "neg.yaml"], "width_m must be a positive number of metres, got -8.0"),
+    (["--width", "8", "--height", "6", "--out", "c"], "--out c: the map's YAML file (NAME.yaml"),
+    (["--family", "rooms", "--width", "-3", "--height", "5", "--out", "fam"], "width must be a positive number"),
+])
+def test_command_line_errors_are_one_line(argv, said, tmp_path, monkeypatch, capsys):
+    """Generator errors once ended in a traceback (exit 1), and an --out without .yaml wrote a map file that
+    `--maps DIR` then ignored."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and said in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("name", ["turtlebot2", "go2"])
 def test_bundled_map_comment_reproduces_it(name):
     """The command in the YAML's comment regenerates the bundled map bit for bit. If the generator

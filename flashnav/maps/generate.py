@@ -48,11 +48,20 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", type=Path, required=True,
                    help="output YAML path, the image next to it (with --family: a directory)")
     a = p.parse_args(argv)
+    try:
+        _generate(p, a, MAP_FAMILIES)
+    except ValueError as exc:  # a size, resolution or radius the generator cannot use: one line, exit 2
+        p.error(str(exc))
+
+
+def _generate(p: argparse.ArgumentParser, a: argparse.Namespace, families: tuple[str, ...]) -> None:
     if a.family:
-        _write_families(p, a, MAP_FAMILIES)
+        _write_families(p, a, families)
         return
     if a.width is None or a.height is None:
         p.error("--width and --height are required without --family")
+    if a.out.suffix not in (".yaml", ".yml"):
+        p.error(f"--out {a.out}: the map's YAML file (NAME.yaml; the image is written beside it)")
     a.resolution = 0.05 if a.resolution is None else a.resolution
     grid = generate_map(a.width, a.height, a.resolution, a.seed, robot_radius=a.robot_radius,
                         density=a.density, margin=a.margin, name=a.out.stem)
@@ -96,7 +105,6 @@ def _write_families(p: argparse.ArgumentParser, a: argparse.Namespace, known: tu
         p.error("give both --width and --height, or neither")
     if a.out.suffix in (".yaml", ".yml"):
         p.error(f"--out {a.out}: with --family, --out is a directory")
-    a.out.mkdir(parents=True, exist_ok=True)
     size = None if a.width is None else (a.width, a.height)
     sheet: dict[str, list[OccupancyMap]] = {}
     for family in families:
@@ -110,6 +118,7 @@ def _write_families(p: argparse.ArgumentParser, a: argparse.Namespace, known: tu
                 args += ["--resolution", f"{a.resolution:g}"]
             args += ["--robot-radius", f"{a.robot_radius:g}", "--margin", f"{a.margin:g}", "--format", a.format,
                      "--out", str(a.out)]
+            a.out.mkdir(parents=True, exist_ok=True)  # once a map is made: a bad size leaves no folder
             _save(grid, a.out / f"{grid.name}.yaml", a.format, a.robot_radius, shlex.join(args),
                   f"{grid.width_m:g} x {grid.height_m:g} m at {grid.resolution:g} m; occupied {grid.occupied.mean():.1%}")
             sheet.setdefault(family, []).append(grid)
