@@ -26,7 +26,7 @@ from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
 from flashnav.machine import check_device_name, resolve_cuda_graph, resolve_device, resolve_overlap, resolve_precision
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
-from flashnav.maps.validation import check_eval_maps_value, load_eval_maps
+from flashnav.maps.validation import check_eval_maps_value, check_not_benchmark, load_eval_maps
 from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, RECIPE_HELP, ROBOTS,
                             check_robot)
 from flashnav.presets import load_robot, with_recipe_setup
@@ -337,12 +337,13 @@ def _load_maps(config: TrainConfig, robot: RobotPreset) -> tuple[OccupancyMap, t
     ``(the first, all of them)`` for ``maps`` (files, a list, or generated maps' set 0)."""
     from flashnav.maps.bundled import resolve_map, resolve_maps
 
-    if config.maps is None:
+    if config.maps is None:  # one map: a benchmark map is allowed (fine-tuning on one building, issue 15)
         return resolve_map(config.map, robot.map), None
     if isinstance(config.maps, GeneratedMaps):
         grids = generate_set(config.maps, 0, generation_radius(robot))
     else:
         grids = tuple(resolve_maps(config.maps, robot.map))
+        check_not_benchmark(list(grids), "maps")  # a generalist trained on the benchmark would measure nothing
     return grids[0], grids
 
 

@@ -161,6 +161,17 @@ def test_held_out_maps_are_refused_by_path_and_by_seed(tmp_path):
     assert [g.name for g in spec.eval_env_maps()] == ["rooms_800003"]
 
 
+def test_training_over_the_benchmark_suites_is_refused_one_map_is_not():
+    """A generalist trained on the benchmark maps would measure nothing held-out (it once trained without a
+    word); fine-tuning on one building of a suite is issue 15's measurement and stays allowed."""
+    for suite in ("heldout", "real"):
+        with pytest.raises(ValueError, match=rf"^maps: .*'{suite}' benchmark suite, kept for the final measurement; "
+                                             "train on generated maps"):
+            resolve(tiny(maps=str(benchmark_dir() / suite)))
+    one = benchmark_dir() / "heldout" / "rooms_900003.yaml"
+    assert resolve(tiny(map=str(one))).env_maps().name == "rooms_900003"
+
+
 def test_a_bad_path_is_named(tmp_path):
     for value in (str(tmp_path / "nowhere" / "*.yaml"), str(tmp_path / "missing.yaml"), "no_such_map"):
         with pytest.raises(ValueError, match=r"eval\.maps") as info:

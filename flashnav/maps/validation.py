@@ -87,17 +87,19 @@ def _benchmark_suite_of(path: Path) -> str | None:
     return rel.parts[0] if rel.parts and rel.parts[0] in BENCHMARK_SUITES else None
 
 
-def check_not_benchmark(grids: list[OccupancyMap]) -> None:
-    """A ValueError naming ``eval.maps`` and the map when one of ``grids`` is a benchmark suite's map or
-    a generated map with a held-out seed."""
+def check_not_benchmark(grids: list[OccupancyMap], key: str = "eval.maps") -> None:
+    """A ValueError naming ``key`` (``eval.maps``, or the training ``maps``) and the map when one of
+    ``grids`` is a benchmark suite's map or a generated map with a held-out seed."""
+    instead = ("evaluate during training on 'validation' or on maps of your own" if key == "eval.maps" else
+               "train on generated maps (family:...) or on maps of your own")
     for g in grids:
         suite = _benchmark_suite_of(Path(g.source)) if g.source else None
         if suite is not None:
-            raise ValueError(f"eval.maps: {g.source} is a map of the {suite!r} benchmark suite, kept for the final "
-                             "measurement; evaluate during training on 'validation' or on maps of your own")
+            raise ValueError(f"{key}: {g.source} is a map of the {suite!r} benchmark suite, kept for the final "
+                             f"measurement; {instead}")
         match = _GENERATED_NAME.fullmatch(g.name)
         if match and int(match.group(2)) >= HELDOUT_SEEDS_FROM:
-            raise ValueError(f"eval.maps: map {g.name!r} ({g.source or 'no file'}) has a held-out seed "
+            raise ValueError(f"{key}: map {g.name!r} ({g.source or 'no file'}) has a held-out seed "
                              f"(>= {HELDOUT_SEEDS_FROM}), kept for the final measurement; validation maps take "
                              f"seeds {VALIDATION_SEEDS[0]}-{VALIDATION_SEEDS[1]}")
 
