@@ -22,7 +22,7 @@ from pydantic import Field, ValidationError, ValidationInfo, field_validator, mo
 
 from flashnav.config import KnownKeys, RobotPreset, error_lines
 from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
-from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams
+from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams, override_section
 from flashnav.machine import check_device_name, resolve_cuda_graph, resolve_device, resolve_overlap, resolve_precision
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
@@ -179,12 +179,18 @@ def apply_override(data: dict[str, Any], key: str, value: Any) -> None:
             raise ValueError(f"overrides must be a mapping of dotted keys, got {overrides!r}")
         overrides[key] = value
     else:
+        section = (head := key.split(".")[0]) not in TrainConfig.model_fields and override_section(head)  # lidar.x=1
+        if section:
+            raise ValueError(f"override {key!r}: not a training-config key; did you mean {section}.{key}?")
         set_dotted(data, key, value, known=TrainConfig, create=True,
                    other_sections=tuple(p.rstrip(".") for p in OVERRIDE_PREFIXES))
 
 
 def config_from_data(data: dict[str, Any], source: str = "config") -> TrainConfig:
     """Validate raw data as a TrainConfig; a ValueError lists every problem with its key path."""
+    if isinstance(data.get("algo"), dict):  # a section a config file cannot have: where its keys go instead
+        raise ValueError(f"{source}: algo: not a section here; hyperparameters go under overrides as dotted keys: "
+                         f"overrides: {{algo.{next(iter(data['algo']), 'batch_size')}: ...}}")
     try:
         return TrainConfig.model_validate(data)
     except ValidationError as exc:
@@ -193,9 +199,11 @@ def config_from_data(data: dict[str, Any], source: str = "config") -> TrainConfi
 
 def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None = None,
                     assignments: list[str] | tuple[str, ...] = ()) -> TrainConfig:
-    """A TrainConfig from a YAML file (optional), then flags (``None`` = not given), then ``key=value``
-    assignments, each later source winning. The one path of ``flashnav train`` and ``bench train``."""
+    """A TrainConfig from a YAML file (optional; a run's ``config.yaml`` gives its request), then flags (None = not
+    given), then ``key=value`` assignments, each later winning. The path of ``flashnav train`` and ``bench train``."""
     data = _mapping(load_yaml(config_file), config_file) if config_file else {}
+    if {"hparams", "robot_preset"} <= data.keys():  # a run's config.yaml: its request (the rest is resolved again)
+        data = {key: value for key, value in data.items() if key in TrainConfig.model_fields}
     for name, value in (flags or {}).items():
         if value is not None:
             data[name] = value

@@ -229,3 +229,34 @@ def test_eval_takes_a_run_folder(run_dir, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
     assert "a folder without policy.pt or policy.onnx" in fails(capsys, "eval", str(empty))
+
+
+def test_a_runs_config_yaml_is_a_config_and_drift_is_named(tmp_path):
+    """`--config RUN/config.yaml` re-runs a run (it once failed: "hparams: unknown key"); where the recipe
+    changed since, the train command says which values differ."""
+    from flashnav.learn.cli import recorded_drift
+    from flashnav.spec import config_from_cli, resolve
+    from flashnav.yamlio import dump_yaml
+
+    spec = resolve(config_from_cli(None, {"recipe": "cpu", "device": "cpu", "seed": 3},
+                                   ["algo.batch_size=256", "budget.max_train_seconds=5"]))
+    path = tmp_path / "config.yaml"
+    dump_yaml(spec.to_dict(), path)
+    again = resolve(config_from_cli(str(path)))
+    assert again.to_dict() == spec.to_dict() and recorded_drift(str(path), again) == []
+    recorded = spec.to_dict()
+    recorded["hparams"]["gamma"] = 0.5
+    dump_yaml(recorded, path)
+    (line,) = recorded_drift(str(path), resolve(config_from_cli(str(path))))
+    assert "recorded other hparams than its request gives today (1): gamma 0.5 -> " in line
+    assert recorded_drift(None, spec) == []
+
+
+def test_a_key_without_its_section_is_pointed_to_it(tmp_path, capsys):
+    assert "override 'batch_size': not a training-config key; did you mean algo.batch_size?" in fails(
+        capsys, "train", "batch_size=512", "--out", str(tmp_path / "r"))
+    assert "did you mean robot.lidar.noise_std?" in fails(capsys, "train", "lidar.noise_std=0.1", "--out", str(tmp_path / "r"))
+    config = tmp_path / "c.yaml"
+    config.write_text("algo:\n  gamma: 0.99\n")
+    assert "algo: not a section here; hyperparameters go under overrides as dotted keys: overrides: {algo.gamma: ...}" \
+        in fails(capsys, "train", "--config", str(config), "--out", str(tmp_path / "r"))

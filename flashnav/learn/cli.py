@@ -93,6 +93,8 @@ def run_train(args) -> int:
                          "to replace it")
     console.print(f"[bold]flashnav train[/] {spec.robot_name} / {config.algorithm} ({spec.recipe} recipe, "
                   f"{spec.device}), seed {config.seed} -> {out}")
+    for line in recorded_drift(args.config, spec):
+        console.print(f"[yellow]note[/]: {line}", soft_wrap=True)
     if spec.init is not None:
         run = spec.init.run
         console.print(f"fine-tuning from {spec.init.path} (seed {run['seed']}, {run['recipe']} recipe, saved "
@@ -124,6 +126,35 @@ def run_train(args) -> int:
     _write_artefacts(result, out)  # the folder only now (or at the first snapshot): a failed start leaves none
     _summary(console, result, out)
     return 0
+
+
+def recorded_drift(config_file: str | None, spec) -> list[str]:
+    """Where a run's ``config.yaml`` given to ``--config`` recorded other hyperparameters or another robot than
+    its request resolves to today (a recipe or preset changed since): one line per section, the first keys."""
+    from flashnav.yamlio import load_yaml
+
+    recorded = load_yaml(config_file) if config_file else None
+    if not isinstance(recorded, dict) or not {"hparams", "robot_preset"} <= recorded.keys():
+        return []
+    now, lines = spec.to_dict(), []
+    for section in ("hparams", "robot_preset"):
+        then, today = _flat(recorded[section]), _flat(now[section])
+        changed = [f"{key} {then.get(key)!r} -> {today.get(key)!r}" for key in sorted(then.keys() | today.keys())
+                   if then.get(key) != today.get(key)]
+        if changed:
+            lines.append(f"{config_file} recorded other {section} than its request gives today ({len(changed)}): "
+                         + "; ".join(changed[:4]) + (" ..." if len(changed) > 4 else ""))
+    return lines
+
+
+def _flat(data: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 @contextlib.contextmanager

@@ -155,6 +155,16 @@ MODELS: dict[str, type[LearnerHParams]] = {
 AnyHParams = FastDSACHParams | FastSACHParams | FastTD3HParams
 
 
+def override_section(key: str) -> str | None:
+    """``algo`` or ``robot`` where ``key`` names a learner hyperparameter or a robot preset section, else None
+    (the hint for an override written without its section: ``batch_size=512``)."""
+    from flashnav.config import RobotPreset
+
+    if any(key in model.model_fields for model in MODELS.values()):
+        return "algo"
+    return "robot" if key in RobotPreset.model_fields else None
+
+
 def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
                  overrides: dict[str, Any] | None = None) -> AnyHParams:
     """Validated hyperparameters for ``algorithm`` / ``robot`` / ``recipe`` with dotted-key overrides.
