@@ -40,11 +40,28 @@ class Strict(KnownKeys):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+_TYPE_TAGS = {"str", "int", "float", "bool", "dict", "list", "none", "tuple"}
+
+
+def _is_union_tag(part: str) -> bool:
+    """A union member's tag in a pydantic error path (``str``, ``list[str]``, ``GeneratedMaps``), not a key."""
+    return part in _TYPE_TAGS or "[" in part or part[:1].isupper()
+
+
 def error_lines(exc: ValidationError) -> list[str]:
-    """One ``key.path: message`` per problem of a pydantic error (an unknown key's name included)."""
+    """One ``key.path: message`` per problem of a pydantic error (an unknown key's name included). Where a
+    value failed every member of a union (``maps``: a string, a list or generated maps) and one member said
+    why in words, only that reason is kept, under the key's own path (not "maps.str: ..., maps.list[str]: ...")."""
+    errors = exc.errors()
+    reasons = {str(e["loc"][0]) for e in errors if e["type"] == "value_error" and len(e["loc"]) > 1
+               and any(_is_union_tag(str(p)) for p in e["loc"][1:])}
     lines = []
-    for item in exc.errors():
+    for item in errors:
         loc = [str(part) for part in item["loc"]]
+        if loc and loc[0] in reasons:
+            if item["type"] != "value_error":
+                continue  # a union member the value was not meant for
+            loc = [part for part in loc if not _is_union_tag(part)]
         got = ""
         if item["type"] == "unknown_key":
             loc.append((item.get("ctx") or {}).get("key", "?"))

@@ -88,12 +88,12 @@ def _agents_arg(p: argparse.ArgumentParser) -> None:
 
 
 def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
-    p.add_argument("policy", metavar="POLICY", help="policy.pt (TorchScript) or policy.onnx")
+    p.add_argument("policy", metavar="POLICY", help="policy.pt (TorchScript), policy.onnx, or a run folder (its policy.pt)")
     p.add_argument("--robot", default=None,
                    help="turtlebot2, go2 or a preset YAML (default: the robot recorded in the policy)")
     p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
-    p.add_argument("--episodes", type=int, default=episodes, help="episodes, run in parallel (one per env)")
-    p.add_argument("--seed", type=seed_arg, default=12345, help="start/goal sampling seed")
+    p.add_argument("--episodes", type=int, default=episodes, help=f"episodes, run in parallel (one per env; default {episodes})")
+    p.add_argument("--seed", type=seed_arg, default=12345, help="start/goal sampling seed (default 12345)")
     p.add_argument("overrides", nargs="*", metavar="robot.KEY=VALUE",
                    help="change the simulated robot the policy is played on, as flashnav train's robot.* "
                         "overrides, e.g. robot.lidar.noise_std=0.03 robot.lidar.dropout=0.05 (a robustness "

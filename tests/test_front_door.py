@@ -260,3 +260,9 @@ def test_a_key_without_its_section_is_pointed_to_it(tmp_path, capsys):
     config.write_text("algo:\n  gamma: 0.99\n")
     assert "algo: not a section here; hyperparameters go under overrides as dotted keys: overrides: {algo.gamma: ...}" \
         in fails(capsys, "train", "--config", str(config), "--out", str(tmp_path / "r"))
+
+
+def test_a_union_value_error_says_only_its_reason(tmp_path, capsys):
+    line = fails(capsys, "train", "--maps", "family:room", "maps.count=2", "--out", str(tmp_path / "r"))
+    assert line == ("flashnav train: error: training config: maps.family: unknown map family 'room' (did you mean "
+                    "'rooms'?); use one of rooms, offices, halls, warehouses, mazes, clutter (got 'room')")
