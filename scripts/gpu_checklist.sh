@@ -43,7 +43,7 @@ timeout 100 $PY -m pytest -q -p no:cacheprovider tests/test_raycast_cuda.py test
 echo "== 2. the paper recipe, TurtleBot2, 3 seeds per learner, one lane each, $(left) s left $(el)"
 lane() { local algo=$1; shift; for S in "$@"; do [ "$(left)" -gt 90 ] || break
   timeout -s TERM -k 20 "$(( $(left) - 70 ))" $FN train --algo "$algo" --recipe paper --seed "$S" --device $DEV \
-      eval.episodes=$EPISODES budget.max_train_seconds=100000 threads=1 $TINY --out "$OUT/paper-$algo-s$S" \
+      eval.episodes=$EPISODES budget.max_train_seconds=100000 threads=1 $TINY --out "$OUT/paper-$algo-s$S" --overwrite \
       > "$OUT/paper-$algo-s$S.log" 2>&1; done; }
 lane fastdsac 0 1 2 & lane fastsac 0 1 2 & lane fasttd3 0 1 2 &
 wait

@@ -15,7 +15,7 @@ FN="python3 -m flashnav.cli"
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$WORK/gpu.txt"
 A="--device cuda --recipe generalist --seed 0 algo.num_envs=1024 algo.updates_per_step=64 eval.every=200 budget.max_train_seconds=${TS:-200} budget.max_env_steps=100000000"
 arm() { name=$1; shift
-  timeout -s TERM -k 20 ${TT:-330} $FN train $A "$@" --out "$WORK/$name" > "$WORK/$name.log" 2>&1
+  timeout -s TERM -k 20 ${TT:-330} $FN train $A "$@" --out "$WORK/$name" --overwrite > "$WORK/$name.log" 2>&1
   timeout -s TERM -k 10 ${TE:-120} $FN eval "$WORK/$name/policy.onnx" --maps heldout --episodes ${EP:-128} --label "gpu-$name/s0" \
       --json "$WORK/$name.heldout.json" > "$WORK/$name.eval.txt" 2>&1; }
 arm gen &
