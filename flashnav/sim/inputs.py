@@ -14,8 +14,9 @@ from flashnav.sim.mapset import check_map_index, goals_outside
 def as_batch(device: torch.device, value, name: str, shape: tuple[int, int], layout: str,
              dtype: torch.dtype = torch.float32) -> torch.Tensor:
     """``value`` as ``dtype`` on ``device``, exactly ``shape``: no reshape, so [2, N] or a flat [2N] is an
-    error rather than a silent scramble of the rows."""
-    t = torch.as_tensor(value, device=device, dtype=dtype)
+    error rather than a silent scramble of the rows. Detached: a network's output stepped without
+    ``torch.no_grad()`` would otherwise chain its graph into the env's state, growing every step."""
+    t = torch.as_tensor(value, device=device, dtype=dtype).detach()
     if tuple(t.shape) != shape:
         raise ValueError(f"{name} must have shape [{layout}] = {list(shape)}, got {list(t.shape)}")
     return t
@@ -33,22 +34,24 @@ def check_state(grids: Sequence[OccupancyMap], pose, goal, map_index, current: t
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """A ``NavVecEnv.set_state`` request checked: (pose [N, 3], goal [N, 2], both float64 world coordinates; the
     slots' map indices [N] long: ``map_index``, or the ``current`` ones where it is None). A ValueError names
-    ``pose`` / ``goal`` / ``map_index`` for another shape, a NaN or infinite value, a map index out of range, or a
-    goal outside its map's extent (it could never be reached)."""
+    ``pose`` / ``goal`` / ``map_index`` for another shape, a NaN or infinite value, a map index out of range, a
+    goal outside its map's extent (it could never be reached) or a robot outside it."""
     n, device = len(current), current.device
     pose = as_batch(device, pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
     goal = as_batch(device, goal, "goal", (n, 2), "x, y m", torch.float64)
     mi = current if map_index is None else check_map_index(map_index, n, len(grids), device)
     outside = goals_outside(grids, goal, mi)  # in world coordinates, before the frame shift
+    off_map = goals_outside(grids, pose[:, :2], mi)  # a robot off its map: a caller's slip, not a test of walls
     in_range = ((mi >= 0) & (mi < len(grids))).all()
-    ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & in_range
+    ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & ~off_map.any() & in_range
     if not bool(ok):  # one host sync for all checks; the details only on failure
         check_finite(pose, "pose")
         check_finite(goal, "goal")
         check_map_index(mi.cpu(), n, len(grids), torch.device("cpu"))
-        row = int(outside.nonzero()[0, 0])
+        name, values, bad = ("goal", goal, outside) if outside.any() else ("pose", pose, off_map)
+        row = int(bad.nonzero()[0, 0])
         g = grids[int(mi[row])]
         xmin, ymin, xmax, ymax = g.bounds
-        raise ValueError(f"goal[{row}] = {goal[row].tolist()} lies outside the map {g.name!r} "
+        raise ValueError(f"{name}[{row}] = {values[row].tolist()} lies outside the map {g.name!r} "
                          f"(x in [{xmin:g}, {xmax:g}] m, y in [{ymin:g}, {ymax:g}] m)")
     return pose, goal, mi
