@@ -117,6 +117,31 @@ def test_controller_safety_states():
     assert ctl.state == "stopped"  # nothing after shutdown
 
 
+@pytest.mark.parametrize("dead", [float("nan"), 0.0, 0.01])  # NaN, zero, below range_min
+def test_a_scan_without_a_valid_reading_stops_the_robot(dead):
+    """A dead or covered LiDAR read as open space (every sector at the fill value) and the robot drove on."""
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
+    scan = {**SCAN, "range_min": 0.05}
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.0)
+    ctl.on_goal(3.0, 0.0, now=0.0)
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.0, now=0.0, **scan).state == "driving"
+    with pytest.warns(RuntimeWarning, match=r"had no valid reading .* read the fill value"):
+        blind = ctl.on_scan(ranges=_ranges(dead), stamp=0.1, now=0.1, **scan)
+    assert (blind.v, blind.w, blind.state) == (0.0, 0.0, "blind") and ctl.status(0.1)["state"] == "blind"
+    assert ctl.on_scan(ranges=_ranges(dead), stamp=0.2, now=0.2, **scan).state == "blind"  # every such scan
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.3)
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.3, now=0.3, **scan).state == "driving"  # valid again
+
+
+def test_some_sectors_without_a_valid_reading_are_warned_of_and_drive():
+    rt = PolicyRuntime.load(POLICY)
+    ranges = _ranges()
+    ranges[:200] = np.nan  # the robot's right side: its first sectors
+    with pytest.warns(RuntimeWarning, match=r"scan: sectors \[0, 1, 2, 3, 4\] of \d+ had no valid reading"):
+        sectors = rt.scan(ranges=ranges, **SCAN)
+    assert not rt.adapter.no_valid_reading and sectors[0] == rt.adapter.fill and rt.adapter.invalid_sectors[:1] == [0]
+
+
 def test_no_ros_master_is_named_with_its_uri(monkeypatch):
     """rospy without a master fails as "Failed to initialize time" or a bare "Connection refused"."""
     import socket

@@ -116,7 +116,10 @@ def test_invalid_readings_follow_rep_117():
     ranges[150] = -np.inf                    # sector 4: too close -> range_min
     ranges[190] = 0.01                       # sector 5: below range_min -> dropped
     ranges[200] = np.nan                     # sector 5: one NaN among valid beams -> ignored
-    got = ScanAdapter(TB2, fill=1.5)(angle_min, inc, ranges, 0.05, 22.0)
+    adapter = ScanAdapter(TB2, fill=1.5)
+    with pytest.warns(RuntimeWarning, match=r"scan: sectors \[0, 3\] of 30 had no valid reading"):
+        got = adapter(angle_min, inc, ranges, 0.05, 22.0)
+    assert adapter.invalid_sectors == [0, 3] and not adapter.no_valid_reading
     want = reference(angle_min, inc, ranges, 0.05, 22.0, TB2, fill=1.5)
     np.testing.assert_allclose(got, want, atol=1e-6)
     assert got[0] == got[3] == np.float32(1.5)

@@ -9,6 +9,9 @@ and the tests all drive this one state machine, so the safety behaviour is writt
 * ``stale``: the latest scan or odometry arrived more than ``timeout`` seconds ago (or odometry is that
   much older than the scan): zero velocity, sent again on every :meth:`tick`; driving resumes with
   fresh inputs.
+* ``blind``: the latest scan had not one valid reading in the policy's field of view (NaN, 0 or below
+  ``range_min``: a dead or covered sensor, which the policy would see as open space): zero velocity, sent
+  for every such scan; the next scan with a valid reading drives again.
 * ``reached``: within the goal radius: zero velocity, sent once; a new goal starts driving again.
 * ``stopped``: :meth:`shutdown`: zero velocity; nothing after it.
 
@@ -142,6 +145,8 @@ class Controller:
         if self._stale(now):
             return self._stop("stale")
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
+        if self.rt.adapter.no_valid_reading:  # a dead or covered sensor would read as open space
+            return self._stop("blind")
         target, goal_distance, memory = self.goal, None, None
         if self.guide is not None or self.memory is not None or self.shield is not None:
             angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
@@ -177,7 +182,7 @@ class Controller:
 
     def tick(self, now: float) -> Command | None:
         """The watchdog, called often (e.g. 4x the control rate): zero velocity while inputs are stale."""
-        if self.state in ("driving", "stale") and self._stale(now):
+        if self.state in ("driving", "stale", "blind") and self._stale(now):
             return self._stop("stale")
         if self.state == "stale":  # fresh again: the next due scan drives
             self.state = "driving"

@@ -18,7 +18,9 @@ by beam, whatever its beam count, angular direction or mounting:
 * **field of view**: beams outside the policy's field of view are dropped (a wider sensor is cropped);
   a sector that no beam covers (a narrower sensor) or whose beams were all invalid reads ``fill``,
   by default ``max_range`` (free, what the simulator shows for open space), with a warning once per
-  scan geometry for the sectors the sensor cannot see.
+  scan geometry for the sectors the sensor cannot see, and once per sector for those without a valid
+  reading (:attr:`ScanAdapter.invalid_sectors`); a scan without one valid reading in the field of view
+  (:attr:`ScanAdapter.no_valid_reading`) stops the deploy node (``blind``).
 """
 
 from __future__ import annotations
@@ -92,6 +94,8 @@ class ScanAdapter:
             raise ValueError(f"fill must be in [0, max_range = {layout.max_range}] m, got {fill}")
         self._geometry_key = None
         self._blind: list[int] = []
+        self.invalid_sectors: list[int] = []  # the last scan's covered sectors without one valid reading
+        self._warned_invalid: set[int] = set()
 
     def __call__(self, angle_min: float, angle_increment: float, ranges, range_min: float,
                  range_max: float) -> np.ndarray:
@@ -100,8 +104,22 @@ class ScanAdapter:
         keep = valid & (idx >= 0)
         out = np.full(self.layout.sectors, np.inf)
         np.minimum.at(out, idx[keep], r[keep])
+        seen = np.zeros(self.layout.sectors, bool)
+        seen[idx[idx >= 0]] = True
+        self.invalid_sectors = np.flatnonzero(seen & np.isinf(out)).tolist()
+        if set(self.invalid_sectors) - self._warned_invalid:
+            self._warned_invalid |= set(self.invalid_sectors)
+            warnings.warn(f"scan: sectors {self.invalid_sectors} of {self.layout.sectors} had no valid reading "
+                          f"(NaN, 0 or below range_min: a fault, a dirty window or something on the sensor) and read "
+                          f"the fill value {self.fill:g} m", RuntimeWarning, stacklevel=2)
         out = np.where(np.isinf(out), self.fill, np.minimum(out, self.layout.max_range))
         return out.astype(np.float32)
+
+    @property
+    def no_valid_reading(self) -> bool:
+        """Whether the last scan had not one valid reading in the policy's field of view (a sensor that is
+        dead or covered: its sectors would read the fill value, open space, and the deploy node stops)."""
+        return bool(self.invalid_sectors) and len(self.invalid_sectors) == self.layout.sectors - len(self._blind)
 
     def beams(self, angle_min: float, angle_increment: float, ranges, range_min: float,
               range_max: float) -> tuple[np.ndarray, np.ndarray]:
