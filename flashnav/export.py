@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -292,8 +293,8 @@ def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
     (else its ``policy.onnx``).
 
     Returns ``(policy, metadata)``: ``policy(obs [N, D] float32 tensor) -> action [N, 2]`` float32 in
-    [-1, 1] on ``obs.device``; ``metadata`` is the JSON written by :func:`export_policy` (``robot``,
-    ``obs_dim``, the observation layout, ...). ``robot`` (a preset name, YAML or RobotPreset), when
+    [-1, 1] on ``obs.device`` (a numpy array in, a numpy array out); ``metadata`` is the JSON written by
+    :func:`export_policy` (``robot``, ``obs_dim``, the observation layout, ...). ``robot`` (a preset name, YAML or RobotPreset), when
     given, must have the policy's observation size.
 
     Raises:
@@ -322,7 +323,9 @@ def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
             raise ValueError(f"{path}: the policy expects obs_dim {obs_dim} ({meta.get('robot')}), but robot "
                              f"{preset.name!r} produces obs_dim {preset.obs_dim}")
 
-    def policy(obs: torch.Tensor) -> torch.Tensor:
+    def policy(obs):
+        if not isinstance(obs, torch.Tensor):  # numpy (what the Gymnasium envs hand out): numpy back
+            return policy(torch.from_numpy(np.asarray(obs, dtype=np.float32))).numpy()
         if obs.ndim != 2 or obs.shape[1] != obs_dim:
             raise ValueError(f"{path}: expected observations [N, {obs_dim}], got {list(obs.shape)}")
         return run(obs)

@@ -118,6 +118,10 @@ def test_onnx_equals_torch(exported, tb2, n):
     np.testing.assert_allclose(onnx_command, torch.stack([v, w], 1).numpy(), rtol=0, atol=1e-6)
     policy, _ = load_policy(paths["onnx"])
     torch.testing.assert_close(policy(obs), action, rtol=0, atol=1e-5)
+    for path in (paths["onnx"], paths["torchscript"]):  # numpy in (the Gymnasium envs' observations), numpy out
+        got = load_policy(path)[0](obs.numpy().astype(np.float64))
+        assert isinstance(got, np.ndarray) and got.dtype == np.float32
+        np.testing.assert_allclose(got, action.numpy(), rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("goal_sincos", [False, True])
