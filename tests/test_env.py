@@ -204,6 +204,31 @@ def test_gymnasium_registration_and_checker():
     assert flashnav.make_env("go2", 2).num_envs == 2
 
 
+def test_the_single_env_refuses_a_step_after_the_end_and_names_bad_actions():
+    env = gymnasium.make("flashnav/TurtleBot2-v0").unwrapped
+    env.reset(seed=0)
+    for shape in [(3,), (2, 1), (1, 2)]:
+        with pytest.raises(ValueError, match=rf"action must have shape \[2\] .*got \[{', '.join(map(str, shape))}\]"):
+            env.step(np.zeros(shape))
+    info, ended = {}, False
+    for _ in range(400):  # full speed ahead: a collision or the horizon within 400 steps
+        _, _, terminated, truncated, info = env.step(np.array([1.0, 0.3]))
+        if terminated or truncated:
+            ended = True
+            break
+    assert ended and set(info) == {"success", "collision", "collision_static", "collision_agent", "episode_steps",
+                                   "episode_return", "final_pose"}
+    assert info["episode_steps"] >= 1 and info["final_pose"].shape == (3,)
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
+        env.step(np.zeros(2))
+    env.reset(seed=1)
+    env.step(np.zeros(2))
+    with pytest.raises(NotImplementedError, match="flashnav render"):
+        env.render()
+    with pytest.raises(ValueError, match="no render mode"):
+        gymnasium.make("flashnav/TurtleBot2-v0", render_mode="rgb_array")
+
+
 def test_bad_inputs_are_named():
     with pytest.raises(ValueError, match="unknown robot"):
         make_env("turtlebot3", 1)
