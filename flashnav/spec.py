@@ -148,8 +148,8 @@ class TrainConfig(KnownKeys):
         return v
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> "TrainConfig":
-        return config_from_data(_mapping(load_yaml(path), str(path)), str(path))
+    def from_yaml(cls, path: str | Path) -> "TrainConfig":  # as `flashnav train --config` reads it (a run's too)
+        return config_from_cli(str(path))
 
     def algo_overrides(self) -> dict[str, Any]:
         return {k[len("algo."):]: v for k, v in self.overrides.items() if k.startswith("algo.")}

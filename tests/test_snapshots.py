@@ -30,6 +30,25 @@ def test_snapshots_come_after_evaluations_and_change_nothing():
         train(tiny(), on_snapshot=late.append, snapshot_every=-1)
 
 
+def test_the_library_writes_the_run_folder_the_cli_writes(tmp_path):
+    """docs/train-api.md: save_run, then the folder is what eval, init_from and TrainConfig.from_yaml read."""
+    import numpy as np
+
+    from flashnav.export import load_policy
+    from flashnav.learn.artefacts import RUN_FILES, save_run
+    from flashnav.spec import TrainConfig, resolve
+
+    result = train(tiny())
+    out = save_run(result, tmp_path / "mine")
+    assert sorted(p.name for p in out.iterdir()) == sorted(RUN_FILES)
+    policy, meta = load_policy(out)
+    assert policy(np.zeros((3, meta["obs_dim"]), np.float32)).shape == (3, 2)
+    again = TrainConfig.from_yaml(out / "config.yaml")  # a run's config.yaml: its request, the same run again
+    assert resolve(again).to_dict() == result.spec.to_dict()
+    finetuned = train(tiny(init_from=str(out)))
+    assert finetuned.spec.init is not None
+
+
 def _fail_at_third_evaluation(real_train):
     def failing(spec, **kw):
         evals = []

@@ -13,14 +13,10 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from flashnav.learn.artefacts import RUN_FILES, save_run
 from flashnav.learn.progress import TrainProgress
 from flashnav.names import ALGORITHMS, RECIPE_CHOICES, RECIPE_HELP, THRESHOLDS, seed_arg
 from flashnav.spec import TrainConfig, config_from_cli, resolve
-from flashnav.yamlio import dump_yaml
-
-#: what a run folder holds (``flashnav train --out``): the run's request and resolved config, its curve and
-#: outcome, the learner state, the best policy exported (TorchScript, ONNX) and the policy's metadata
-RUN_FILES = ("config.yaml", "metrics.json", "checkpoint.pt", "policy.pt", "policy.onnx", "policy.json")
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -106,7 +102,7 @@ def run_train(args) -> int:
     saved: list[int] = []  # env steps of the snapshots written
 
     def snapshot(so_far) -> None:
-        _write_artefacts(so_far, out)
+        save_run(so_far, out)
         saved.append(so_far.env_steps)
         progress.console.print(f"saved the run so far to {out} ({so_far.env_steps:,} env steps, best "
                                f"{so_far.best_success_rate:.1%})", soft_wrap=True)
@@ -123,7 +119,7 @@ def run_train(args) -> int:
     if result.stop_reason == "interrupted":
         console.print("[yellow]interrupted[/]: writing the run so far (Ctrl-C again aborts)")
 
-    _write_artefacts(result, out)  # the folder only now (or at the first snapshot): a failed start leaves none
+    save_run(result, out)  # the folder only now (or at the first snapshot): a failed start leaves none
     _summary(console, result, out)
     return 0
 
@@ -175,30 +171,6 @@ def sigterm_as_ctrl_c():
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
-
-
-def _write_artefacts(result, out: Path) -> None:
-    """The run's files in ``out``, each replaced whole: they are written to a folder of their own beside them
-    and renamed into ``out``, so a crash while writing leaves the previous set (a snapshot) readable."""
-    import tempfile
-
-    from flashnav.checkpoint import save_checkpoint
-    from flashnav.export import export_policy
-
-    out.mkdir(parents=True, exist_ok=True)
-    metrics = result.to_dict()  # once: every snapshot writes it (its "config" is the spec's to_dict)
-    config = metrics["config"]
-    with tempfile.TemporaryDirectory(prefix=".saving-", dir=out) as tmp:
-        tmp = Path(tmp)
-        dump_yaml(config, tmp / "config.yaml")
-        with open(tmp / "metrics.json", "w", encoding="utf-8") as f:
-            json.dump(metrics, f, indent=2)
-        save_checkpoint(tmp / "checkpoint.pt", result.learner.state_dict(), config,
-                        {"metrics": {k: v for k, v in metrics.items() if k != "config"},
-                         "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
-        export_policy(result.policy, result.spec.robot, tmp)  # the best evaluated policy
-        for path in sorted(tmp.iterdir()):  # files only (export_policy writes no folder)
-            path.replace(out / path.name)
 
 
 def _summary(console: Console, result, out: Path) -> None:

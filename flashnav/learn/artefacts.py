@@ -1,0 +1,41 @@
+"""A training run's folder: what ``flashnav train --out`` writes, from the library (:func:`save_run`)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from pathlib import Path
+
+from flashnav.yamlio import dump_yaml
+
+#: what a run folder holds: the run's request and resolved config, its curve and outcome, the learner state, the
+#: best policy exported (TorchScript, ONNX) and a readable copy of the metadata the policy files embed
+RUN_FILES = ("config.yaml", "metrics.json", "checkpoint.pt", "policy.pt", "policy.onnx", "policy.json")
+
+
+def save_run(result, out: str | Path) -> Path:
+    """Write a :class:`~flashnav.learn.loop.TrainResult` as a run folder, what ``flashnav train --out`` writes
+    (:data:`RUN_FILES`; ``flashnav eval``, ``--init-from`` and ``deploy`` read it). Each file is replaced whole:
+    they are written to a folder of their own beside them and renamed into ``out``, so a crash while writing
+    leaves the previous set (a snapshot) readable. Returns ``out``."""
+    import tempfile
+
+    from flashnav.checkpoint import save_checkpoint
+    from flashnav.export import export_policy
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    metrics = result.to_dict()  # once: every snapshot writes it (its "config" is the spec's to_dict)
+    config = metrics["config"]
+    with tempfile.TemporaryDirectory(prefix=".saving-", dir=out) as tmp:
+        tmp = Path(tmp)
+        dump_yaml(config, tmp / "config.yaml")
+        with open(tmp / "metrics.json", "w", encoding="utf-8") as f:
+            json.dump(metrics, f, indent=2)
+        save_checkpoint(tmp / "checkpoint.pt", result.learner.state_dict(), config,
+                        {"metrics": {k: v for k, v in metrics.items() if k != "config"},
+                         "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
+        export_policy(result.policy, result.spec.robot, tmp)  # the best evaluated policy
+        for path in sorted(tmp.iterdir()):  # files only (export_policy writes no folder)
+            path.replace(out / path.name)
+    return out
