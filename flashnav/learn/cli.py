@@ -135,8 +135,9 @@ def recorded_drift(config_file: str | None, spec) -> list[str]:
     now, lines = spec.to_dict(), []
     for section in ("hparams", "robot_preset"):
         then, today = _flat(recorded[section]), _flat(now[section])
-        changed = [f"{key} {then.get(key)!r} -> {today.get(key)!r}" for key in sorted(then.keys() | today.keys())
-                   if then.get(key) != today.get(key)]
+        changed = [f"{key} {then[key]!r} -> {today.get(key)!r}" if key in then else f"{key} (not recorded) "
+                   f"-> {today[key]!r}" for key in sorted(then.keys() | today.keys()) if then.get(key) != today.get(key)
+                   or (key in then) != (key in today)]
         if changed:
             lines.append(f"{config_file} recorded other {section} than its request gives today ({len(changed)}): "
                          + "; ".join(changed[:4]) + (" ..." if len(changed) > 4 else ""))
