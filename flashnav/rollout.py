@@ -101,7 +101,7 @@ def agent_tracks(result: dict) -> list[tuple[np.ndarray, float]]:
     return tracks
 
 
-def write_gif(grid, result: dict, radius: float, out: Path) -> Path:
+def write_gif(grid, result: dict, radius: float, out: str | Path) -> Path:
     """Animated GIF of the rollout: map, paths so far (blue while running, outcome colour after),
     robots as footprint-sized circles with a heading tick (black while a people shield is in charge: the
     rollout's ``took_over``), goals as crosses. Pillow only (matplotlib per frame would be ~50x slower);
@@ -159,6 +159,7 @@ def write_gif(grid, result: dict, radius: float, out: Path) -> Path:
                     ar = max(2.0, float(result["agent_radius"][i, j]) * sx)
                     draw.ellipse([ax - ar, ay - ar, ax + ar, ay + ar], fill=AGENT_RGB)
         frames.append(frame.convert("P", palette=Image.ADAPTIVE, colors=32))
+    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     frames[0].save(out, save_all=True, append_images=frames[1:], duration=GIF_FRAME_MS, loop=0, optimize=True)
     return out

@@ -232,6 +232,11 @@ def test_the_single_env_refuses_a_step_after_the_end_and_names_bad_actions():
 def test_bad_inputs_are_named():
     with pytest.raises(ValueError, match="unknown robot"):
         make_env("turtlebot3", 1)
+    if not torch.cuda.is_available():  # torch's own "Torch not compiled with CUDA enabled" AssertionError before
+        with pytest.raises(ValueError, match="device 'cuda' requested but CUDA is not available"):
+            make_env("turtlebot2", 1, device="cuda")
+    with pytest.raises(ValueError, match="tpu"):
+        make_env("turtlebot2", 1, device="tpu")
     with pytest.raises(ValueError, match="num_envs"):
         make_env("turtlebot2", 0)
     with pytest.raises(ValueError, match="raycaster"):

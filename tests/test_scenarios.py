@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from flashnav.presets import load_robot
-from flashnav.rollout import agent_tracks, rollout
+from flashnav.rollout import agent_tracks, rollout, write_gif
 from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
 from flashnav.sim.env import make_env
 from flashnav.viz import draw_trajectories
@@ -91,6 +91,8 @@ def test_render_rollout_tracks_agents(tmp_path):
     paths = [result["poses"][: result["length"][i], i, :2] for i in range(3)]
     out = draw_trajectories(env.frame_map, paths, result["goals"], result["outcomes"], tmp_path / "a.png", agents=tracks)
     assert out.stat().st_size > 10_000
+    gif = write_gif(env.frame_map, result, 0.2, str(tmp_path / "a.gif"))  # a str path too (it needed a Path)
+    assert gif.stat().st_size > 1_000
 
 
 def test_eval_scenario_command_writes_a_row_per_scenario(tmp_path):

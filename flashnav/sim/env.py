@@ -382,6 +382,10 @@ def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=
         seed: seeds start/goal sampling and map draws (and sensor noise when enabled).
         raycaster: "exact" (default; on CUDA the "exact-cuda" kernel), "exact-torch", "exact-cuda" or "march" (the paper's fixed-step algorithm).
     """
+    if isinstance(device, str):  # "cuda" without a GPU: a ValueError naming it, not torch's AssertionError
+        from flashnav.machine import resolve_device
+
+        device = resolve_device(device)
     preset = load_robot(robot)
     if maps is not None:
         if map is not None:
