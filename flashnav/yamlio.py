@@ -164,6 +164,17 @@ def _fields_at(model: type[BaseModel], path: list[str]) -> set[str]:
     return set(model.model_fields)
 
 
+def flatten_dotted(data: dict, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts -> ``{"a.b.c": value}`` (the dotted keys :func:`set_dotted` takes; lists kept whole)."""
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(flatten_dotted(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
 def deep_merge(base: dict, top: dict) -> dict:
     """A new dict: ``top`` over ``base``, section by section (lists and values are replaced whole)."""
     out = dict(base)

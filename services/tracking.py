@@ -26,6 +26,7 @@ import yaml
 from ray import tune
 
 from flashnav.metrics import THRESHOLD_TAGS
+from flashnav.yamlio import flatten_dotted
 
 logger = logging.getLogger(__name__)
 
@@ -38,16 +39,11 @@ PARENT_TAG = "mlflow.parentRunId"
 _MAX_PARAM_VALUE = 6000  # MLflow 3's limit on a param value
 
 
-def flatten(data: Any, prefix: str = "") -> dict[str, str]:
-    """Nested dict -> {dotted key: string value}, the form MLflow params take (lists kept whole)."""
-    out: dict[str, str] = {}
-    if isinstance(data, dict):
-        for key, value in data.items():
-            out.update(flatten(value, f"{prefix}{key}."))
-        return out
-    value = "None" if data is None else str(data)
-    out[prefix.rstrip(".")] = value[:_MAX_PARAM_VALUE]
-    return out
+def flatten(data: dict) -> dict[str, str]:
+    """Nested dict -> {dotted key: string value}, the form MLflow params take (lists kept whole, values cut at
+    MLflow's limit)."""
+    return {key: ("None" if value is None else str(value))[:_MAX_PARAM_VALUE]
+            for key, value in flatten_dotted(data).items()}
 
 
 def default_artifact_root(tracking_uri: str) -> str | None:

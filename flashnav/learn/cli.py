@@ -127,14 +127,14 @@ def run_train(args) -> int:
 def recorded_drift(config_file: str | None, spec) -> list[str]:
     """Where a run's ``config.yaml`` given to ``--config`` recorded other hyperparameters or another robot than
     its request resolves to today (a recipe or preset changed since): one line per section, the first keys."""
-    from flashnav.yamlio import load_yaml
+    from flashnav.yamlio import flatten_dotted, load_yaml
 
     recorded = load_yaml(config_file) if config_file else None
     if not isinstance(recorded, dict) or not {"hparams", "robot_preset"} <= recorded.keys():
         return []
     now, lines = spec.to_dict(), []
     for section in ("hparams", "robot_preset"):
-        then, today = _flat(recorded[section]), _flat(now[section])
+        then, today = flatten_dotted(recorded[section]), flatten_dotted(now[section])
         changed = [f"{key} {then[key]!r} -> {today.get(key)!r}" if key in then else f"{key} (not recorded) "
                    f"-> {today[key]!r}" for key in sorted(then.keys() | today.keys()) if then.get(key) != today.get(key)
                    or (key in then) != (key in today)]
@@ -142,16 +142,6 @@ def recorded_drift(config_file: str | None, spec) -> list[str]:
             lines.append(f"{config_file} recorded other {section} than its request gives today ({len(changed)}): "
                          + "; ".join(changed[:4]) + (" ..." if len(changed) > 4 else ""))
     return lines
-
-
-def _flat(data: dict, prefix: str = "") -> dict:
-    out = {}
-    for key, value in data.items():
-        if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
 
 
 @contextlib.contextmanager
