@@ -143,8 +143,8 @@ def load_runs(tracking_uri: str | None = None, experiment: str | list[str] | Non
 
     experiment: name(s) to search (None = all active experiments); sweeps: keep runs whose tag
     `sweep` is one of these; invocation: ``latest`` or a stamp keeps one invocation per sweep
-    (services.report_select; None = every invocation). Uses an MlflowClient for the given URI rather than mlflow.search_runs,
-    which reads the process-global tracking URI. Raises NoRunsError naming what was searched.
+    (services.report_select; None = every invocation). Uses an MlflowClient for the given URI rather than
+    mlflow.search_runs, which reads the process-global tracking URI. Raises NoRunsError naming what was searched.
     """
     from mlflow import MlflowClient
 
