@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from services.paths import check_tracking_uri, redact_uri
+from services.paths import check_tracking_uri, redact_uri, resolve_tracking_uri
 from services.report_select import pooling_warnings, select_invocation
 from services.report_tables import (THRESHOLDS, comparison_table, latex_document, load_paper_table, split_platform,
                                     threshold_table, to_csv, to_latex, to_markdown)
@@ -43,9 +43,10 @@ class NoRunsError(LookupError):
 
 
 def default_tracking_uri() -> str:
-    """$MLFLOW_TRACKING_URI, else the service's embedded store `sqlite:///<cwd>/runs/mlflow.db` (absolute,
-    so the same file is found from any process, as the service writes it)."""
-    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{(Path.cwd() / 'runs' / 'mlflow.db').resolve()}"
+    """Where the sweeps write: $MLFLOW_TRACKING_URI, else ``sqlite:///<runs>/mlflow.db`` ($FLASHNAV_RUNS_DIR, else
+    <project>/runs; services.paths.resolve_tracking_uri, the sweeps' own resolution, absolute so that the same file
+    is found from any process)."""
+    return resolve_tracking_uri(None)
 
 
 def _cast_param(col: pd.Series) -> pd.Series:
@@ -315,10 +316,10 @@ def _cli(args) -> int:
     from flashnav.outputs import check_output_dir
 
     formats = tuple(f.strip() for f in args.format.split(",") if f.strip())
-    uri = args.tracking_uri or default_tracking_uri()
     for key, value in HTTP_ENV.items():  # a server that dies mid-report fails in seconds, not minutes
         os.environ.setdefault(key, value)
     try:
+        uri = args.tracking_uri or default_tracking_uri()
         check_output_dir(args.out, "--out")
         written = {}
         if args.generalisation:
@@ -357,7 +358,8 @@ def register_cli(subparsers):
                         "e.g. 20261129-231500; its runs' `invocation` tag); default: every invocation, pooled, "
                         "with a warning")
     p.add_argument("--tracking-uri", default=None, metavar="URI",
-                   help="MLflow store (default: $MLFLOW_TRACKING_URI, else sqlite:///<cwd>/runs/mlflow.db)")
+                   help="MLflow store (default: where the sweeps write: $MLFLOW_TRACKING_URI, else "
+                        "sqlite:///<runs>/mlflow.db, <runs> = $FLASHNAV_RUNS_DIR or ./runs)")
     p.add_argument("--out", default="runs/report", metavar="DIR", help="output folder (default: runs/report)")
     p.add_argument("--generalisation", metavar="EVAL_JSON", nargs="+", default=None,
                    help="also (alone: only) the generalisation tables from `flashnav eval POLICY --maps SUITE "

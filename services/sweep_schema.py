@@ -128,6 +128,9 @@ class Sweep(Strict):
             raise ValueError("need at least one seed")
         if len(set(seeds)) != len(seeds):
             raise ValueError(f"seeds repeat: {seeds}")
+        negative = [seed for seed in seeds if seed < 0]
+        if negative:  # a training seed is >= 0 (flashnav.spec); the dry run resolves only the first seed
+            raise ValueError(f"seeds must be >= 0, got {negative}")
         return seeds
 
     @model_validator(mode="after")

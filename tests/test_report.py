@@ -283,9 +283,12 @@ def test_cli_arguments(tmp_path, monkeypatch):
     assert args.sweeps == ["a", "b", "c"] and args.experiment is None and callable(args.func)
     with pytest.raises(SystemExit):
         _parser().parse_args(["report", "--sweep", "a", "--experiment", "e"])
-    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    for name in ("MLFLOW_TRACKING_URI", "FLASHNAV_RUNS_DIR", "FLASHNAV_PROJECT_DIR", "RAY_JOB_CONFIG_JSON_ENV_VAR"):
+        monkeypatch.delenv(name, raising=False)
     monkeypatch.chdir(tmp_path)
     assert default_tracking_uri() == f"sqlite:///{tmp_path.resolve()}/runs/mlflow.db"
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "elsewhere"))  # where the sweeps write (it read ./runs)
+    assert default_tracking_uri() == f"sqlite:///{tmp_path.resolve()}/elsewhere/mlflow.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://127.0.0.1:5000")
     assert default_tracking_uri() == "http://127.0.0.1:5000"
 

@@ -114,6 +114,7 @@ def test_seeds_forms():
     assert parse_sweep(minimal(seeds=[3, 5])).seed_list == [3, 5]
     assert "seeds repeat" in error_of(minimal(seeds=[1, 1]))
     assert "need at least one seed" in error_of(minimal(seeds=0))
+    assert "seeds must be >= 0, got [-3]" in error_of(minimal(seeds=[0, -3]))  # failed only in its own trial
 
 
 def test_apply_sets_dotted_override_keys():
