@@ -171,6 +171,17 @@ def resolve_device(device: str) -> str:
     return device
 
 
+#: what a run's config records that a machine resolves for itself (``flashnav.spec.run_request`` leaves them out)
+MACHINE_KEYS = ("device", "overlap", "cuda_graph", "threads")
+
+
+def resolve_recipe(recipe: str, device: str) -> str:
+    """``auto`` -> ``paper`` on a GPU, ``cpu`` otherwise."""
+    if recipe != "auto":
+        return recipe
+    return "paper" if device.startswith("cuda") else "cpu"
+
+
 def resolve_cuda_graph(mode: str, device: str, decaying_lr: bool = False) -> bool:
     """``TrainConfig.cuda_graph`` on a resolved ``device``: whether the loop runs a cycle's updates on
     static buffers (:class:`flashnav.learn.cuda_graph.CycleUpdates`; captured as a CUDA graph only on

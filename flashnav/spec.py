@@ -23,7 +23,8 @@ from pydantic import Field, ValidationError, ValidationInfo, field_validator, mo
 from flashnav.config import KnownKeys, RobotPreset, error_lines
 from flashnav.finetune import InitSource, check_compatible, check_goal_scale, load_init_source
 from flashnav.learn.hparams import MODELS, AnyHParams, load_hparams, override_section
-from flashnav.machine import check_device_name, resolve_cuda_graph, resolve_device, resolve_overlap, resolve_precision
+from flashnav.machine import (MACHINE_KEYS, check_device_name, resolve_cuda_graph, resolve_device, resolve_overlap,
+                              resolve_precision, resolve_recipe)
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, check_not_benchmark, load_eval_maps
@@ -197,13 +198,19 @@ def config_from_data(data: dict[str, Any], source: str = "config") -> TrainConfi
         raise ValueError(f"{source}: {'; '.join(error_lines(exc))}") from None
 
 
+def run_request(data: dict[str, Any]) -> dict[str, Any] | None:
+    """A run's ``config.yaml`` (with ``hparams``, ``robot_preset``) -> its request less MACHINE_KEYS; else None."""
+    if not {"hparams", "robot_preset"} <= data.keys():
+        return None
+    return {k: v for k, v in data.items() if k in TrainConfig.model_fields and k not in MACHINE_KEYS}
+
+
 def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None = None,
                     assignments: list[str] | tuple[str, ...] = ()) -> TrainConfig:
     """A TrainConfig from a YAML file (optional; a run's ``config.yaml`` gives its request), then flags (None = not
     given), then ``key=value`` assignments, each later winning. The path of ``flashnav train`` and ``bench train``."""
     data = _mapping(load_yaml(config_file), config_file) if config_file else {}
-    if {"hparams", "robot_preset"} <= data.keys():  # a run's config.yaml: its request (the rest is resolved again)
-        data = {key: value for key, value in data.items() if key in TrainConfig.model_fields}
+    data = run_request(data) or data
     for name, value in (flags or {}).items():
         if value is not None:
             data[name] = value
@@ -220,13 +227,6 @@ def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None
 
 
 # ---- resolving -------------------------------------------------------------------------------------
-
-
-def resolve_recipe(recipe: str, device: str) -> str:
-    """``auto`` -> ``paper`` on a GPU, ``cpu`` otherwise."""
-    if recipe != "auto":
-        return recipe
-    return "paper" if device.startswith("cuda") else "cpu"
 
 
 @dataclass(frozen=True)

@@ -119,6 +119,7 @@ def make_plan(sweep: Sweep, source: str, resume: bool = False) -> Plan:
 def validate_train_configs(plan: Plan) -> None:
     """Resolve every (robot, algorithm) run in the driver, through the library's one resolver, so a bad
     key, a misspelt searched hyperparameter or a missing map fails before Ray starts."""
+    from flashnav.machine import resolve_recipe
     from flashnav.spec import config_from_data, resolve
 
     sweep = plan.sweep
@@ -126,8 +127,9 @@ def validate_train_configs(plan: Plan) -> None:
         for algorithm in sweep.algorithms:
             for extra, what in _search_points(sweep, algorithm):
                 data = sweep.train_config(robot, algorithm, sweep.seed_list[0], "cpu", extra)
-                if data.get("recipe", "auto") == "auto":  # the trials' recipe: their device is not known here
-                    data["recipe"] = "paper" if sweep.resources.gpu > 0 else "cpu"
+                # the trials' recipe: their device is not known here, their resources say whether it is a GPU
+                data["recipe"] = resolve_recipe(data.get("recipe", "auto"),
+                                                "cuda" if sweep.resources.gpu > 0 else "cpu")
                 try:
                     resolve(config_from_data(data, f"{robot}/{algorithm}"))
                 except ValueError as exc:

@@ -250,6 +250,11 @@ def test_a_runs_config_yaml_is_a_config_and_drift_is_named(tmp_path):
     (line,) = recorded_drift(str(path), resolve(config_from_cli(str(path))))
     assert "recorded other hparams than its request gives today (1): gamma 0.5 -> " in line
     assert recorded_drift(None, spec) == []
+    recorded.update(device="cuda", cuda_graph="on", overlap=True, threads=7)  # a GPU run's config on this machine
+    dump_yaml(recorded, path)
+    request = config_from_cli(str(path))
+    assert (request.device, request.cuda_graph, request.overlap, request.threads) == ("auto", "auto", "auto", None)
+    assert request.recipe == "cpu" and request.seed == 3  # what it learnt with stays
 
 
 def test_a_key_without_its_section_is_pointed_to_it(tmp_path, capsys):

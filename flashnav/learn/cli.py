@@ -16,7 +16,7 @@ from rich.table import Table
 from flashnav.learn.artefacts import RUN_FILES, save_run
 from flashnav.learn.progress import TrainProgress
 from flashnav.names import ALGORITHMS, RECIPE_CHOICES, RECIPE_HELP, THRESHOLDS, seed_arg
-from flashnav.spec import TrainConfig, config_from_cli, resolve
+from flashnav.spec import TrainConfig, config_from_cli, resolve, run_request
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -130,7 +130,7 @@ def recorded_drift(config_file: str | None, spec) -> list[str]:
     from flashnav.yamlio import flatten_dotted, load_yaml
 
     recorded = load_yaml(config_file) if config_file else None
-    if not isinstance(recorded, dict) or not {"hparams", "robot_preset"} <= recorded.keys():
+    if not isinstance(recorded, dict) or run_request(recorded) is None:
         return []
     now, lines = spec.to_dict(), []
     for section in ("hparams", "robot_preset"):
