@@ -66,7 +66,7 @@ def _check_threshold(threshold: float) -> None:
         raise ValueError(f"threshold must be a success-rate fraction in [0, 1], got {threshold!r}")
 
 
-def _plain(value):
+def plain_number(value):
     """numpy scalar -> Python number, so callers get what a list of floats would give them."""
     return value.item() if hasattr(value, "item") else value
 
@@ -81,7 +81,7 @@ def first_crossing(success: Sequence[float], x: Sequence[float], threshold: floa
         raise ValueError(f"success ({len(success)} evaluations) and x ({len(x)}) differ in length")
     for rate, where in zip(success, x):
         if reaches(rate, threshold):
-            return _plain(where)
+            return plain_number(where)
     return None
 
 
@@ -103,7 +103,7 @@ def time_to_threshold(success: Sequence[float], x: Sequence[float], threshold: f
         if len(x) == 0:
             raise ValueError("time_to_threshold of an empty curve needs the run's total")
         total = x[-1]
-    return censor(first_crossing(success, x, threshold), _plain(total))
+    return censor(first_crossing(success, x, threshold), plain_number(total))
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,6 @@ trials call it.
 
 from __future__ import annotations
 
-import os
 import socket
 
 
@@ -27,19 +26,6 @@ def trial_device() -> str:
 def device_kind(device: str) -> str:
     """``cuda`` or ``cpu`` (the ``device_kind`` tag) from a torch device string."""
     return "cuda" if str(device).startswith("cuda") else "cpu"
-
-
-def cpu_threads() -> int:
-    """Threads this process may use: torch's setting where torch is loaded, else the affinity mask
-    (the ``threads`` fallback when training reported none)."""
-    import sys
-
-    if "torch" in sys.modules:
-        return int(sys.modules["torch"].get_num_threads())
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
 
 
 def device_name(device: str) -> str:

@@ -18,6 +18,7 @@ from typing import Any
 
 from ray.tune.search.optuna import OptunaSearch
 
+from flashnav.metrics import plain_number
 from services.schema_base import SweepError
 from services.search_space import Distribution
 from services.sweep_schema import Sweep, sweep_to_yaml
@@ -159,11 +160,7 @@ def summarize(url: str, name: str, sweep: Sweep, robot: str, algorithm: str) -> 
 
 def config_params(optuna_params: dict[str, Any]) -> dict[str, Any]:
     """Optuna's flattened names (``params/algo.batch_size``) -> config paths (``algo.batch_size``)."""
-    return {k.removeprefix(f"{PARAMS_KEY}/"): _plain(v) for k, v in optuna_params.items()}
-
-
-def _plain(value: Any) -> Any:
-    return value.item() if hasattr(value, "item") else value
+    return {k.removeprefix(f"{PARAMS_KEY}/"): plain_number(v) for k, v in optuna_params.items()}
 
 
 def best_sweep(sweep: Sweep, robot: str, algorithm: str, params: dict[str, Any]) -> Sweep:
