@@ -75,8 +75,9 @@ def error_line(exc: BaseException) -> str:
     from pydantic import ValidationError
 
     if isinstance(exc, ValidationError):
-        problems = [f"{'.'.join(str(p) for p in e['loc']) or '<top>'}: {e['msg']}" for e in exc.errors()]
-        return f"invalid {exc.title}: " + "; ".join(problems)
+        from flashnav.config import error_lines
+
+        return f"invalid {exc.title}: " + "; ".join(error_lines(exc))
     text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
     return " ".join(text.split()) or type(exc).__name__
 

@@ -48,24 +48,38 @@ def _is_union_tag(part: str) -> bool:
     return part in _TYPE_TAGS or "[" in part or part[:1].isupper()
 
 
-def error_lines(exc: ValidationError) -> list[str]:
-    """One ``key.path: message`` per problem of a pydantic error (an unknown key's name included). Where a
-    value failed every member of a union (``maps``: a string, a list or generated maps) and one member said
-    why in words, only that reason is kept, under the key's own path (not "maps.str: ..., maps.list[str]: ...")."""
-    errors = exc.errors()
-    reasons = {str(e["loc"][0]) for e in errors if e["type"] == "value_error" and len(e["loc"]) > 1
-               and any(_is_union_tag(str(p)) for p in e["loc"][1:])}
-    lines = []
+def problems(exc: ValidationError) -> list[tuple[list[str], dict]]:
+    """(key path, pydantic error item) per problem, the one home of how a validation error is read: an unknown
+    key's name joins its path; where a value failed every member of a union (``maps``: a string, a list or
+    generated maps) and one member said why in words, only that reason is kept, under the key's own path (not
+    "maps.str: ..., maps.list[str]: ...")."""
+    errors, out = exc.errors(), []
+
+    def head(loc) -> tuple[str, ...] | None:  # the key path before the first union tag (None: no union)
+        parts = [str(p) for p in loc]
+        return next((tuple(parts[:k]) for k, p in enumerate(parts) if k and _is_union_tag(p)), None)
+
+    reasons = {head(e["loc"]) for e in errors if e["type"] == "value_error"} - {None}
     for item in errors:
         loc = [str(part) for part in item["loc"]]
-        if loc and loc[0] in reasons:
+        if head(item["loc"]) in reasons:
             if item["type"] != "value_error":
                 continue  # a union member the value was not meant for
-            loc = [part for part in loc if not _is_union_tag(part)]
-        got = ""
+            loc = [part for k, part in enumerate(loc) if not (k and _is_union_tag(part))]
         if item["type"] == "unknown_key":
-            loc.append((item.get("ctx") or {}).get("key", "?"))
-        elif isinstance(item.get("input"), (int, float, str)) and len(repr(item["input"])) <= 60:
+            loc.append(str((item.get("ctx") or {}).get("key", "?")))
+        out.append((loc, item))
+    return out
+
+
+def error_lines(exc: ValidationError) -> list[str]:
+    """One ``key.path: message`` per problem of a pydantic error (:func:`problems`), with the value that failed
+    a bound or a type."""
+    lines = []
+    for loc, item in problems(exc):
+        got = ""
+        if item["type"] != "unknown_key" and isinstance(item.get("input"), (int, float, str)) \
+                and len(repr(item["input"])) <= 60:
             got = f" (got {item['input']!r})"  # a scalar that failed a bound or a type: say which value
         lines.append(f"{'.'.join(loc) or '<top>'}: {item['msg'].removeprefix('Value error, ')}{got}")
     return lines

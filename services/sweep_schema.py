@@ -21,6 +21,7 @@ import yaml
 from pydantic import Field, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from flashnav.config import problems
 from flashnav.names import check_robot
 from flashnav.spec import Budget, TrainConfig
 from flashnav.yamlio import load_yaml, parse_assignment, set_dotted
@@ -178,12 +179,9 @@ class Sweep(Strict):
 
 def format_errors(error: ValidationError, source: str) -> str:
     """One line per problem: ``<file>: <key.path>: <message>``."""
-    lines = [f"{source}: invalid sweep ({error.error_count()} problem{'s' * (error.error_count() > 1)})"]
-    for item in error.errors():
-        loc = [str(part) for part in item["loc"]]
-        ctx = item.get("ctx") or {}
-        if item["type"] == "unknown_key":
-            loc.append(ctx["key"])
+    found = problems(error)
+    lines = [f"{source}: invalid sweep ({len(found)} problem{'s' * (len(found) > 1)})"]
+    for loc, item in found:
         message = item["msg"].removeprefix("Value error, ")
         # A dotted config key (``algo.batch_size``) is bracketed so the path stays unambiguous.
         path = "".join(f"[{part}]" if "." in part else f".{part}" for part in loc).lstrip(".")

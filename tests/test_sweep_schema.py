@@ -117,6 +117,13 @@ def test_seeds_forms():
     assert "seeds must be >= 0, got [-3]" in error_of(minimal(seeds=[0, -3]))  # failed only in its own trial
 
 
+def test_a_union_value_error_says_only_its_reason():
+    """`base: {maps: family:room}` printed three problems, one per member of the maps union."""
+    message = error_of(minimal(base={"maps": "family:room"}))
+    assert "(1 problem)" in message and "base.maps.family: unknown map family 'room' (did you mean 'rooms'?)" in message
+    assert "maps.str" not in message and "list[str]" not in message
+
+
 def test_apply_sets_dotted_override_keys():
     data = minimal()
     apply_sets(data, ["budget.max_train_seconds=5", "overrides.algo.batch_size=512", "seeds=[0, 1, 2]",
