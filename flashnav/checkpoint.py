@@ -21,6 +21,17 @@ SUPPORTED_CHECKPOINT_VERSIONS = (1,)
 CHECKPOINT_KEYS = ("format_version", "flashnav_version", "learner", "config", "extra")
 
 
+def is_torchscript(path: Path) -> bool:
+    """Whether ``path`` is a TorchScript archive (a zip with a ``code/`` folder), read without loading it."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return any("/code/" in name or name.startswith("code/") for name in archive.namelist())
+    except (zipfile.BadZipFile, OSError):
+        return False
+
+
 def is_checkpoint(path: Path) -> bool:
     """Whether ``path`` is a :func:`save_checkpoint` file (read with weights_only: runs no code)."""
     try:

@@ -29,6 +29,7 @@ import flashnav
 from flashnav.checkpoint import is_checkpoint
 from flashnav.config import TRACK_FEATURES, RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
+from flashnav.names import POLICY_METADATA, POLICY_ONNX, POLICY_TORCHSCRIPT
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, parse_metadata as _parse_metadata  # noqa: F401
 from flashnav.sim.memory import points_per_frame
 from flashnav.sim.tracks import track_bounds
@@ -176,7 +177,7 @@ def export_policy(actor: nn.Module, preset: RobotPreset, out_dir: str | Path, on
     gen = torch.Generator().manual_seed(0)
     example = sample_observations(preset, 8, gen, goal_max)
 
-    paths: dict[str, Path] = {"torchscript": out_dir / "policy.pt", "metadata": out_dir / "policy.json"}
+    paths: dict[str, Path] = {"torchscript": out_dir / POLICY_TORCHSCRIPT, "metadata": out_dir / POLICY_METADATA}
     # torch.jit.script cannot compile IPAPRec (it reads a module-level float); tracing is exact here
     # because the forward pass has no value-dependent control flow. The deprecation warnings of
     # torch.jit / the TorchScript ONNX exporter are expected and would only confuse the user.
@@ -186,7 +187,7 @@ def export_policy(actor: nn.Module, preset: RobotPreset, out_dir: str | Path, on
         traced = torch.jit.trace(module, (example,), check_inputs=[(example[:1],), (example[:5],)])
         torch.jit.save(traced, str(paths["torchscript"]), _extra_files={METADATA_KEY: meta_json})
         if onnx:
-            paths["onnx"] = out_dir / "policy.onnx"
+            paths["onnx"] = out_dir / POLICY_ONNX
             _export_onnx(module, example, paths["onnx"], meta_json)
     paths["metadata"].write_text(meta_json + "\n", encoding="utf-8")
 
@@ -304,7 +305,7 @@ def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
     """
     path = Path(path)
     if path.is_dir():  # a `flashnav train` run folder: its best policy, TorchScript first
-        found = [path / name for name in ("policy.pt", "policy.onnx") if (path / name).is_file()]
+        found = [path / name for name in (POLICY_TORCHSCRIPT, POLICY_ONNX) if (path / name).is_file()]
         if not found:
             raise FileNotFoundError(f"{path}: a folder without policy.pt or policy.onnx (give a flashnav train run "
                                     "folder or a policy file)")

@@ -36,8 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-#: The checkpoint file a run directory holds (``flashnav train`` writes it).
-CHECKPOINT_NAME = "checkpoint.pt"
+from flashnav.names import CHECKPOINT_FILE as CHECKPOINT_NAME  # the checkpoint file a run folder holds
 #: Per-environment exploration state in ``state_dict()["algo"]`` (shape ``[num_envs, 1]``).
 PER_ENV_STATE = ("dem_scale", "noise_std")
 #: Optimiser param-group settings that belong to the run, not to the checkpoint.
@@ -82,21 +81,12 @@ def checkpoint_file(source: str | Path) -> Path:
         return path.resolve()
     if not path.is_file():
         raise FileNotFoundError(f"init_from {str(source)!r}: no such run folder or checkpoint file")
-    if path.suffix in (".onnx", ".json") or _is_torchscript(path):
+    from flashnav.checkpoint import is_torchscript
+
+    if path.suffix in (".onnx", ".json") or is_torchscript(path):
         raise ValueError(f"init_from {str(source)!r}: an exported policy, which holds the actor only, not the "
                          f"learner (critics, optimisers, temperature): give its run folder or its {CHECKPOINT_NAME}")
     return path.resolve()
-
-
-def _is_torchscript(path: Path) -> bool:
-    """Whether ``path`` is a TorchScript archive (a zip with a ``code/`` folder), read without loading it."""
-    import zipfile
-
-    try:
-        with zipfile.ZipFile(path) as archive:
-            return any("/code/" in name or name.startswith("code/") for name in archive.namelist())
-    except (zipfile.BadZipFile, OSError):
-        return False
 
 
 def load_init_source(source: str | Path, read_spec: Callable[..., Any]):

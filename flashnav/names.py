@@ -58,6 +58,11 @@ AGENT_BEHAVIOURS = ("waypoints", "bounce", "crossing")
 #: Evaluation scenarios (:mod:`flashnav.scenarios`, ``flashnav eval --scenario NAME``): no agents, 4
 #: or 8 wandering agents, one agent crossing the robot's route.
 SCENARIOS = ("static", "wander-4", "wander-8", "crossing")
+#: The files of a run folder (``flashnav train --out``; :func:`flashnav.learn.artefacts.save_run`): the run's config,
+#: its curve and outcome, the learner state, the best policy (TorchScript, ONNX) and a readable copy of its metadata.
+CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.json", "checkpoint.pt"
+POLICY_TORCHSCRIPT, POLICY_ONNX, POLICY_METADATA = "policy.pt", "policy.onnx", "policy.json"
+RUN_FILES = (CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE, POLICY_TORCHSCRIPT, POLICY_ONNX, POLICY_METADATA)
 #: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
 #: metric names (``time_to_90``).
 THRESHOLDS = (0.9, 0.95, 1.0)

@@ -6,11 +6,10 @@ import datetime as dt
 import json
 from pathlib import Path
 
+from flashnav.names import CHECKPOINT_FILE, CONFIG_FILE, METRICS_FILE, RUN_FILES
 from flashnav.yamlio import dump_yaml
 
-#: what a run folder holds: the run's request and resolved config, its curve and outcome, the learner state, the
-#: best policy exported (TorchScript, ONNX) and a readable copy of the metadata the policy files embed
-RUN_FILES = ("config.yaml", "metrics.json", "checkpoint.pt", "policy.pt", "policy.onnx", "policy.json")
+__all__ = ["RUN_FILES", "save_run"]
 
 
 def save_run(result, out: str | Path) -> Path:
@@ -29,10 +28,10 @@ def save_run(result, out: str | Path) -> Path:
     config = metrics["config"]
     with tempfile.TemporaryDirectory(prefix=".saving-", dir=out) as tmp:
         tmp = Path(tmp)
-        dump_yaml(config, tmp / "config.yaml")
-        with open(tmp / "metrics.json", "w", encoding="utf-8") as f:
+        dump_yaml(config, tmp / CONFIG_FILE)
+        with open(tmp / METRICS_FILE, "w", encoding="utf-8") as f:
             json.dump(metrics, f, indent=2)
-        save_checkpoint(tmp / "checkpoint.pt", result.learner.state_dict(), config,
+        save_checkpoint(tmp / CHECKPOINT_FILE, result.learner.state_dict(), config,
                         {"metrics": {k: v for k, v in metrics.items() if k != "config"},
                          "saved_at": dt.datetime.now().isoformat(timespec="seconds")})
         export_policy(result.policy, result.spec.robot, tmp)  # the best evaluated policy
