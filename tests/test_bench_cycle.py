@@ -15,7 +15,7 @@ TINY = ["algo.num_envs=32", "algo.learning_start=64", "algo.updates_per_step=2",
 
 def test_schedules_name_the_bad_input():
     assert parse_schedules("overlap, sequential") == ["overlap", "sequential"]
-    with pytest.raises(ValueError, match="unknown parallel"):
+    with pytest.raises(ValueError, match="--schedules: unknown schedule 'parallel'"):
         parse_schedules("overlap,parallel")
     with pytest.raises(ValueError, match="twice"):
         parse_schedules("overlap,overlap")

@@ -17,7 +17,7 @@ from flashnav.presets import load_robot
 
 def test_ways_name_the_bad_one():
     assert parse_ways("eager, default") == ["eager", "default"]
-    with pytest.raises(ValueError, match="unknown fast"):
+    with pytest.raises(ValueError, match="--ways: unknown way 'fast'"):
         parse_ways("eager,fast")
 
 
@@ -79,7 +79,7 @@ def test_bench_update_command_writes_rows(tmp_path, capsys):
 
 def test_bench_update_rejects_a_bad_way(capsys):
     assert cli_main(["bench", "update", "--ways", "eager,turbo", "--device", "cpu"]) == 2
-    assert "unknown turbo" in capsys.readouterr().err
+    assert "--ways: unknown way 'turbo'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("algo", ["fastdsac", "fastsac", "fasttd3"])

@@ -70,7 +70,10 @@ def run_sim(args) -> int:
     from flashnav.bench.irsim_peer import irsim_available, irsim_steps
 
     console = Console()
-    robots, raycasters, sizes = _csv(args.robots), _csv(args.raycasters), _csv(args.num_envs, int)
+    from flashnav.names import RAYCASTERS, parse_names
+
+    robots, sizes = _csv(args.robots), _csv(args.num_envs, int)
+    raycasters = parse_names("raycaster", args.raycasters, RAYCASTERS, "--raycasters")
     seconds = args.seconds
     if args.agents < 0 or args.tracks < 0 or args.memory < 0:
         raise ValueError(f"--agents, --tracks and --memory must be >= 0, got {args.agents}, {args.tracks} and "

@@ -22,8 +22,8 @@ import statistics
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.bench import parse_names
 from flashnav.bench.train import add_run_choices
+from flashnav.names import parse_names
 
 #: ``--schedules`` values -> ``TrainConfig.overlap``.
 SCHEDULES = {"overlap": True, "sequential": False}
@@ -42,7 +42,7 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
 
 
 def parse_schedules(text: str) -> list[str]:
-    names = parse_names(text, tuple(SCHEDULES), "--schedules")
+    names = parse_names("schedule", text, tuple(SCHEDULES), "--schedules")
     if len(set(names)) != len(names):
         raise ValueError(f"--schedules: {text!r} names a schedule twice")
     return names

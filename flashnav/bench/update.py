@@ -59,9 +59,9 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
 
 
 def parse_ways(text: str) -> list[str]:
-    from flashnav.bench import parse_names
+    from flashnav.names import parse_names
 
-    return parse_names(text, WAYS, "--ways")
+    return parse_names("way", text, tuple(WAYS), "--ways")
 
 
 def run_spec(algo: str, robot: str, recipe: str, device: str, overrides: list[str] | tuple[str, ...] = ()):
