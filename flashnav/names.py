@@ -58,6 +58,9 @@ AGENT_BEHAVIOURS = ("waypoints", "bounce", "crossing")
 #: Evaluation scenarios (:mod:`flashnav.scenarios`, ``flashnav eval --scenario NAME``): no agents, 4
 #: or 8 wandering agents, one agent crossing the robot's route.
 SCENARIOS = ("static", "wander-4", "wander-8", "crossing")
+#: The fixed evaluation set: the start/goal seed and the episode count every evaluation plays by default
+#: (``eval.seed`` / ``eval.episodes`` in training, ``flashnav eval``, ``bench eval``, ``deploy sim-robot``).
+EVAL_SEED, EVAL_EPISODES = 12345, 1024
 #: The files of a run folder (``flashnav train --out``; :func:`flashnav.learn.artefacts.save_run`): the run's config,
 #: its curve and outcome, the learner state, the best policy (TorchScript, ONNX) and a readable copy of its metadata.
 CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.json", "checkpoint.pt"

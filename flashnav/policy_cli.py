@@ -11,12 +11,12 @@ import math
 import time
 from pathlib import Path
 
-from flashnav.names import GOAL_SAMPLINGS, seed_arg
+from flashnav.names import EVAL_EPISODES, EVAL_SEED, GOAL_SAMPLINGS, seed_arg
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate an exported policy (policy.pt / policy.onnx) on solvable episodes")
-    _common_args(p, episodes=1024)
+    _common_args(p, episodes=EVAL_EPISODES)
     p.add_argument("--device", default="cpu", help="simulator device (cpu, cuda, cuda:N, auto); ONNX always runs on CPU")
     p.add_argument("--json", default=None, metavar="FILE", help="write the rates to this JSON file")
     p.add_argument("--maps", default=None, metavar="DIR_OR_GLOB",
@@ -93,7 +93,7 @@ def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
                    help="turtlebot2, go2 or a preset YAML (default: the robot recorded in the policy)")
     p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
     p.add_argument("--episodes", type=int, default=episodes, help=f"episodes, run in parallel (one per env; default {episodes})")
-    p.add_argument("--seed", type=seed_arg, default=12345, help="start/goal sampling seed (default 12345)")
+    p.add_argument("--seed", type=seed_arg, default=EVAL_SEED, help=f"start/goal sampling seed (default {EVAL_SEED})")
     p.add_argument("overrides", nargs="*", metavar="robot.KEY=VALUE",
                    help="change the simulated robot the policy is played on, as flashnav train's robot.* "
                         "overrides, e.g. robot.lidar.noise_std=0.03 robot.lidar.dropout=0.05 (a robustness "

@@ -28,8 +28,8 @@ from flashnav.machine import (MACHINE_KEYS, check_device_name, resolve_cuda_grap
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, check_not_benchmark, load_eval_maps
-from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, RAYCASTERS, RECIPE_CHOICES, RECIPE_HELP, ROBOTS,
-                            check_robot)
+from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, EVAL_EPISODES, EVAL_SEED, RAYCASTERS, RECIPE_CHOICES,
+                            RECIPE_HELP, ROBOTS, check_robot)
 from flashnav.presets import load_robot, with_recipe_setup
 from flashnav.yamlio import load_yaml, parse_assignment, set_dotted
 
@@ -48,9 +48,9 @@ class Budget(KnownKeys):
 class EvalSettings(KnownKeys):
     """The fixed evaluation set every evaluation of a run plays."""
 
-    episodes: int = Field(1024, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
+    episodes: int = Field(EVAL_EPISODES, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
     every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
-    seed: int = Field(12345, ge=0, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
+    seed: int = Field(EVAL_SEED, ge=0, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
     maps: str | list[str] | None = Field(
         None, description="evaluate on other maps than the training maps (None): a directory, glob or list of ROS map "
                           "YAML files, or 'validation' (generated, seeds from 800000; flashnav/maps/validation.py), "

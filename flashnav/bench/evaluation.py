@@ -14,7 +14,7 @@ import time
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.names import seed_arg
+from flashnav.names import EVAL_EPISODES, EVAL_SEED, seed_arg
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -22,8 +22,8 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("policy", metavar="POLICY", help="policy.pt (TorchScript) or policy.onnx")
     p.add_argument("--robot", default=None, help="default: the robot recorded in the policy")
     p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
-    p.add_argument("--episodes", type=int, default=1024, help="episodes, run in parallel (one per env)")
-    p.add_argument("--seed", type=seed_arg, default=12345, help="start/goal sampling seed")
+    p.add_argument("--episodes", type=int, default=EVAL_EPISODES, help="episodes, run in parallel (one per env)")
+    p.add_argument("--seed", type=seed_arg, default=EVAL_SEED, help="start/goal sampling seed")
     p.add_argument("--device", default="cpu", help="simulator device")
     p.add_argument("--repeats", type=int, default=3, help="timed evaluations per way, interleaved")
     p.set_defaults(func=run_bench_eval)

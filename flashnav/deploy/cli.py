@@ -8,7 +8,7 @@ import math
 import sys
 
 from flashnav.deploy.scan import Mount
-from flashnav.names import GOAL_SAMPLINGS, seed_arg
+from flashnav.names import EVAL_SEED, GOAL_SAMPLINGS, seed_arg
 
 
 def _floats(n: int, name: str):
@@ -71,7 +71,8 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
     q.add_argument("--episodes", type=int, default=0,
                    help="play the start/goal pairs of `flashnav eval --episodes N --seed S` (default 0: free running)")
-    q.add_argument("--seed", type=seed_arg, default=12345, help="start/goal sampling seed (default 12345, as flashnav eval)")
+    q.add_argument("--seed", type=seed_arg, default=EVAL_SEED,
+                   help=f"start/goal sampling seed (default {EVAL_SEED}, as flashnav eval)")
     q.add_argument("--goal-sampling", default=None, choices=GOAL_SAMPLINGS,
                    help="goal band as straight line or path length (default: the robot preset's; geodesic is what "
                         "`flashnav eval --maps` plays, every goal reachable within the horizon)")
