@@ -133,6 +133,19 @@ def test_a_scan_without_a_valid_reading_stops_the_robot(dead):
     assert ctl.on_scan(ranges=_ranges(), stamp=0.3, now=0.3, **scan).state == "driving"  # valid again
 
 
+def test_an_offset_mounted_sensor_without_a_valid_reading_is_blind_too():
+    """An invalid reading has no end point: with the LiDAR off the base origin its sector was NaN, so no sector
+    counted as covered and a dead sensor read as open space."""
+    from flashnav.deploy.scan import Mount
+
+    rt = PolicyRuntime.load(POLICY, mount=Mount(0.1, -0.05, 0.0))
+    with pytest.warns(RuntimeWarning, match="had no valid reading"):
+        sectors = rt.scan(ranges=_ranges(float("nan")), **SCAN)
+    assert rt.adapter.no_valid_reading and (sectors == rt.adapter.fill).all()
+    rt.scan(ranges=_ranges(), **SCAN)
+    assert not rt.adapter.no_valid_reading and rt.adapter.invalid_sectors == []
+
+
 def test_some_sectors_without_a_valid_reading_are_warned_of_and_drive():
     rt = PolicyRuntime.load(POLICY)
     ranges = _ranges()

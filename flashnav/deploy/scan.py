@@ -94,6 +94,7 @@ class ScanAdapter:
             raise ValueError(f"fill must be in [0, max_range = {layout.max_range}] m, got {fill}")
         self._geometry_key = None
         self._blind: list[int] = []
+        self._aimed = np.zeros(0, np.int64)
         self.invalid_sectors: list[int] = []  # the last scan's covered sectors without one valid reading
         self._warned_invalid: set[int] = set()
 
@@ -104,9 +105,12 @@ class ScanAdapter:
         keep = valid & (idx >= 0)
         out = np.full(self.layout.sectors, np.inf)
         np.minimum.at(out, idx[keep], r[keep])
-        seen = np.zeros(self.layout.sectors, bool)
-        seen[idx[idx >= 0]] = True
-        self.invalid_sectors = np.flatnonzero(seen & np.isinf(out)).tolist()
+        # by the beams' directions (an invalid reading has no end point): the sectors whose every beam was invalid
+        has_valid = np.zeros(self.layout.sectors, bool)
+        has_valid[self._aimed[valid & (self._aimed >= 0)]] = True
+        covered = np.ones(self.layout.sectors, bool)
+        covered[self._blind] = False
+        self.invalid_sectors = np.flatnonzero(covered & ~has_valid).tolist()
         if set(self.invalid_sectors) - self._warned_invalid:
             self._warned_invalid |= set(self.invalid_sectors)
             warnings.warn(f"scan: sectors {self.invalid_sectors} of {self.layout.sectors} had no valid reading "
@@ -119,7 +123,7 @@ class ScanAdapter:
     def no_valid_reading(self) -> bool:
         """Whether the last scan had not one valid reading in the policy's field of view (a sensor that is
         dead or covered: its sectors would read the fill value, open space, and the deploy node stops)."""
-        return bool(self.invalid_sectors) and len(self.invalid_sectors) == self.layout.sectors - len(self._blind)
+        return len(self.invalid_sectors) == self.layout.sectors - len(self._blind) > 0
 
     def beams(self, angle_min: float, angle_increment: float, ranges, range_min: float,
               range_max: float) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +162,7 @@ class ScanAdapter:
         if key == self._geometry_key:
             return
         self._geometry_key = key
-        idx = sector_of(direction, self.layout)
+        self._aimed = idx = sector_of(direction, self.layout)  # each beam's sector by its direction
         self._blind = sorted(set(range(self.layout.sectors)) - set(idx[idx >= 0].tolist()))
         if self._blind:
             warnings.warn(f"the scan covers only {self.layout.sectors - len(self._blind)} of the policy's "
