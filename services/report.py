@@ -230,7 +230,8 @@ def _markdown(ours, paper, prov, figures, out: Path, steps=None) -> str:
              f"{', '.join(prov['experiments']) or 'all'}; sweeps: {', '.join(prov['sweeps']) or '—'}; "
              f"{prov['n_runs']} trial runs, {prov['n_not_finished']} not FINISHED and {prov['n_duplicates']} "
              f"duplicates dropped, {prov['n_trials']} trials tabulated.", ""]
-    lines += [f"**Pooled:** {w}" + "  " for w in prov.get("warnings", [])] + [""] * bool(prov.get("warnings"))
+    if prov.get("warnings"):
+        lines += [f"**Pooled:** {w}  " for w in prov["warnings"]] + [""]
     if steps is not None and not steps.empty:
         lines += ["## Environment steps to success threshold", "",
                   "Best / mean environment steps over the seeds that reached the threshold (machine-independent: "

@@ -135,9 +135,12 @@ def recorded_drift(config_file: str | None, spec) -> list[str]:
     now, lines = spec.to_dict(), []
     for section in ("hparams", "robot_preset"):
         then, today = flatten_dotted(recorded[section]), flatten_dotted(now[section])
-        changed = [f"{key} {then[key]!r} -> {today.get(key)!r}" if key in then else f"{key} (not recorded) "
-                   f"-> {today[key]!r}" for key in sorted(then.keys() | today.keys()) if then.get(key) != today.get(key)
-                   or (key in then) != (key in today)]
+        changed = []
+        for key in sorted(then.keys() | today.keys()):
+            if key not in then:  # a field added since the run
+                changed.append(f"{key} (not recorded) -> {today[key]!r}")
+            elif key not in today or then[key] != today[key]:
+                changed.append(f"{key} {then[key]!r} -> {today.get(key)!r}")
         if changed:
             lines.append(f"{config_file} recorded other {section} than its request gives today ({len(changed)}): "
                          + "; ".join(changed[:4]) + (" ..." if len(changed) > 4 else ""))
