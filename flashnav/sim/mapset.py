@@ -81,17 +81,17 @@ def check_map_index(map_index, n: int, num_maps: int, device: torch.device) -> t
     return mi
 
 
-def goals_outside(grids: Sequence[OccupancyMap], goal: torch.Tensor, map_index: torch.Tensor) -> torch.Tensor:
-    """[N] bool: ``goal`` [N, 2] (m, world, float64) lies outside the extent of its map
-    ``grids[map_index]``, by more than one cell (float32 goals on a map's edge may round a hair
-    outside it). Indices out of range count as inside (checked elsewhere)."""
-    dev = goal.device
+def outside_maps(grids: Sequence[OccupancyMap], points: torch.Tensor, map_index: torch.Tensor) -> torch.Tensor:
+    """[N] bool: ``points`` [N, 2] (m, world, float64: goals, or robot positions) lie outside the extent of their
+    map ``grids[map_index]``, by more than one cell (float32 goals on a map's edge may round a hair outside it).
+    Indices out of range count as inside (checked elsewhere)."""
+    dev = points.device
     bounds = torch.tensor([g.bounds for g in grids], dtype=torch.float64, device=dev)
     tol = torch.tensor([g.resolution for g in grids], dtype=torch.float64, device=dev)
     mi = map_index.clamp(0, len(grids) - 1)
     b, t = bounds[mi], tol[mi]
-    gx, gy = goal[:, 0], goal[:, 1]
-    return (gx < b[:, 0] - t) | (gx > b[:, 2] + t) | (gy < b[:, 1] - t) | (gy > b[:, 3] + t)
+    x, y = points[:, 0], points[:, 1]
+    return (x < b[:, 0] - t) | (x > b[:, 2] + t) | (y < b[:, 1] - t) | (y > b[:, 3] + t)
 
 
 class MapDraw:
