@@ -24,14 +24,14 @@ from services.paths import check_tracking_uri, redact_uri, resolve_tracking_uri
 from services.report_select import pooling_warnings, select_invocation
 from services.report_tables import (THRESHOLDS, comparison_table, latex_document, load_paper_table, split_platform,
                                     threshold_table, to_csv, to_latex, to_markdown)
+from services.schema_base import CURVE_METRICS as ALL_CURVES
+from services.schema_base import FINAL_METRICS
 
 __all__ = ["NoRunsError", "default_tracking_uri", "normalize_runs", "load_runs", "curves", "threshold_table",
            "build_report", "write_report", "register_cli"]
 
-FINAL_METRICS = [f"{kind}_{t}" for t in THRESHOLDS for kind in ("time_to", "env_steps_to", "reached")] + [
-    "final_success_rate", "best_success_rate", "train_seconds_total", "env_steps_total",
-    "cycle_collector_ms", "cycle_learner_ms", "cycle_effective_ms"]
-CURVE_METRICS = ("success_rate", "mean_return", "train_seconds")
+#: the curves the report reads (the env_steps curve is every point's step, so it is not fetched again)
+CURVE_METRICS = tuple(m for m in ALL_CURVES if m != "env_steps")
 FORMATS = ("md", "tex", "csv", "html", "png", "svg")
 _INT = re.compile(r"^[+-]?\d+$")
 #: MLflow's HTTP settings for `flashnav report` (set only where the user has not set them)

@@ -1,4 +1,5 @@
-"""Building blocks shared by the sweep schema and its search space: names, the strict model, the error.
+"""Building blocks shared by the sweep schema, its search space, tracking and the report: names, metric names,
+the strict model, the error.
 
 A module of its own so that services.search_space and services.sweep_schema both build on it without
 importing each other.
@@ -8,6 +9,13 @@ from __future__ import annotations
 
 from flashnav.config import Strict  # noqa: F401  (the sweep schema's base: one strict model for the project)
 from flashnav.names import ALGORITHMS, THRESHOLD_TAGS
+
+#: what a trial's final report carries to MLflow (services.tracking logs them; services.report reads them)
+FINAL_METRICS = tuple(f"{kind}_{tag}" for tag in THRESHOLD_TAGS for kind in ("time_to", "env_steps_to", "reached")) + (
+    "final_success_rate", "best_success_rate", "train_seconds_total", "env_steps_total",
+    "cycle_collector_ms", "cycle_learner_ms", "cycle_effective_ms")
+#: what each evaluation report carries, logged at the step of its ``env_steps``
+CURVE_METRICS = ("success_rate", "mean_return", "train_seconds", "env_steps")
 
 # Objective name -> Optuna direction. Time/steps are censored (the run's total where not reached).
 OBJECTIVES = {

@@ -25,15 +25,11 @@ from typing import Any
 import yaml
 from ray import tune
 
-from flashnav.metrics import THRESHOLD_TAGS
 from flashnav.yamlio import flatten_dotted
+from services.schema_base import CURVE_METRICS, FINAL_METRICS
 
 logger = logging.getLogger(__name__)
 
-FINAL_METRICS = tuple(f"{kind}_{tag}" for tag in THRESHOLD_TAGS for kind in ("time_to", "env_steps_to", "reached")) + (
-    "final_success_rate", "best_success_rate", "train_seconds_total", "env_steps_total",
-    "cycle_collector_ms", "cycle_learner_ms", "cycle_effective_ms")
-CURVE_METRICS = ("success_rate", "mean_return", "train_seconds", "env_steps")
 RESULT_TAGS = ("device_name", "threads", "device_kind", "host", "recipe", "flashnav_version", "git_commit", "torch_version")
 PARENT_TAG = "mlflow.parentRunId"
 _MAX_PARAM_VALUE = 6000  # MLflow 3's limit on a param value
