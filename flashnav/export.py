@@ -30,7 +30,8 @@ from flashnav.checkpoint import is_checkpoint
 from flashnav.config import TRACK_FEATURES, RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
 from flashnav.names import POLICY_METADATA, POLICY_ONNX, POLICY_TORCHSCRIPT
-from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, parse_metadata as _parse_metadata  # noqa: F401
+from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, first_sentence, open_onnx  # noqa: F401
+from flashnav.policy_meta import parse_metadata as _parse_metadata
 from flashnav.sim.memory import points_per_frame
 from flashnav.sim.tracks import track_bounds
 from flashnav.sim.trail import trail_bound
@@ -344,7 +345,7 @@ def _load_torchscript(path: Path, device: torch.device | str):
         if is_checkpoint(path):
             raise ValueError(f"{path}: a FlashNav training checkpoint, not an exported policy; evaluate the "
                              "policy.pt or policy.onnx that flashnav train writes next to it") from None
-        raise ValueError(f"{path}: not a readable TorchScript policy ({_first_sentence(exc)})") from None
+        raise ValueError(f"{path}: not a readable TorchScript policy ({first_sentence(exc)})") from None
     meta = _parse_metadata(path, extra[METADATA_KEY])
     module.eval()
     device = torch.device(device)
@@ -357,15 +358,7 @@ def _load_torchscript(path: Path, device: torch.device | str):
 
 
 def _load_onnx(path: Path):
-    try:
-        import onnxruntime as ort
-    except ImportError:
-        raise ImportError("running policy.onnx needs onnxruntime: pip install 'flashnav[export]'") from None
-    try:
-        session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    except Exception as exc:  # onnxruntime's own exception types (InvalidProtobuf, Fail, ...): a bad file
-        raise ValueError(f"{path}: not a readable ONNX policy ({_first_sentence(exc)})") from None
-    meta = _parse_metadata(path, session.get_modelmeta().custom_metadata_map.get(METADATA_KEY))
+    session, meta = open_onnx(path)
 
     def run(obs: torch.Tensor) -> torch.Tensor:
         x = obs.detach().to("cpu", torch.float32).contiguous().numpy()
@@ -373,9 +366,3 @@ def _load_onnx(path: Path):
         return torch.from_numpy(action).to(obs.device)
 
     return run, meta
-
-
-def _first_sentence(exc: BaseException) -> str:
-    """The gist of a runtime's error (torch appends a paragraph of advice about corrupt checkpoints)."""
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text.split(". ")[0].rstrip(".")

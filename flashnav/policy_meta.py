@@ -20,6 +20,32 @@ POLICY_FORMAT_VERSION = 1
 METADATA_KEY = "flashnav.json"
 
 
+def open_onnx(path: str | Path, threads: int | None = None):
+    """(onnxruntime session on the CPU, its FlashNav metadata) of ``policy.onnx`` at ``path``: the one reader of
+    an exported ONNX policy (:func:`flashnav.export.load_policy`, :class:`flashnav.deploy.runtime.PolicyRuntime`).
+    ``threads``: onnxruntime's intra- and inter-op threads (None: its default). Raises ImportError without
+    onnxruntime and ValueError naming ``path`` for a file it cannot read or without FlashNav metadata."""
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        raise ImportError("running policy.onnx needs onnxruntime: pip install 'flashnav[export]'") from None
+    options = ort.SessionOptions()
+    if threads is not None:
+        options.intra_op_num_threads = options.inter_op_num_threads = threads
+    try:
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime's own exception types (InvalidProtobuf, Fail, ...): a bad file
+        raise ValueError(f"{path}: not a readable ONNX policy ({first_sentence(exc)})") from None
+    return session, parse_metadata(path, session.get_modelmeta().custom_metadata_map.get(METADATA_KEY))
+
+
+def first_sentence(exc: BaseException) -> str:
+    """The gist of a runtime's error (torch appends a paragraph of advice about corrupt checkpoints), at most
+    200 characters."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text.split(". ")[0].rstrip(".")[:200]
+
+
 def parse_metadata(path: str | Path, text: str | bytes | None) -> dict[str, Any]:
     """The metadata dict of the policy file ``path`` from its stored JSON ``text``.
 

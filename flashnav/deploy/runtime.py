@@ -32,8 +32,7 @@ from typing import Any
 import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
-from flashnav.policy_meta import (METADATA_KEY, agent_track_count, memory_scan_shape, parse_metadata, pose_trail_shape,
-                                  scan_history_frames)
+from flashnav.policy_meta import agent_track_count, memory_scan_shape, open_onnx, pose_trail_shape, scan_history_frames
 
 #: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
 TRACK_WIDTH = 6
@@ -118,18 +117,8 @@ class PolicyRuntime:
                              f"got {path.suffix or 'no suffix'!r}")
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such policy file")
-        try:
-            import onnxruntime as ort
-        except ImportError:
-            raise ImportError("the deploy runtime needs onnxruntime: pip install 'flashnav[export]'") from None
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = 1  # a 34-number MLP: threads only add latency on the robot
-        options.inter_op_num_threads = 1
-        try:
-            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime's own exception types: a bad file
-            raise ValueError(f"{path}: not a readable ONNX policy ({' '.join(str(exc).split())[:200]})") from None
-        meta = parse_metadata(path, session.get_modelmeta().custom_metadata_map.get(METADATA_KEY))
+        # a 34-number MLP: threads only add latency on the robot
+        session, meta = open_onnx(path, threads=1)
         return cls(session, meta, path, mount=mount, fill=fill)
 
     # ---- the observation ------------------------------------------------------------------------
