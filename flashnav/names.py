@@ -8,6 +8,8 @@ from __future__ import annotations
 
 #: Robot presets shipped in ``flashnav/presets/<name>.yaml`` (a preset YAML path works too).
 ROBOTS = ("turtlebot2", "go2")
+#: The robot of every command and constructor that is not told one.
+DEFAULT_ROBOT = ROBOTS[0]
 #: Display names of the robots (tables, figures), in the paper's order.
 ROBOT_LABELS = {"turtlebot2": "TurtleBot2", "go2": "Go2"}
 #: Learners, each a module of functions in ``flashnav/learn/<name>.py``.

@@ -28,8 +28,8 @@ from flashnav.machine import (MACHINE_KEYS, check_device_name, resolve_cuda_grap
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.stream import GeneratedMaps, generate_set, generation_radius, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value, check_not_benchmark, load_eval_maps
-from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, EVAL_EPISODES, EVAL_SEED, RAYCASTERS, RECIPE_CHOICES,
-                            RECIPE_HELP, ROBOTS, check_robot)
+from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, DEFAULT_ROBOT, EVAL_EPISODES, EVAL_SEED, RAYCASTERS,
+                            RECIPE_CHOICES, RECIPE_HELP, ROBOTS, check_robot)
 from flashnav.presets import load_robot, with_recipe_setup
 from flashnav.yamlio import load_yaml, parse_assignment, set_dotted
 
@@ -69,7 +69,7 @@ class TrainConfig(KnownKeys):
     """One training run as asked for. Every field has a default: ``TrainConfig()`` trains FastDSAC on
     TurtleBot2. See docs/train-api.md."""
 
-    robot: str = Field("turtlebot2", description=f"preset name ({', '.join(ROBOTS)}) or a preset YAML path")
+    robot: str = Field(DEFAULT_ROBOT, description=f"preset name ({', '.join(ROBOTS)}) or a preset YAML path")
     algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
     recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
         "auto", description="hyperparameter recipe: " + RECIPE_HELP)

@@ -70,7 +70,7 @@ def run_sim(args) -> int:
     from flashnav.bench.irsim_peer import irsim_available, irsim_steps
 
     console = Console()
-    from flashnav.names import RAYCASTERS, parse_names
+    from flashnav.names import DEFAULT_ROBOT, RAYCASTERS, parse_names
 
     robots, sizes = _csv(args.robots), _csv(args.num_envs, int)
     raycasters = parse_names("raycaster", args.raycasters, RAYCASTERS, "--raycasters")
@@ -81,7 +81,7 @@ def run_sim(args) -> int:
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
     if args.quick:
-        robots, sizes, seconds = ["turtlebot2"], [64], 0.5
+        robots, sizes, seconds = [DEFAULT_ROBOT], [64], 0.5
     from flashnav.machine import learner_threads, machine_name
 
     machine, threads = machine_name(args.device), learner_threads(args.device)

@@ -17,7 +17,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.names import seed_arg
+from flashnav.names import DEFAULT_ROBOT, seed_arg
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -41,7 +41,7 @@ def run_bench_plan(args) -> int:
     if args.goals < 1 or args.repeats < 1 or not args.radius > 0:
         raise ValueError(f"--goals and --repeats must be >= 1 and --radius > 0, got {args.goals}, {args.repeats}, "
                          f"{args.radius}")
-    grid = resolve_map(args.map, "turtlebot2")
+    grid = resolve_map(args.map, DEFAULT_ROBOT)
     free = grid.free_space(args.radius).copy()
     cells = np.flatnonzero(free)
     if not len(cells):

@@ -27,7 +27,7 @@ from typing import Any, Callable
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.names import ALGORITHMS, RECIPE_CHOICES
+from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, RECIPE_CHOICES
 
 #: ``--ways`` values: eager, or a torch.compile mode ("default" is torch's default mode).
 WAYS = ("eager", "bf16-autocast", "cuda-graph", "default", "reduce-overhead", "max-autotune",
@@ -42,7 +42,7 @@ GRAPH_WAYS = ("cuda-graph",)
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("update", help="ms per learner update: eager vs torch.compile modes, bf16, CUDA graph")
-    p.add_argument("--robot", default="turtlebot2")
+    p.add_argument("--robot", default=DEFAULT_ROBOT)
     p.add_argument("--algo", default="fastdsac", choices=ALGORITHMS)
     p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
     p.add_argument("--device", default="auto")

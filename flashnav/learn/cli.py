@@ -15,7 +15,7 @@ from rich.table import Table
 
 from flashnav.learn.artefacts import RUN_FILES, save_run
 from flashnav.learn.progress import TrainProgress
-from flashnav.names import ALGORITHMS, RECIPE_CHOICES, RECIPE_HELP, THRESHOLDS, seed_arg
+from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, RECIPE_CHOICES, RECIPE_HELP, ROBOTS, THRESHOLDS, seed_arg
 from flashnav.spec import TrainConfig, config_from_cli, resolve, run_request
 
 
@@ -24,7 +24,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                        description="Train a policy; writes config.yaml, metrics.json, checkpoint.pt, "
                                    "policy.pt (TorchScript), policy.onnx and policy.json (a readable copy of the "
                                    "metadata both policy files embed: robot, sensor layout, observation) to --out.")
-    p.add_argument("--robot", help="turtlebot2 (default), go2, or a preset YAML")
+    p.add_argument("--robot", help=f"{', '.join(ROBOTS)} or a preset YAML (default {DEFAULT_ROBOT})")
     p.add_argument("--algo", dest="algorithm", choices=ALGORITHMS, help="learner (default fastdsac)")
     p.add_argument("--recipe", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
     p.add_argument("--device", help="auto (default), cpu, cuda, cuda:N")

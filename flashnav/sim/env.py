@@ -45,7 +45,7 @@ from gymnasium.vector.utils import batch_space
 from flashnav.config import RobotPreset
 from flashnav.maps.bundled import resolve_map, resolve_maps
 from flashnav.maps.grid import OccupancyMap
-from flashnav.names import DEFAULT_RAYCASTER
+from flashnav.names import DEFAULT_RAYCASTER, DEFAULT_ROBOT
 from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
@@ -365,7 +365,7 @@ class NavVecEnv(VectorEnv):
                 f"device={self.device}, raycaster={self.raycaster_name!r})")
 
 
-def make_env(robot: str | RobotPreset = "turtlebot2", num_envs: int = 1, *, map=None, maps=None,
+def make_env(robot: str | RobotPreset = DEFAULT_ROBOT, num_envs: int = 1, *, map=None, maps=None,
              map_weights: Sequence[float] | None = None, device: torch.device | str = "cpu", seed: int = 0,
              raycaster: str | None = None) -> NavVecEnv:
     """The batched environment.

@@ -12,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from flashnav.names import DEFAULT_ROBOT
 from flashnav.sim.env import make_env
 
 class NavEnv(gym.Env):
@@ -28,7 +29,7 @@ class NavEnv(gym.Env):
     metadata = {"render_modes": []}
     _FLAGS = ("success", "collision", "collision_static", "collision_agent")
 
-    def __init__(self, robot: str = "turtlebot2", map=None, raycaster: str | None = None, seed: int = 0,
+    def __init__(self, robot: str = DEFAULT_ROBOT, map=None, raycaster: str | None = None, seed: int = 0,
                  render_mode: str | None = None):
         if render_mode is not None:
             raise ValueError(f"render_mode {render_mode!r}: this env has no render mode; draw episodes with "
@@ -67,6 +68,6 @@ class NavEnv(gym.Env):
                                   "[--gif]`, or flashnav.rollout.rollout and flashnav.viz.draw_trajectories")
 
 
-def make_vec_env(num_envs: int = 1, robot: str = "turtlebot2", **kwargs):
+def make_vec_env(num_envs: int = 1, robot: str = DEFAULT_ROBOT, **kwargs):
     return make_env(robot, num_envs, **kwargs)
 
