@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from flashnav.export import load_policy, recorded_robot
-from flashnav.names import AGENT_BEHAVIOURS, SCENARIOS
+from flashnav.names import AGENT_BEHAVIOURS, EVAL_EPISODES, SCENARIOS
 from flashnav.scenarios import run_scenario, scenario_preset
 from flashnav.sim.env import make_env
 from flashnav.sim.motion import action_to_velocity
@@ -124,7 +124,7 @@ def turn_degrees(past: list, i: int, j: int) -> float | None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("policies", nargs="*", metavar="POLICY", help="exported policy.pt / policy.onnx")
-    ap.add_argument("--episodes", type=int, default=1024)
+    ap.add_argument("--episodes", type=int, default=EVAL_EPISODES)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--scenario", default="wander-8", choices=[s for s in SCENARIOS if s != "static"])
     args = ap.parse_args()

@@ -39,6 +39,7 @@ from flashnav.sim.agent_geometry import footprint_hits_discs
 from flashnav.sim.env import make_env
 from flashnav.sim.motion import action_to_velocity, integrate
 from flashnav.sim.tracks import WIDTH
+from flashnav.yamlio import parse_assignment
 
 TRACKERS = ("lidar", "all", "future")
 HEADING_AHEAD = 0.3  # metres: the end pose's heading is judged by the path length this far in front of it
@@ -186,6 +187,8 @@ def main() -> None:
                     help="m/s: each predicted agent's radius grows by this per second ahead (prediction doubt)")
     ap.add_argument("--v-levels", type=int, default=5, help="forward speeds tried, evenly over the action bounds")
     ap.add_argument("--w-levels", type=int, default=9, help="turn rates tried, evenly over the action bounds")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a robot preset override (motion.v_bounds=[-0.25,0.5]: a robot that can reverse); repeat for more")
     ap.add_argument("--json", help="write the rates and settings here")
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -196,7 +199,8 @@ def main() -> None:
             print(f"  step {step}: {running} episodes running, {time.time() - t0:.0f} s", flush=True)
 
     try:
-        result = run_mpc(scenario_preset(args.robot, args.scenario), args.episodes, args.seed, tracker=args.tracker,
+        robot = load_robot(args.robot, **dict(parse_assignment(s) for s in args.set)) if args.set else args.robot
+        result = run_mpc(scenario_preset(robot, args.scenario), args.episodes, args.seed, tracker=args.tracker,
                          lookahead=args.lookahead, margin=args.margin, growth=args.growth, v_levels=args.v_levels,
                          w_levels=args.w_levels, progress=progress)
     except ValueError as e:

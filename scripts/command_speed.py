@@ -31,6 +31,7 @@ from flashnav.export import load_policy, recorded_robot
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
+from flashnav.names import EVAL_EPISODES, EVAL_SEED
 
 LEVELS = (0.5, 0.8, 0.9, 0.95, 0.99)
 
@@ -63,8 +64,8 @@ def forward_commands(policy, env, seed: int) -> tuple[np.ndarray, dict]:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("policies", nargs="+", metavar="POLICY")
-    p.add_argument("--episodes", type=int, default=1024)
-    p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
+    p.add_argument("--episodes", type=int, default=EVAL_EPISODES)
+    p.add_argument("--seed", type=int, default=EVAL_SEED, help="evaluation seed (flashnav train's eval.seed)")
     p.add_argument("--scales", default="1,1.05,1.1,1.15", help="forward-speed factors, comma-separated")
     p.add_argument("--json", help="write every policy's numbers here")
     args = p.parse_args()

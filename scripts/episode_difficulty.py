@@ -33,6 +33,7 @@ from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.maps.graph import grid_graph
+from flashnav.names import EVAL_EPISODES, EVAL_SEED
 
 LENGTH_BINS = [0, 2, 3, 4, 5, 6, 8, math.inf]  # metres of route
 DETOUR_BINS = [1.0, 1.1, 1.25, 1.5, 2.0, math.inf]
@@ -125,8 +126,8 @@ def table(name: str, values: np.ndarray, bins: list[float], outcome: np.ndarray)
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("policy")
-    p.add_argument("--episodes", type=int, default=1024)
-    p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
+    p.add_argument("--episodes", type=int, default=EVAL_EPISODES)
+    p.add_argument("--seed", type=int, default=EVAL_SEED, help="evaluation seed (flashnav train's eval.seed)")
     p.add_argument("--json", help="write every episode's route, detour and outcome here")
     p.add_argument("--plot", help="scatter of route length vs straight-line distance, coloured by outcome")
     p.add_argument("--failures", help="the failed episodes' paths on the map (near misses apart)")

@@ -33,6 +33,7 @@ from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.sim.oracle import OracleController
+from flashnav.names import EVAL_SEED
 
 STALL_M = 0.5  # metres driven in the second half of the horizon under which a timeout "stalled"
 NEAR_M = 0.1  # a timeout this close to the goal radius is a near miss
@@ -78,7 +79,7 @@ def main() -> None:
     p.add_argument("policy")
     p.add_argument("maps", nargs="+", metavar="MAP_YAML")
     p.add_argument("--episodes", type=int, default=128, help="episodes per map")
-    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--seed", type=int, default=EVAL_SEED)
     p.add_argument("--json", help="write each map's counts and every failure here")
     args = p.parse_args()
     torch.set_num_threads(1)

@@ -41,6 +41,7 @@ from flashnav.maps.graph import grid_graph
 from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
 from flashnav.sim.goal_fields import evaluation_preset
+from flashnav.names import EVAL_SEED
 
 STEPS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
@@ -171,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--maps", default="heldout")
     p.add_argument("--robots", default="turtlebot2,go2")
     p.add_argument("--episodes", type=int, default=256)
-    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--seed", type=int, default=EVAL_SEED)
     p.add_argument("--deep", type=float, default=1.0, help="a trap deeper than this many metres counts as deep")
     p.add_argument("--json")
     p.add_argument("--outcomes", nargs="*", default=[], metavar="EVAL_JSON",

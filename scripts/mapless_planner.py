@@ -33,6 +33,7 @@ from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.sim.oracle import OracleController
+from flashnav.names import EVAL_SEED
 
 
 class MaplessPlanner(OracleController):
@@ -100,7 +101,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("maps", nargs="+", metavar="MAP_YAML")
     p.add_argument("--episodes", type=int, default=32, help="episodes per map (flashnav eval --maps's first ones)")
-    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--seed", type=int, default=EVAL_SEED)
     p.add_argument("--robot", default="turtlebot2")
     p.add_argument("--sensor", choices=SENSORS, default="raw",
                    help="raw: every beam's end is a wall; pooled: only what the policy's observation keeps, each "

@@ -24,6 +24,7 @@ import flashnav.mapless as mapless
 from flashnav.eval_maps import fixed_episodes
 from flashnav.maps.bundled import resolve_map
 from flashnav.maps.graph import grid_graph
+from flashnav.names import EVAL_SEED
 from flashnav.presets import load_robot
 from flashnav.sim.env import NavVecEnv
 
@@ -34,7 +35,7 @@ def scipy_distances(free, resolution, cost, source):
 
 def play(grid, preset, episodes: int, steps: int) -> list[float]:
     env = NavVecEnv(preset, 1, grid=grid, seed=0)
-    pose, goal = fixed_episodes(NavVecEnv(preset, 1, grid=grid, seed=12345), 0, episodes, 12345)
+    pose, goal = fixed_episodes(NavVecEnv(preset, 1, grid=grid, seed=EVAL_SEED), 0, episodes, EVAL_SEED)
     angles = env.beam_angles.numpy()
     times = []
     for e in range(episodes):

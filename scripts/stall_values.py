@@ -36,13 +36,14 @@ from flashnav.learn.fastdsac import policy_log_std, sample
 from flashnav.learn.loop import run_learner
 from flashnav.sim.env import make_env
 from flashnav.spec import RunSpec
+from flashnav.names import EVAL_EPISODES, EVAL_SEED
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run", help="a flashnav train --out directory of a FastDSAC run")
-    p.add_argument("--episodes", type=int, default=1024)
-    p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
+    p.add_argument("--episodes", type=int, default=EVAL_EPISODES)
+    p.add_argument("--seed", type=int, default=EVAL_SEED, help="evaluation seed (flashnav train's eval.seed)")
     p.add_argument("--step", type=int, default=100, help="the replay step at which the critic is read")
     p.add_argument("--samples", type=int, default=0, help="stochastic replays of each failed episode (0: none)")
     p.add_argument("--trace", type=int, default=None, metavar="EPISODE",

@@ -23,6 +23,7 @@ from flashnav.export import load_policy, recorded_robot
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
 from flashnav.sim.goal_fields import evaluation_preset
+from flashnav.names import EVAL_EPISODES, EVAL_SEED
 
 TURN_ON_SPOT = -0.9  # a_v at or below this: under 5 % of the top forward speed (the range [-1, 1] maps to [0, v_max])
 TOP_SPEED = 0.99
@@ -50,8 +51,8 @@ def start_actions(policy, preset, episodes: int, seed: int) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("policy", nargs="+")
-    p.add_argument("--episodes", type=int, default=1024)
-    p.add_argument("--seed", type=int, default=12345, help="evaluation seed (flashnav train's eval.seed)")
+    p.add_argument("--episodes", type=int, default=EVAL_EPISODES)
+    p.add_argument("--seed", type=int, default=EVAL_SEED, help="evaluation seed (flashnav train's eval.seed)")
     args = p.parse_args()
     print(f"{'policy':45s} {'starts':>12s} {'n':>5s} {'turn on spot':>13s} {'top speed':>10s} {'|turn|':>7s} {'sat v':>6s} {'sat w':>6s}")
     for path in args.policy:
