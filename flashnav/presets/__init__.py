@@ -15,7 +15,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from flashnav.config import RobotPreset, error_lines
-from flashnav.names import RECIPES, ROBOTS, check_robot
+from flashnav.names import DEFAULT_ROBOT, RECIPES, ROBOTS, check_robot
 from flashnav.yamlio import deep_merge, load_yaml, set_dotted
 
 
@@ -68,7 +68,7 @@ def with_recipe_setup(data: dict[str, Any], own_maps: bool | None = None) -> dic
     setups = load_preset_file("setups").get(recipe)
     if setups is None:
         return data
-    robot = data.get("robot", ROBOTS[0])
+    robot = data.get("robot", DEFAULT_ROBOT)
     if robot not in setups:
         raise ValueError(f"recipe {recipe!r} has a training setup for {', '.join(setups)} only "
                          f"({preset_path('setups')}), not for robot {robot!r}")
