@@ -9,7 +9,7 @@ reports - each person's position, velocity and radius - and the current scan:
 2. otherwise, of ``v_levels`` x ``w_levels`` constant actions over the action bounds (and the policy's own), the
    one nearest the policy's (Euclidean, in action units) whose rollout touches nobody and no wall - the scan's
    points (:func:`scan_points`: the nearest hit of each group of beams, points on a tracked person dropped), so
-   no map is needed, and the edges of the sector the sensor does not see (:func:`blind_points`: a 270-deg LiDAR's
+   no map is needed, and the edges of the sector the sensor does not see (:func:`blind_edges`: a 270-deg LiDAR's
    rear quarter is unknown, not free, so a robot that can reverse is not sent backwards into it) - is played; if
    every rollout touches something, the one whose first contact comes latest (then the nearest).
 
@@ -182,34 +182,41 @@ def scan_points(pose: torch.Tensor, ranges: torch.Tensor, beam_angles: torch.Ten
     return torch.where(gone[..., None], torch.full_like(pts, math.inf), pts)
 
 
-def blind_points(pose: torch.Tensor, beam_angles: torch.Tensor, reach: float, inner: float,
-                 spacing: float = BLIND_SPACING) -> torch.Tensor | None:
-    """[E, P, 2]: points on the two edges of the widest gap between ``beam_angles`` [B] (rad, robot frame) - the
-    sector the sensor does not see - from ``inner`` to ``reach`` m from the robot's centre at ``pose`` [E, 3],
-    every ``spacing`` m, in the pose's frame; None for a sensor without a gap wider than :data:`BLIND_GAP`
-    (360 deg). A footprint that moves into the unseen sector crosses an edge (spacing below the footprint's size),
-    so the shield takes what it has not seen for occupied. ``inner`` beyond the footprint's circumscribed radius
-    keeps the robot where it stands (and turning on the spot) clear of them."""
+def blind_edges(beam_angles: torch.Tensor) -> torch.Tensor | None:
+    """[2] float64 bearings (rad, robot frame) of the edges of the widest gap between ``beam_angles`` [B] - the
+    sector the sensor does not see: the last beam before the gap, the first after it; None for a sensor without a
+    gap wider than :data:`BLIND_GAP` (360 deg). A scan's geometry: compute it once per beam layout."""
     a = torch.sort(torch.remainder(beam_angles.detach().double().cpu().flatten(), 2 * math.pi)).values
-    if a.numel() < 2 or not reach > inner:
+    if a.numel() < 2:
         return None
     gaps = torch.diff(torch.cat([a, a[:1] + 2 * math.pi]))
     k = int(gaps.argmax())
-    if float(gaps[k]) <= BLIND_GAP:
+    return torch.stack([a[k], a[k] + gaps[k]]) if float(gaps[k]) > BLIND_GAP else None
+
+
+def blind_points(pose: torch.Tensor, edges: torch.Tensor | None, reach: float, inner: float,
+                 spacing: float = BLIND_SPACING) -> torch.Tensor | None:
+    """[E, P, 2]: points on the two ``edges`` (:func:`blind_edges`) of the sector the sensor does not see, from
+    ``inner`` to ``reach`` m from the robot's centre at ``pose`` [E, 3], every ``spacing`` m, in the pose's frame
+    and on its device; None without edges. A footprint that moves into the unseen sector crosses an edge (spacing
+    below the footprint's size), so the shield takes what it has not seen for occupied. ``inner`` beyond the
+    footprint's circumscribed radius keeps the robot where it stands (and turning on the spot) clear of them."""
+    if edges is None or not reach > inner:
         return None
-    edges = torch.stack([a[k], a[k] + gaps[k]])  # [2] bearings: the last beam before the gap, the first after it
-    t = torch.arange(inner, reach + 1e-9, spacing, dtype=torch.float64)  # [T] m from the centre
-    bearing = pose[:, 2:3].double().cpu() + edges[None]  # [E, 2]
+    here = pose.double()  # float64 to the end, as the scan's geometry
+    t = torch.arange(inner, reach + 1e-9, spacing, dtype=torch.float64, device=pose.device)  # [T] m from the centre
+    bearing = here[:, 2:3] + edges.to(pose.device)[None]  # [E, 2]
     direction = torch.stack([torch.cos(bearing), torch.sin(bearing)], -1)  # [E, 2, 2]
-    pts = pose[:, None, None, :2].double().cpu() + t[None, None, :, None] * direction[:, :, None]  # [E, 2, T, 2]
-    return pts.reshape(pose.shape[0], -1, 2).to(pose.device, pose.dtype)
+    pts = here[:, None, None, :2] + t[None, None, :, None] * direction[:, :, None]  # [E, 2, T, 2]
+    return pts.reshape(pose.shape[0], -1, 2).to(pose.dtype)
 
 
 def with_blind_sector(shield: "PeopleShield", walls: torch.Tensor, pose: torch.Tensor,
-                      beam_angles: torch.Tensor) -> torch.Tensor:
-    """``walls`` [E, P, 2] (the scan's points) with :func:`blind_points` for ``shield``'s reach and footprint."""
+                      edges: torch.Tensor | None) -> torch.Tensor:
+    """``walls`` [E, P, 2] (the scan's points) with :func:`blind_points` on ``edges`` for ``shield``'s reach and
+    footprint."""
     inner = shield.preset.footprint.circumscribed_radius + POINT_RADIUS + 1e-3
-    blind = blind_points(pose, beam_angles, shield.reach, inner)
+    blind = blind_points(pose, edges, shield.reach, inner)
     return walls if blind is None else torch.cat([walls, blind.to(walls.dtype)], 1)
 
 
@@ -229,6 +236,7 @@ class SimShield:
             raise ValueError("the people shield needs agents in the simulator (a --scenario with agents)")
         self.env, self.shield = env, shield
         self.view = TrackerView(env.preset, env.beam_angles)
+        self.blind = blind_edges(env.beam_angles)  # the sector the LiDAR does not see (fixed beams: once)
         self.prev = env.agents.pos.clone()
         self.seen = torch.zeros_like(env.agents.active)
         self.overruled = self.steps = 0
@@ -240,7 +248,7 @@ class SimShield:
         pose, ranges = env.pose[active], env.scan(active)
         people = self.people(active, pose, ranges)
         walls = scan_points(pose, ranges, env.beam_angles, env.preset.lidar.max_range, people)
-        walls = with_blind_sector(self.shield, walls, pose, env.beam_angles)
+        walls = with_blind_sector(self.shield, walls, pose, self.blind)
         out, self.took_over = self.shield.filter(action, pose, people, walls)
         self.last = pose, people, walls
         self.overruled += int(self.took_over.sum())
@@ -285,7 +293,7 @@ def robot_command(shield: PeopleShield, action, pose, people_rows, angles, range
     a = torch.tensor(np.asarray(angles, np.float64).reshape(-1), dtype=torch.float32)
     # the simulator's points (scan_points); the shield tests only those within its reach (PeopleShield._near)
     walls = scan_points(here, r, a, math.inf, who, SCAN_GROUP if r.shape[1] % SCAN_GROUP == 0 else 1)
-    walls = with_blind_sector(shield, walls, here, a)
+    walls = with_blind_sector(shield, walls, here, blind_edges(a))
     out, overruled = shield.filter(torch.tensor([list(action)], dtype=torch.float32), here, who, walls)
     v, w = action_to_velocity(out, shield.preset.motion)
     return float(v[0]), float(w[0]), bool(overruled[0]), [float(a) for a in out[0]]

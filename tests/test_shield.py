@@ -11,7 +11,7 @@ import torch
 from flashnav.cli import main as cli_main
 from flashnav.presets import load_robot
 from flashnav.scenarios import run_scenario, scenario_preset
-from flashnav.shield import People, PeopleShield, blind_points, scan_points, with_blind_sector
+from flashnav.shield import People, PeopleShield, blind_edges, blind_points, scan_points, with_blind_sector
 from flashnav.sim.agent_geometry import footprint_hits_discs
 from flashnav.sim.env import make_env
 from flashnav.sim.motion import action_to_velocity, integrate
@@ -344,7 +344,7 @@ def test_the_shield_on_cuda_decides_as_on_the_cpu_and_runs_a_scenario():
 def test_blind_points_lie_on_the_edges_of_the_unseen_sector_and_a_full_circle_has_none():
     env = make_env(TB2, 1)
     pose = torch.tensor([[1.0, 2.0, 0.5]])
-    pts = blind_points(pose, env.beam_angles, reach=1.0, inner=0.3)
+    pts = blind_points(pose, blind_edges(env.beam_angles), reach=1.0, inner=0.3)
     rel = pts[0].double() - pose[0, :2].double()
     dist, bearing = rel.norm(dim=1), torch.atan2(rel[:, 1], rel[:, 0]) - 0.5
     edge = math.radians(TB2.lidar.fov_deg / 2)  # the 270-deg scan's first and last beams: +-135 deg from the heading
@@ -353,7 +353,7 @@ def test_blind_points_lie_on_the_edges_of_the_unseen_sector_and_a_full_circle_ha
     assert float(off.max()) < math.radians(0.5) and 0.3 - 1e-6 <= float(dist.min()) and float(dist.max()) <= 1.0 + 1e-6
     assert (off < math.radians(0.5)).sum() == len(pts[0])  # every point on one of the two edges
     full = torch.linspace(-math.pi, math.pi, 360 + 1)[:-1]
-    assert blind_points(pose, full, reach=1.0, inner=0.3) is None
+    assert blind_edges(full) is None and blind_points(pose, None, reach=1.0, inner=0.3) is None
 
 
 def test_a_reversing_robot_takes_the_unseen_sector_behind_it_for_occupied_and_a_forward_one_never_meets_it():
@@ -364,13 +364,13 @@ def test_a_reversing_robot_takes_the_unseen_sector_behind_it_for_occupied_and_a_
     pose = torch.zeros(1, 3)
     nobody = people([[]])
     rev = PeopleShield(load_robot("turtlebot2", **{"motion.v_bounds": [-0.25, 0.5]}), lookahead=2.0)
-    walls = with_blind_sector(rev, open_scan, pose, make_env(TB2, 1).beam_angles)
+    walls = with_blind_sector(rev, open_scan, pose, blind_edges(make_env(TB2, 1).beam_angles))
     still = -1 + 2 * 0.25 / 0.75  # the action of v = 0 for v_bounds [-0.25, 0.5]
     acts = torch.tensor([[[-1.0, 0.0], [1.0, 0.0], [still, 1.0], [still, -1.0]]])
     first = rev.first_contact(pose, acts, nobody, walls)[0]
     assert int(first[0]) < rev.steps and (first[1:] == rev.steps).all()
     for lookahead in (2.0, 3.0):
         fwd = PeopleShield(TB2, lookahead=lookahead)
-        walls = with_blind_sector(fwd, open_scan, pose, make_env(TB2, 1).beam_angles)
+        walls = with_blind_sector(fwd, open_scan, pose, blind_edges(make_env(TB2, 1).beam_angles))
         first = fwd.first_contact(pose, fwd.grid[None], nobody, walls)[0]
         assert (first == fwd.steps).all()
