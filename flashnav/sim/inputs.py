@@ -40,8 +40,9 @@ def check_state(grids: Sequence[OccupancyMap], pose, goal, map_index, current: t
     pose = as_batch(device, pose, "pose", (n, 3), "x, y m, yaw rad", torch.float64)
     goal = as_batch(device, goal, "goal", (n, 2), "x, y m", torch.float64)
     mi = current if map_index is None else check_map_index(map_index, n, len(grids), device)
-    outside = outside_maps(grids, goal, mi)  # in world coordinates, before the frame shift
-    off_map = outside_maps(grids, pose[:, :2], mi)  # a robot off its map: a caller's slip, not a test of walls
+    # goals and robots in one pass (world coordinates, before the frame shift): a goal off its map could never be
+    # reached, a robot off it is a caller's slip, not a test of walls
+    outside, off_map = outside_maps(grids, torch.cat([goal, pose[:, :2]]), mi.repeat(2)).split(n)
     in_range = ((mi >= 0) & (mi < len(grids))).all()
     ok = torch.isfinite(pose).all() & torch.isfinite(goal).all() & ~outside.any() & ~off_map.any() & in_range
     if not bool(ok):  # one host sync for all checks; the details only on failure
