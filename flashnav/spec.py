@@ -210,7 +210,7 @@ def config_from_cli(config_file: str | None = None, flags: dict[str, Any] | None
     """A TrainConfig from a YAML file (optional; a run's ``config.yaml`` gives its request), then flags (None = not
     given), then ``key=value`` assignments, each later winning. The path of ``flashnav train`` and ``bench train``."""
     data = _mapping(load_yaml(config_file), config_file) if config_file else {}
-    data = run_request(data) or data
+    data = data if (request := run_request(data)) is None else request  # a run's config.yaml: its request only
     for name, value in (flags or {}).items():
         if value is not None:
             data[name] = value
