@@ -11,7 +11,7 @@ import math
 import time
 from pathlib import Path
 
-from flashnav.names import EVAL_EPISODES, EVAL_SEED, GOAL_SAMPLINGS, seed_arg
+from flashnav.names import EVAL_EPISODES, EVAL_SEED, GOAL_SAMPLINGS, ROBOTS, seed_arg
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
@@ -90,7 +90,7 @@ def _agents_arg(p: argparse.ArgumentParser) -> None:
 def _common_args(p: argparse.ArgumentParser, episodes: int) -> None:
     p.add_argument("policy", metavar="POLICY", help="policy.pt (TorchScript), policy.onnx, or a run folder (its policy.pt)")
     p.add_argument("--robot", default=None,
-                   help="turtlebot2, go2 or a preset YAML (default: the robot recorded in the policy)")
+                   help=f"{', '.join(ROBOTS)} or a preset YAML (default: the robot recorded in the policy)")
     p.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
     p.add_argument("--episodes", type=int, default=episodes, help=f"episodes, run in parallel (one per env; default {episodes})")
     p.add_argument("--seed", type=seed_arg, default=EVAL_SEED, help=f"start/goal sampling seed (default {EVAL_SEED})")

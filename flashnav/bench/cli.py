@@ -10,12 +10,14 @@ import sys
 from rich.console import Console
 from rich.table import Table
 
+from flashnav.names import DEFAULT_ROBOT, RAYCASTERS, ROBOTS, parse_names
+
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmarks (simulator, evaluation, training)")
     bsub = bench.add_subparsers(dest="bench_command", metavar="BENCH")
     p = bsub.add_parser("sim", help="simulator env-steps/s per raycaster x num_envs x robot, vs the paper's march and ir-sim")
-    p.add_argument("--robots", default="turtlebot2,go2", help="comma-separated presets")
+    p.add_argument("--robots", default=",".join(ROBOTS), help="comma-separated presets")
     p.add_argument("--raycasters", default="exact,exact-torch,march", help="comma-separated raycasters")
     p.add_argument("--num-envs", default="1,64,1024", help="comma-separated batch sizes")
     p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N")
@@ -70,8 +72,6 @@ def run_sim(args) -> int:
     from flashnav.bench.irsim_peer import irsim_available, irsim_steps
 
     console = Console()
-    from flashnav.names import DEFAULT_ROBOT, RAYCASTERS, parse_names
-
     robots, sizes = _csv(args.robots), _csv(args.num_envs, int)
     raycasters = parse_names("raycaster", args.raycasters, RAYCASTERS, "--raycasters")
     seconds = args.seconds
