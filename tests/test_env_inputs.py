@@ -117,6 +117,10 @@ def test_step_slots_checks_indices_and_actions(env):
         env.step_slots(torch.tensor([0, N]), torch.zeros(2, 2))
     with pytest.raises(ValueError, match=r"idx holds slot -1"):  # -1 would silently pick the last slot
         env.step_slots(torch.tensor([-1]), torch.zeros(1, 2))
+    before = env.pose.clone()
+    with pytest.raises(ValueError, match=r"idx holds slot 2 more than once"):  # advanced twice, written back in no order
+        env.step_slots(torch.tensor([3, 2, 0, 2]), torch.zeros(4, 2))
+    assert torch.equal(env.pose, before)  # refused before anything moved
     for bad in (torch.tensor([0.0, 1.0]), torch.tensor([True, False, True, False]), torch.tensor([[0, 1]])):
         with pytest.raises(ValueError, match="idx must be a 1-D integer tensor"):
             env.step_slots(bad, torch.zeros(2, 2))

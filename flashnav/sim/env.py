@@ -50,7 +50,7 @@ from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
 from flashnav.sim.extras import ObservationExtras
-from flashnav.sim.inputs import as_batch, check_finite, check_state
+from flashnav.sim.inputs import as_batch, check_finite, check_slots, check_state
 from flashnav.sim.mapset import MapDraw, as_grids, check_map_scale, sample_on_maps, sim_frame
 from flashnav.sim.motion import Actuation, action_to_velocity, integrate
 from flashnav.sim.observation import beam_angles, observation_bounds, observe  # noqa: F401 (beam_angles: re-exported)
@@ -313,17 +313,10 @@ class NavVecEnv(VectorEnv):
 
         Returns [k] tensors for those slots: obs [k, obs_dim], reward, terminated, truncated, success,
         collision, collision_static, collision_agent, episode_steps, episode_return (the same semantics as :meth:`step`),
-        pose [k, 3]. ``idx`` outside [0, N), not 1-D integer, or ``actions`` of another shape or not finite: a
-        ValueError."""
+        pose [k, 3]. ``idx`` outside [0, N), repeating a slot or not 1-D integer, or ``actions`` of another shape or
+        not finite: a ValueError."""
         idx = torch.as_tensor(idx, device=self.device)
-        if idx.ndim != 1 or idx.dtype.is_floating_point or idx.dtype == torch.bool or idx.is_complex():
-            raise ValueError(f"idx must be a 1-D integer tensor of slot indices, got {idx.dtype} {list(idx.shape)}")
-        actions = as_batch(self.device, actions, "actions", (idx.numel(), 2), "len(idx), 2")
-        ok = torch.isfinite(actions).all() & ((idx >= 0) & (idx < self.num_envs)).all()
-        if not bool(ok):  # one host sync for both checks; the details only on failure
-            check_finite(actions, "actions")
-            bad = idx[(idx < 0) | (idx >= self.num_envs)]
-            raise ValueError(f"idx holds slot {int(bad[0])}, outside [0, {self.num_envs}) (num_envs = {self.num_envs})")
+        actions = check_slots(idx, actions, self.num_envs)
         return self._advance(idx, actions)
 
     def _advance(self, sel, actions: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -30,6 +30,26 @@ def check_finite(value: torch.Tensor, name: str) -> None:
         raise ValueError(f"{name}[{row}] = {value[row].tolist()} is not finite (NaN or inf)")
 
 
+def check_slots(idx: torch.Tensor, actions, num_envs: int) -> torch.Tensor:
+    """``step_slots``' request checked; returns ``actions`` as a [k, 2] float32 batch on ``idx``'s device. A
+    ValueError for ``idx`` not a 1-D integer tensor, holding a slot outside [0, ``num_envs``) or one slot twice (the
+    slot would be advanced twice from the same state and written back in no defined order), and for ``actions`` of
+    another shape or not finite."""
+    if idx.ndim != 1 or idx.dtype.is_floating_point or idx.dtype == torch.bool or idx.is_complex():
+        raise ValueError(f"idx must be a 1-D integer tensor of slot indices, got {idx.dtype} {list(idx.shape)}")
+    actions = as_batch(idx.device, actions, "actions", (idx.numel(), 2), "len(idx), 2")
+    s = idx.sort().values
+    ok = torch.isfinite(actions).all() & ((idx >= 0) & (idx < num_envs)).all() & (s[1:] != s[:-1]).all()
+    if not bool(ok):  # one host sync for all checks; the details only on failure
+        check_finite(actions, "actions")
+        bad = idx[(idx < 0) | (idx >= num_envs)]
+        if bad.numel():
+            raise ValueError(f"idx holds slot {int(bad[0])}, outside [0, {num_envs}) (num_envs = {num_envs})")
+        twice = s[1:][s[1:] == s[:-1]]
+        raise ValueError(f"idx holds slot {int(twice[0])} more than once (each slot advances at most once a step)")
+    return actions
+
+
 def check_state(grids: Sequence[OccupancyMap], pose, goal, map_index, current: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """A ``NavVecEnv.set_state`` request checked: (pose [N, 3], goal [N, 2], both float64 world coordinates; the
