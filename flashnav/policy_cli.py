@@ -157,6 +157,10 @@ def load_policy_for(args, device: str = "cpu"):
         raise ValueError(f"--device: {exc}") from None
     overrides = robot_overrides(args)
     policy, meta = load_policy(args.policy, robot=args.robot)
+    if (note := snapshot_note(args.policy)) is not None:
+        from rich.console import Console
+
+        Console(stderr=True).print(f"[yellow]note[/]: {note}", soft_wrap=True, markup=True, highlight=False)
     robot = load_robot(args.robot if args.robot is not None else recorded_robot(meta), **overrides)
     if overrides and robot.obs_dim != int(meta["obs_dim"]):
         raise ValueError(f"{' '.join(args.overrides)}: the robot then produces obs_dim {robot.obs_dim}, but the "
@@ -164,6 +168,27 @@ def load_policy_for(args, device: str = "cpu"):
                          "the observation's size)")
     # evaluations play the task with the paper's reward, whatever shaping the policy trained with
     return policy, meta, evaluation_preset(robot), device
+
+
+def snapshot_note(policy: str | Path) -> str | None:
+    """A line when ``policy`` (a run folder or a policy file in one) belongs to a run whose ``metrics.json`` says
+    ``stop_reason: running``: a ``--save-every`` snapshot of a run still training (or one that crashed), whose
+    best policy may still change - an evaluation of it is not the run's. None otherwise (no metrics.json beside
+    it, an unreadable one, or a finished run)."""
+    import json
+
+    from flashnav.names import METRICS_FILE
+
+    path = Path(policy)
+    metrics = (path if path.is_dir() else path.parent) / METRICS_FILE
+    try:
+        stop = json.loads(metrics.read_text(encoding="utf-8")).get("stop_reason")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if stop != "running":
+        return None
+    return (f"{policy}: its run's {metrics} says stop_reason 'running' - a snapshot of a run still training (or "
+            "one that stopped without finishing); its best policy may change when the run ends")
 
 
 def _map_label(args, preset) -> str:
