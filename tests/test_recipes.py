@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import yaml
 
@@ -17,9 +19,9 @@ def test_generalist_hyperparameters_are_the_cpu_recipe_with_its_own_changes():
     cpu = load_hparams("fastdsac", "turtlebot2", "cpu").model_dump()
     generalist = load_hparams("fastdsac", "turtlebot2", "generalist").model_dump()
     own = load_preset_file("fastdsac")["generalist"]
-    changed = {k for k in cpu if cpu[k] != generalist[k]}
-    assert changed == set(own["shared"]) | set(own["turtlebot2"])
-    assert all(generalist[k] == v for k, v in own["shared"].items())
+    mine = {**own["shared"], **own["turtlebot2"]}  # the robot's row wins over the shared one
+    assert all(generalist[k] == v for k, v in mine.items())
+    assert {k for k in cpu if cpu[k] != generalist[k]} == {k for k, v in mine.items() if cpu[k] != v}
 
 
 def test_recipes_without_a_learner_section_or_setup_name_what_is_missing(tmp_path):
@@ -34,11 +36,16 @@ def test_recipes_without_a_learner_section_or_setup_name_what_is_missing(tmp_pat
 
 def test_the_go2_generalist_has_the_turtlebot2_setup_and_its_hyperparameters():
     setups = load_preset_file("setups")["generalist"]
-    assert setups["go2"] == setups["turtlebot2"]
+    # the same maps, evaluation, budget and task, less the TurtleBot2's platform turn rate (Go2 keeps its own bounds)
+    tb2_overrides = dict(setups["turtlebot2"]["overrides"])
+    assert tb2_overrides.pop("robot.motion.w_bounds") == [-math.pi / 2, math.pi / 2]
+    assert setups["go2"] == {**setups["turtlebot2"], "overrides": tb2_overrides}
     tb2, go2 = (load_hparams("fastdsac", robot, "generalist").model_dump() for robot in ("turtlebot2", "go2"))
     # Go2's cpu recipe differs from TurtleBot2's; the generalist's Go2 row restores TB2's values, and only the
-    # paper's per-robot collector sync interval (pipeline.yaml) stays Go2's
-    assert {k for k in tb2 if tb2[k] != go2[k]} == {"env_steps_per_sync"}
+    # paper's per-robot collector sync interval (pipeline.yaml) and the goal's sine and cosine (measured on the
+    # TurtleBot2 generalist only) stay Go2's
+    assert {k for k in tb2 if tb2[k] != go2[k]} == {"env_steps_per_sync", "goal_sincos"}
+    assert tb2["goal_sincos"] and not go2["goal_sincos"]
     spec = resolve(config_from_cli(None, {"recipe": "generalist", "robot": "go2", "device": "cpu"},
                                    ["maps.count=2", "eval.maps_per_family=1", "eval.episodes=16"]))
     assert spec.robot.name == "go2" and spec.robot.episode.goal_sampling == "geodesic"
