@@ -71,6 +71,9 @@ EVAL_SEED, EVAL_EPISODES = 12345, 1024
 CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.json", "checkpoint.pt"
 POLICY_TORCHSCRIPT, POLICY_ONNX, POLICY_METADATA = "policy.pt", "policy.onnx", "policy.json"
 RUN_FILES = (CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE, POLICY_TORCHSCRIPT, POLICY_ONNX, POLICY_METADATA)
+#: ``stop_reason`` of a run folder written while its run goes on (a ``--save-every`` snapshot): ``flashnav train``
+#: writes it, ``flashnav eval`` names a policy of such a run.
+SNAPSHOT_STOP_REASON = "running"
 #: Success-rate thresholds of time-to-threshold (the paper's 90 / 95 / 100 %), and their tags in
 #: metric names (``time_to_90``).
 THRESHOLDS = (0.9, 0.95, 1.0)

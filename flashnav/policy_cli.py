@@ -177,7 +177,7 @@ def snapshot_note(policy: str | Path) -> str | None:
     it, an unreadable one, or a finished run)."""
     import json
 
-    from flashnav.names import METRICS_FILE
+    from flashnav.names import METRICS_FILE, SNAPSHOT_STOP_REASON
 
     path = Path(policy)
     metrics = (path if path.is_dir() else path.parent) / METRICS_FILE
@@ -185,9 +185,9 @@ def snapshot_note(policy: str | Path) -> str | None:
         stop = json.loads(metrics.read_text(encoding="utf-8")).get("stop_reason")
     except (OSError, ValueError, AttributeError):
         return None
-    if stop != "running":
+    if stop != SNAPSHOT_STOP_REASON:
         return None
-    return (f"{policy}: its run's {metrics} says stop_reason 'running' - a snapshot of a run still training (or "
+    return (f"{policy}: its run's {metrics} says stop_reason {stop!r} - a snapshot of a run still training (or "
             "one that stopped without finishing); its best policy may change when the run ends")
 
 

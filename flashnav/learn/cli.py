@@ -15,7 +15,8 @@ from rich.table import Table
 
 from flashnav.learn.artefacts import RUN_FILES, save_run
 from flashnav.learn.progress import TrainProgress
-from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, RECIPE_CHOICES, RECIPE_HELP, ROBOTS, THRESHOLDS, seed_arg
+from flashnav.names import (ALGORITHMS, DEFAULT_ROBOT, RECIPE_CHOICES, RECIPE_HELP, ROBOTS, SNAPSHOT_STOP_REASON,
+                            THRESHOLDS, seed_arg)
 from flashnav.spec import TrainConfig, config_from_cli, resolve, run_request
 
 
@@ -114,7 +115,7 @@ def run_train(args) -> int:
         except Exception:
             if saved:
                 progress.console.print(f"[red]training failed[/]: the run as it stood at {saved[-1]:,} env steps "
-                                       f"is in {out} (metrics.json stop_reason 'running')")
+                                       f"is in {out} (metrics.json stop_reason {SNAPSHOT_STOP_REASON!r})")
             raise
     if result.stop_reason == "interrupted":
         console.print("[yellow]interrupted[/]: writing the run so far (Ctrl-C again aborts)")

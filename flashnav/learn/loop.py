@@ -43,6 +43,7 @@ from flashnav.learn.precision import update_precision
 from flashnav.machine import learner_threads, machine_name, numba_threads
 from flashnav.maps.stream import GeneratedMaps, MapStream, generation_radius
 from flashnav.metrics import reaches
+from flashnav.names import SNAPSHOT_STOP_REASON
 from flashnav.sim.env import NavVecEnv
 from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.spec import RunSpec, TrainConfig, resolve
@@ -293,7 +294,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
             if best_policy is None or last_eval["success_rate"] > best_rate:
                 best_rate, best_policy = last_eval["success_rate"], copy.deepcopy(learner.policy)
             if on_snapshot is not None and time.monotonic() - saved_at >= snapshot_every:
-                on_snapshot(result("running"))
+                on_snapshot(result(SNAPSHOT_STOP_REASON))
                 saved_at = time.monotonic()
             if on_eval is not None and on_eval(dict(last_eval)):
                 stop_reason = "callback"
