@@ -289,6 +289,16 @@ def recorded_robot(meta: dict[str, Any]) -> "str | RobotPreset":
     return meta["robot"]
 
 
+def evaluated_robot(meta: dict[str, Any], **overrides: Any) -> RobotPreset:
+    """The preset an evaluation of a loaded policy plays (as ``flashnav eval`` does): its :func:`recorded_robot` with
+    ``overrides`` (dotted preset keys, e.g. ``**{"lidar.noise_std": 0.3}``), scored with the paper's reward and the
+    task's own episode draws (:func:`flashnav.sim.goal_fields.evaluation_preset`)."""
+    from flashnav.presets import load_robot
+    from flashnav.sim.goal_fields import evaluation_preset
+
+    return evaluation_preset(load_robot(recorded_robot(meta), **overrides))
+
+
 def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
                 device: torch.device | str = "cpu") -> tuple[Callable[[torch.Tensor], torch.Tensor], dict[str, Any]]:
     """Load ``policy.pt`` (TorchScript) or ``policy.onnx`` (onnxruntime, CPU); a run folder gives its ``policy.pt``

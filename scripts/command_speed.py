@@ -27,10 +27,8 @@ import numpy as np
 import torch
 
 from flashnav.evaluate import evaluate_episodes
-from flashnav.export import load_policy, recorded_robot
-from flashnav.presets import load_robot
+from flashnav.export import evaluated_robot, load_policy
 from flashnav.sim.env import make_env
-from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.names import EVAL_EPISODES, EVAL_SEED
 
 LEVELS = (0.5, 0.8, 0.9, 0.95, 0.99)
@@ -75,7 +73,7 @@ def main() -> None:
     report = {}
     for path in args.policies:
         policy, meta = load_policy(path)
-        preset = evaluation_preset(load_robot(recorded_robot(meta)))
+        preset = evaluated_robot(meta)
         env = make_env(preset, args.episodes, seed=args.seed)   # evaluate_episodes resets it to the same episodes
         a_v, as_is = forward_commands(policy, env, args.seed)
         share = {f"{q:g}": float((a_v >= q).mean()) for q in LEVELS}

@@ -19,12 +19,10 @@ from collections.abc import Callable, Sequence
 
 import torch
 
-from flashnav.export import load_policy, recorded_robot
+from flashnav.export import evaluated_robot, load_policy
 from flashnav.names import EVAL_SEED
-from flashnav.presets import load_robot
 from flashnav.scenarios import run_scenario, scenario_names, scenario_preset
 from flashnav.sim.env import make_env
-from flashnav.sim.goal_fields import evaluation_preset
 
 RATES = ("success_rate", "agent_collision_rate", "wall_collision_rate", "timeout_rate")
 
@@ -39,7 +37,7 @@ def mean_policy(members: Sequence[Callable[[torch.Tensor], torch.Tensor]]) -> Ca
 def load_members(paths: Sequence[str]):
     """(policies, the first one's recorded robot preset); a member recorded with another robot is a ValueError."""
     loaded = [load_policy(p) for p in paths]
-    presets = [evaluation_preset(load_robot(recorded_robot(meta))) for _, meta in loaded]  # as flashnav eval plays
+    presets = [evaluated_robot(meta) for _, meta in loaded]  # as flashnav eval plays
     robot = presets[0]
     for path, preset in zip(paths[1:], presets[1:]):
         if preset != robot:

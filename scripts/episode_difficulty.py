@@ -28,10 +28,8 @@ from scipy.sparse.csgraph import dijkstra
 from failure_kinds import drive  # scripts/: the same replay from given starts and goals
 
 from flashnav.evaluate import evaluate_episodes
-from flashnav.export import load_policy, recorded_robot
-from flashnav.presets import load_robot
+from flashnav.export import evaluated_robot, load_policy
 from flashnav.sim.env import make_env
-from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.maps.graph import grid_graph
 from flashnav.names import EVAL_EPISODES, EVAL_SEED
 
@@ -134,7 +132,7 @@ def main() -> None:
     args = p.parse_args()
     policy, meta = load_policy(args.policy)
     # the policy's own preset (its observation options: scan history, pose trail), evaluated with the paper's reward
-    preset = evaluation_preset(load_robot(recorded_robot(meta)))
+    preset = evaluated_robot(meta)
     env = make_env(preset, args.episodes, seed=args.seed)
     e = {k: v.cpu().numpy() for k, v in evaluate_episodes(policy, env, args.seed).items()}
     outcome = np.where(e["success"], "success", np.where(e["collision"], "collision", "timeout"))

@@ -13,11 +13,9 @@ import argparse
 import json
 
 from flashnav.evaluate import evaluate
-from flashnav.export import load_policy, recorded_robot
+from flashnav.export import evaluated_robot, load_policy
 from flashnav.metrics import reaches
-from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
-from flashnav.sim.goal_fields import evaluation_preset
 
 
 def main() -> None:
@@ -28,7 +26,7 @@ def main() -> None:
     p.add_argument("--json", help="write every success rate here")
     args = p.parse_args()
     policy, meta = load_policy(args.policy)
-    preset = evaluation_preset(load_robot(recorded_robot(meta)))  # the policy's own observation, the paper's reward
+    preset = evaluated_robot(meta)  # the policy's own observation, the paper's reward
     out = {}
     for episodes in (int(e) for e in args.episodes.split(",")):
         rates = [evaluate(policy, make_env(preset, episodes, seed=seed), seed)["success_rate"]

@@ -28,10 +28,8 @@ import numpy as np
 import torch
 
 from flashnav.evaluate import evaluate_episodes
-from flashnav.export import load_policy, recorded_robot
-from flashnav.presets import load_robot
+from flashnav.export import evaluated_robot, load_policy
 from flashnav.sim.env import make_env
-from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.sim.oracle import OracleController
 from flashnav.names import EVAL_SEED
 
@@ -84,7 +82,7 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(1)
     policy, meta = load_policy(args.policy)
-    preset = evaluation_preset(load_robot(recorded_robot(meta), **{"episode.goal_sampling": "geodesic"}))
+    preset = evaluated_robot(meta, **{"episode.goal_sampling": "geodesic"})
     horizon = preset.episode.horizon
     rows, total = [], dict.fromkeys(("episodes", "success", *KINDS), 0)
     for map_path in args.maps:

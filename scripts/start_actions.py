@@ -19,10 +19,8 @@ import argparse
 
 import numpy as np
 
-from flashnav.export import load_policy, recorded_robot
-from flashnav.presets import load_robot
+from flashnav.export import evaluated_robot, load_policy
 from flashnav.sim.env import make_env
-from flashnav.sim.goal_fields import evaluation_preset
 from flashnav.names import EVAL_EPISODES, EVAL_SEED
 
 TURN_ON_SPOT = -0.9  # a_v at or below this: under 5 % of the top forward speed (the range [-1, 1] maps to [0, v_max])
@@ -58,7 +56,7 @@ def main() -> None:
     for path in args.policy:
         policy, meta = load_policy(path)
         # the policy's own preset (its observation options), evaluated with the paper's reward and episodes
-        r = start_actions(policy, evaluation_preset(load_robot(recorded_robot(meta))), args.episodes, args.seed)
+        r = start_actions(policy, evaluated_robot(meta), args.episodes, args.seed)
         for name in ("all", "goal ahead", "goal behind"):
             s = r[name]
             print(f"{path[-45:]:45s} {name:>12s} {s['starts']:5d} {s['turn_on_spot']:13.1%} {s['top_speed']:10.1%} "

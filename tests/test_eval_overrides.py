@@ -10,10 +10,8 @@ import pytest
 
 from flashnav.cli import main as cli_main
 from flashnav.evaluate import evaluate
-from flashnav.export import load_policy, recorded_robot
-from flashnav.presets import load_robot
+from flashnav.export import evaluated_robot, load_policy
 from flashnav.sim.env import make_env
-from flashnav.sim.goal_fields import evaluation_preset
 
 POLICY = str(Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx")
 
@@ -29,7 +27,7 @@ def test_an_override_is_the_evaluation_on_the_changed_preset(tmp_path):
     plain = _cli_rates(tmp_path)
     assert noisy["robot_overrides"] == {"lidar.noise_std": 0.3} and plain["robot_overrides"] == {}
     policy, meta = load_policy(POLICY)
-    preset = evaluation_preset(load_robot(recorded_robot(meta), **{"lidar.noise_std": 0.3}))
+    preset = evaluated_robot(meta, **{"lidar.noise_std": 0.3})
     want = evaluate(policy, make_env(preset, 48, seed=7), seed=7)
     assert noisy["success_rate"] == want["success_rate"] and noisy["mean_steps"] == pytest.approx(want["mean_steps"])
     assert (noisy["success_rate"], noisy["mean_steps"]) != (plain["success_rate"], plain["mean_steps"])
