@@ -6,7 +6,8 @@
 RESULT.json is what ``flashnav eval --scenario ... --json`` writes (a ``scenarios`` block; the named scenario
 is read) or what ``scripts/agent_mpc.py`` / ``scripts/agent_oracle.py`` write with ``--json`` (one scenario's
 rates; its ``scenario`` must be the one named). Each becomes a point: agent collisions (x) against success
-(y), the issue's bar (>= 90 % success with <= 3 % agent collisions on wander-8) shaded. Prints the table too.
+(y), the issue's bar (>= 90 % success with <= 3 % agent collisions on wander-8) shaded; labels ``GROUP: NAME``
+(seeds of one arm) share a colour, a marker and a legend entry. Prints the table too.
 """
 
 from __future__ import annotations
@@ -31,6 +32,15 @@ def rates_of(path: str, scenario: str) -> dict:
     if data.get("scenario") != scenario:
         raise SystemExit(f"{path}: a result for scenario {data.get('scenario')!r}, not {scenario!r}")
     return data
+
+
+def groups(points: list[tuple[str, dict]]) -> dict[str, list[tuple[str, dict]]]:
+    """Points by group, in first-seen order: a label ``GROUP: NAME`` (e.g. ``crowd: seed 0``) joins GROUP, drawn
+    in one colour and marker with one legend entry; a label without ``: `` is a group of its own."""
+    out: dict[str, list[tuple[str, dict]]] = {}
+    for label, r in points:
+        out.setdefault(label.split(": ", 1)[0], []).append((label, r))
+    return out
 
 
 def main() -> None:
@@ -62,10 +72,13 @@ def main() -> None:
         right = agent_max * 100 if agent_max is not None else 100
         ax.fill_between([0, right], success_min * 100, 100.5, color="tab:green", alpha=0.15, label="issue 13's bar")
     markers = "osD^vP*Xh<>p"
-    for i, (label, r) in enumerate(points):
-        x, y = r["agent_collision_rate"] * 100, r["success_rate"] * 100
-        ax.scatter(x, y, s=50, color=f"C{i % 10}", marker=markers[i % len(markers)], zorder=3,
-                   label=f"{label} ({r['scored']} ep.)")
+    for i, (name, members) in enumerate(groups(points).items()):
+        xs = [r["agent_collision_rate"] * 100 for _, r in members]
+        ys = [r["success_rate"] * 100 for _, r in members]
+        scored = sorted({r["scored"] for _, r in members})
+        what = f"{len(members)} results, " if len(members) > 1 else ""
+        ax.scatter(xs, ys, s=50, color=f"C{i % 10}", marker=markers[i % len(markers)], zorder=3,
+                   label=f"{name} ({what}{'/'.join(map(str, scored))} ep.)")
     ax.set_xlabel(f"agent collisions on {args.scenario} (% of episodes)")
     ax.set_ylabel(f"success on {args.scenario} (%)")
     ax.set_xlim(left=-0.5)

@@ -38,3 +38,15 @@ def test_a_result_for_another_scenario_is_named(tmp_path):
     assert r.returncode != 0 and "gone.json" in r.stderr and "Traceback" not in r.stderr
     r = run(str(planner))
     assert r.returncode != 0 and "LABEL=RESULT.json" in r.stderr
+
+
+def test_labels_with_a_group_share_one_legend_entry():
+    sys.path.insert(0, str(SCRIPT.parent))
+    try:
+        from agent_frontier import groups
+    finally:
+        sys.path.remove(str(SCRIPT.parent))
+    points = [("crowd: s0", RATES), ("mpc", RATES), ("crowd: s1", RATES), ("crowd 360: s0", RATES)]
+    got = groups(points)
+    assert list(got) == ["crowd", "mpc", "crowd 360"]
+    assert [label for label, _ in got["crowd"]] == ["crowd: s0", "crowd: s1"]
