@@ -22,7 +22,7 @@ ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "Fa
 #: departures with which TurtleBot2 reaches 100 % within the paper's budget in 8 of 10 seeds), ``generalist`` (FastDSAC, TurtleBot2) training for unseen
 #: buildings, with its training setup (maps, evaluation, task) in ``presets/setups.yaml``.
 #: ``crowd`` (FastDSAC, TurtleBot2) training among moving people, with its setup (agents, their tracks, the turn rate and
-#: reverse of the platform) in ``presets/setups.yaml``.
+#: reverse of the platform, a 360-deg LiDAR) in ``presets/setups.yaml``.
 RECIPES = ("paper", "cpu", "paper-mirror", "generalist", "crowd")
 #: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
 RECIPE_CHOICES = ("auto", *RECIPES)
@@ -30,7 +30,7 @@ RECIPE_CHOICES = ("auto", *RECIPES)
 RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC, and FastSAC and "
                "FastTD3 on TurtleBot2: paper + 5-step returns, gamma 0.99, mirrored replay; TurtleBot2: goal angle as sin/cos), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also "
                "sets its maps, evaluation and task: presets/setups.yaml), crowd (FastDSAC, TurtleBot2, among moving people: "
-               "paper-mirror without the sin/cos, 8 agents and 4 tracks, the platform's turn rate and reverse)")
+               "paper-mirror without the sin/cos, 8 agents and 4 tracks, the platform's turn rate and reverse, a 360-deg LiDAR)")
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
 RAYCASTERS = ("exact", "exact-torch", "march", "exact-cuda")
 DEFAULT_RAYCASTER = RAYCASTERS[0]

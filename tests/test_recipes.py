@@ -168,8 +168,8 @@ def test_fastsac_and_fasttd3_paper_mirror_have_their_departures_on_turtlebot2_on
 
 def test_crowd_is_paper_mirror_without_the_sine_and_cosine_and_brings_people_and_the_platforms_motion():
     """The recipe among moving people (issue 13; docs/benchmarks.md "Among people, a robot that turns and reverses"):
-    paper-mirror's first three departures, and a setup with 8 agents, 4 tracks, the TurtleBot2's platform turn rate
-    and a reverse; the run's own values win, and there is no Go2 crowd (nothing measured)."""
+    paper-mirror's first three departures, and a setup with 8 agents, 4 tracks, the TurtleBot2's platform turn rate,
+    a reverse and a LiDAR that sees all round; the run's own values win, and there is no Go2 crowd (nothing measured)."""
     paper = load_hparams("fastdsac", "turtlebot2", "paper").model_dump()
     crowd = load_hparams("fastdsac", "turtlebot2", "crowd").model_dump()
     assert {k: crowd[k] for k in paper if paper[k] != crowd[k]} == {"n_step": 5, "gamma": 0.99, "mirror": 0.5}
@@ -178,6 +178,8 @@ def test_crowd_is_paper_mirror_without_the_sine_and_cosine_and_brings_people_and
     assert (spec.robot.agents.count, spec.robot.observation.agent_tracks) == (8, 4)
     assert spec.robot.motion.w_bounds == (-plain.motion.max_angular_velocity, plain.motion.max_angular_velocity)
     assert spec.robot.motion.v_bounds == (-0.25, plain.motion.max_linear_velocity)
+    assert (plain.lidar.fov_deg, spec.robot.lidar.fov_deg) == (270, 360)  # it reverses: it sees behind
+    assert spec.robot.lidar.beams == plain.lidar.beams and spec.robot.obs_dim == plain.obs_dim + 4 * 6
     assert spec.robot.agents.reactive == 0  # the agents never yield, as in the scenarios
     assert (spec.config.eval.episodes, spec.config.budget.max_env_steps) == (256, 600_000)
     own = resolve(config_from_cli(None, {"recipe": "crowd", "device": "cpu"}, ["robot.agents.count=4"]))
