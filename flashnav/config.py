@@ -191,19 +191,16 @@ class Episode(Strict):
         "draw (a training curriculum that revisits the starts the policy fails; 0 = every episode drawn afresh, the "
         "paper). Evaluation is unchanged: it counts each slot's first episode")
     hard_share: float = Field(
-        0.0, ge=0, le=1, description="training only, goal_sampling euclidean on one map: the share of new training "
-        "episodes drawn as the longest detour (path length / straight line) of hard_candidates draws of the task's "
-        "sampler (a curriculum that shows the policy the rare long routes round walls more often; 0 = the paper's "
-        "draws). Evaluations play the task's episodes")
+        0.0, ge=0, le=1, description="training only: the share of new training episodes drawn as the longest "
+        "detour (path length / straight line) of hard_candidates draws of the task's sampler (either goal_sampling, "
+        "on one map or many: each slot's candidates on its own map), a curriculum that shows the policy the rare "
+        "long routes round walls more often; 0 = the task's draws. Evaluations play the task's episodes")
     hard_candidates: int = Field(8, ge=2, le=64, description="draws per hard episode (episode.hard_share)")
 
     @model_validator(mode="after")
     def _band(self) -> "Episode":
         if not self.min_goal_distance < self.max_goal_distance:
             raise ValueError("episode.min_goal_distance must be < episode.max_goal_distance")
-        if self.hard_share > 0 and self.goal_sampling != "euclidean":
-            raise ValueError(f"episode.hard_share={self.hard_share} needs episode.goal_sampling=euclidean (it "
-                             f"re-weights the straight-line sampler's draws), got {self.goal_sampling}")
         return self
 
 

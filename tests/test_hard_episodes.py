@@ -1,6 +1,7 @@
-"""episode.hard_share (a training curriculum over the paper's straight-line draws): the detour against a
-reference Dijkstra, the choice of the longest detour among the candidates, the paper's draws untouched at
-0, evaluations on the task's episodes, and refusals that name the input."""
+"""episode.hard_share (a training curriculum over the task's draws): the detour against a reference Dijkstra, the
+choice of the longest detour among the candidates (straight-line and path-length draws, one map and many: each
+slot's candidates on its own map), the task's draws untouched at 0, evaluations on the task's episodes, and
+refusals that name the input."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import torch
 from flashnav.maps.fields import free_space
 from flashnav.sim.env import NavVecEnv
 from flashnav.sim.goal_fields import evaluation_preset
-from flashnav.sim.sampling import EpisodeSampler
+from flashnav.sim.sampling import EpisodeSampler, MapSetSampler
 from test_goal_fields import blocked_room
 from test_sampling import cells, reference_distances, robot, serpentine
 
@@ -67,10 +68,58 @@ def test_share_zero_is_the_papers_draws_and_evaluations_play_the_tasks_episodes(
     assert not torch.equal(c.pose, b.pose)  # training draws do change
 
 
+def test_path_length_draws_harden_too_and_stay_pairs_of_the_band():
+    """goal_sampling geodesic (the generalist's task): a hard draw is the longest detour of candidates drawn from the
+    map's geodesic pairs, so it is itself one of them (in the band by construction)."""
+    grid = blocked_room(0.05)
+    sampler = EpisodeSampler(grid, robot("geodesic", **HARD), torch.device("cpu"))
+    pose, goal = sampler.sample(32, torch.Generator().manual_seed(6))
+    gen = torch.Generator().manual_seed(6)
+    sampler._sample_geodesic(32, gen)
+    assert (torch.rand(32, generator=gen) < 1.0).all()
+    cand_pose, cand_goal = sampler._sample_geodesic(32 * 4, gen)
+    ratio = sampler.detour(cand_pose[:, :2], cand_goal).view(32, 4)
+    best = ratio.argmax(dim=1) + torch.arange(32) * 4
+    assert torch.equal(pose, cand_pose[best]) and torch.equal(goal, cand_goal[best])
+    plain = EpisodeSampler(grid, robot("geodesic"), torch.device("cpu"))
+    p0, g0 = plain.sample(512, torch.Generator().manual_seed(7))
+    p1, g1 = EpisodeSampler(grid, robot("geodesic", **{"episode.hard_share": 0.5}),
+                            torch.device("cpu")).sample(512, torch.Generator().manual_seed(7))
+    # the long ways round the wall: 4.3 % of the task's draws, 15.2 % with half of them hard (fixed seeds)
+    assert (sampler.detour(p1[:, :2], g1) > 1.3).float().mean() > 2 * (sampler.detour(p0[:, :2], g0) > 1.3).float().mean()
+
+
+@pytest.mark.parametrize("mode", ["euclidean", "geodesic"])
+def test_many_maps_harden_each_slot_on_its_own_map(mode):
+    """A many-map env's sampler: the same stream by hand, each candidate's detour measured on its slot's map by
+    that map's own sampler; the slots' episodes lie in their own map's free space."""
+    grids = [serpentine(0.05), blocked_room(0.05)]
+    preset = robot(mode, **HARD)
+    batched = MapSetSampler([EpisodeSampler(g, preset, torch.device("cpu")) for g in grids])
+    maps = torch.tensor([0, 1, 1, 0, 1, 0, 0, 1] * 4)
+    pose, goal = batched.sample(maps, torch.Generator().manual_seed(8))
+    gen = torch.Generator().manual_seed(8)
+    draw = batched._sample_geodesic if mode == "geodesic" else (lambda m, g: batched._sample_euclidean(m, g)[:2])
+    draw(maps, gen)
+    assert (torch.rand(maps.numel(), generator=gen) < 1.0).all()
+    cand_maps = maps.repeat_interleave(4)
+    cand_pose, cand_goal = draw(cand_maps, gen)
+    ratio = torch.stack([batched.samplers[int(m)].detour(p[None, :2], g[None])[0]
+                         for m, p, g in zip(cand_maps, cand_pose, cand_goal)]).view(-1, 4)
+    best = ratio.argmax(dim=1) + torch.arange(maps.numel()) * 4
+    assert torch.equal(pose, cand_pose[best]) and torch.equal(goal, cand_goal[best])
+    for m, g in enumerate(grids):
+        on = maps == m
+        free = free_space(g, preset.footprint.circumscribed_radius)
+        assert free.flat[cells(g, pose[on, :2].double().numpy())].all() and free.flat[cells(g, goal[on].double().numpy())].all()
+    # an env over both maps trains on them; its evaluations play the task's episodes
+    env = NavVecEnv(preset, 16, grid=grids, seed=2)
+    env.reset(seed=2)
+    assert evaluation_preset(preset).episode.hard_share == 0
+
+
 def test_refusals_name_the_input():
-    with pytest.raises(ValueError, match=r"episode.hard_share=0.5 needs episode.goal_sampling=euclidean"):
-        robot("geodesic", **{"episode.hard_share": 0.5})
-    with pytest.raises(ValueError, match=r"episode.hard_share=0.5 re-weights one map's .* this env has 2 maps"):
-        NavVecEnv(robot("euclidean", **{"episode.hard_share": 0.5}), 8, grid=[serpentine(0.05), blocked_room(0.05)])
     with pytest.raises(ValueError, match=r"hard_share"):
         robot("euclidean", **{"episode.hard_share": 1.5})
+    with pytest.raises(ValueError, match=r"hard_candidates"):
+        robot("geodesic", **{"episode.hard_candidates": 1})

@@ -97,7 +97,10 @@ class EpisodeSampler:
     def sample(self, n: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Returns pose [n, 3] (x, y m, yaw rad in [-pi, pi)) and goal [n, 2] (m)."""
         if self.mode == "geodesic":
-            return self._sample_geodesic(n, gen)
+            pose, goal = self._sample_geodesic(n, gen)
+            if self.hard_share > 0:
+                self._harden(pose, goal, None, gen)
+            return pose, goal
         pose, goal, outside = self._sample_euclidean(n, gen)
         if self.hard_share > 0:
             self._harden(pose, goal, outside, gen)
@@ -124,17 +127,24 @@ class EpisodeSampler:
         ratio = path / straight.clamp(min=1e-6)
         return torch.where(torch.isfinite(ratio), ratio, torch.zeros_like(ratio))
 
-    def _harden(self, pose: torch.Tensor, goal: torch.Tensor, outside: torch.Tensor, gen: torch.Generator) -> None:
+    def _harden(self, pose: torch.Tensor, goal: torch.Tensor, outside: torch.Tensor | None,
+                gen: torch.Generator) -> None:
         """episode.hard_share: each slot, with that chance, replaces its episode (in place) by the one with the
-        longest detour (:meth:`detour`) of ``hard_candidates`` fresh draws."""
+        longest detour (:meth:`detour`) of ``hard_candidates`` fresh draws of the task's sampler (``outside``:
+        the euclidean fallbacks, None in geodesic mode, whose draws are all in the band)."""
         n, c = pose.shape[0], self.hard_candidates
         idx = (torch.rand(n, generator=gen, device=self.device) < self.hard_share).nonzero().squeeze(1)
         if idx.numel() == 0:
             return
-        cand_pose, cand_goal, cand_out = self._sample_euclidean(idx.numel() * c, gen)
+        if outside is None:
+            cand_pose, cand_goal = self._sample_geodesic(idx.numel() * c, gen)
+        else:
+            cand_pose, cand_goal, cand_out = self._sample_euclidean(idx.numel() * c, gen)
         best = self.detour(cand_pose[:, :2], cand_goal).view(-1, c).argmax(dim=1)
         pick = torch.arange(idx.numel(), device=self.device) * c + best
-        pose[idx], goal[idx], outside[idx] = cand_pose[pick], cand_goal[pick], cand_out[pick]
+        pose[idx], goal[idx] = cand_pose[pick], cand_goal[pick]
+        if outside is not None:
+            outside[idx] = cand_out[pick]
 
     def _sample_euclidean(self, n: int, gen: torch.Generator):
         """(pose [n, 3], goal [n, 2], outside [n] bool: no candidate was in the band)."""
@@ -242,18 +252,18 @@ class MapSetSampler:
         if not samplers:
             raise ValueError("MapSetSampler needs at least one map's EpisodeSampler, got none")
         first = samplers[0]
-        if first.hard_share > 0:  # the batched draws have no detour re-weighting (EpisodeSampler._harden)
-            raise ValueError(f"episode.hard_share={first.hard_share} re-weights one map's straight-line draws; this "
-                             f"env has {len(samplers)} maps: set episode.hard_share=0")
         for m, s in enumerate(samplers):
-            if (s.mode, s.d_min, s.d_max, s.device, s.goal_at_source) != (
-                    first.mode, first.d_min, first.d_max, first.device, first.goal_at_source):
+            if (s.mode, s.d_min, s.d_max, s.device, s.goal_at_source, s.hard_share, s.hard_candidates) != (
+                    first.mode, first.d_min, first.d_max, first.device, first.goal_at_source, first.hard_share,
+                    first.hard_candidates):
                 raise ValueError(f"samplers[{m}] has mode {s.mode!r}, band {s.d_min:g}-{s.d_max:g} m on {s.device}, "
                                  f"goals at sources {s.goal_at_source}; samplers[0] has {first.mode!r}, "
                                  f"{first.d_min:g}-{first.d_max:g} m on {first.device}, goals at sources "
                                  f"{first.goal_at_source}: one map set samples with one episode preset")
         self.mode, self.d_min, self.d_max, self.device = first.mode, first.d_min, first.d_max, first.device
         self.goal_at_source, self.goal_jitter = first.goal_at_source, first.goal_jitter
+        # episode.hard_share: each map's own sampler measures the detours of its candidates
+        self.samplers, self.hard_share, self.hard_candidates = samplers, first.hard_share, first.hard_candidates
         dev = self.device
         # per-map tables concatenated; indices inside them stay local to their map (+ cell_first[m])
         self.centres = _concat(samplers, "centres")  # [sum of cells, 2] metres
@@ -280,10 +290,37 @@ class MapSetSampler:
         """Episodes for slots on maps ``maps`` [n] (long, in [0, M)): pose [n, 3] (x, y m in each map's
         frame, yaw rad in [-pi, pi)) and goal [n, 2] (m)."""
         if self.mode == "geodesic":
-            return self._sample_geodesic(maps, gen)
-        pose, goal, outside = self._sample_euclidean(maps, gen)
-        self.out_of_band.index_add_(0, maps, outside.long())
+            (pose, goal), outside = self._sample_geodesic(maps, gen), None
+        else:
+            pose, goal, outside = self._sample_euclidean(maps, gen)
+        if self.hard_share > 0:
+            self._harden(maps, pose, goal, outside, gen)
+        if outside is not None:
+            self.out_of_band.index_add_(0, maps, outside.long())
         return pose, goal
+
+    def _harden(self, maps: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, outside: torch.Tensor | None,
+                gen: torch.Generator) -> None:
+        """As :meth:`EpisodeSampler._harden`, per slot on its map: the candidates are drawn on the slot's map and
+        their detours measured there (by that map's sampler)."""
+        n, c = maps.numel(), self.hard_candidates
+        idx = (torch.rand(n, generator=gen, device=self.device) < self.hard_share).nonzero().squeeze(1)
+        if idx.numel() == 0:
+            return
+        cand_maps = maps[idx].repeat_interleave(c)
+        if outside is None:
+            (cand_pose, cand_goal), cand_out = self._sample_geodesic(cand_maps, gen), None
+        else:
+            cand_pose, cand_goal, cand_out = self._sample_euclidean(cand_maps, gen)
+        ratio = torch.empty(cand_maps.numel(), dtype=torch.float32, device=self.device)
+        for m in torch.unique(cand_maps).tolist():
+            on = (cand_maps == m).nonzero().squeeze(1)
+            ratio[on] = self.samplers[m].detour(cand_pose[on, :2], cand_goal[on])
+        best = ratio.view(-1, c).argmax(dim=1)
+        pick = torch.arange(idx.numel(), device=self.device) * c + best
+        pose[idx], goal[idx] = cand_pose[pick], cand_goal[pick]
+        if outside is not None:
+            outside[idx] = cand_out[pick]
 
     def _jitter(self, maps: torch.Tensor, k: int, gen: torch.Generator) -> torch.Tensor:
         """[n, k, 2] offsets uniform within each slot's map cell (m)."""
