@@ -37,8 +37,10 @@ def test_recipes_without_a_learner_section_or_setup_name_what_is_missing(tmp_pat
 def test_the_go2_generalist_has_the_turtlebot2_setup_and_its_hyperparameters():
     setups = load_preset_file("setups")["generalist"]
     # the same maps, evaluation, budget and task, less the TurtleBot2's platform turn rate (Go2 keeps its own bounds)
+    # and its share of long detours
     tb2_overrides = dict(setups["turtlebot2"]["overrides"])
     assert tb2_overrides.pop("robot.motion.w_bounds") == [-math.pi / 2, math.pi / 2]
+    assert tb2_overrides.pop("robot.episode.hard_share") == 0.5  # more long detours: measured on the TurtleBot2 only
     assert setups["go2"] == {**setups["turtlebot2"], "overrides": tb2_overrides}
     tb2, go2 = (load_hparams("fastdsac", robot, "generalist").model_dump() for robot in ("turtlebot2", "go2"))
     # Go2's cpu recipe differs from TurtleBot2's; the generalist's Go2 row restores TB2's values, and only the
