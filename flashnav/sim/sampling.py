@@ -96,16 +96,21 @@ class EpisodeSampler:
 
     def sample(self, n: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Returns pose [n, 3] (x, y m, yaw rad in [-pi, pi)) and goal [n, 2] (m)."""
-        if self.mode == "geodesic":
-            pose, goal = self._sample_geodesic(n, gen)
-            if self.hard_share > 0:
-                self._harden(pose, goal, None, gen)
-            return pose, goal
-        pose, goal, outside = self._sample_euclidean(n, gen)
+        pose, goal, outside = self._draws(n, gen)
         if self.hard_share > 0:
-            self._harden(pose, goal, outside, gen)
-        self.out_of_band += outside.sum()
+            harden(pose, goal, outside, self.hard_share, self.hard_candidates, gen,
+                   draw=lambda slots, c: self._draws(slots.numel() * c, gen),
+                   detour=lambda slots, start, end: self.detour(start, end))
+        if outside is not None:
+            self.out_of_band += outside.sum()
         return pose, goal
+
+    def _draws(self, n: int, gen: torch.Generator):
+        """(pose [n, 3], goal [n, 2], outside [n] bool or None): the task's draws, ``outside`` the euclidean
+        fallbacks (None in geodesic mode, whose draws are all in the band)."""
+        if self.mode == "geodesic":
+            return (*self._sample_geodesic(n, gen), None)
+        return self._sample_euclidean(n, gen)
 
     def detour(self, start: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """[k] float32: path length / straight line from each start [k, 2] to its goal [k, 2] (m), the path
@@ -126,25 +131,6 @@ class EpisodeSampler:
         straight = torch.linalg.vector_norm(goal - start, dim=1)
         ratio = path / straight.clamp(min=1e-6)
         return torch.where(torch.isfinite(ratio), ratio, torch.zeros_like(ratio))
-
-    def _harden(self, pose: torch.Tensor, goal: torch.Tensor, outside: torch.Tensor | None,
-                gen: torch.Generator) -> None:
-        """episode.hard_share: each slot, with that chance, replaces its episode (in place) by the one with the
-        longest detour (:meth:`detour`) of ``hard_candidates`` fresh draws of the task's sampler (``outside``:
-        the euclidean fallbacks, None in geodesic mode, whose draws are all in the band)."""
-        n, c = pose.shape[0], self.hard_candidates
-        idx = (torch.rand(n, generator=gen, device=self.device) < self.hard_share).nonzero().squeeze(1)
-        if idx.numel() == 0:
-            return
-        if outside is None:
-            cand_pose, cand_goal = self._sample_geodesic(idx.numel() * c, gen)
-        else:
-            cand_pose, cand_goal, cand_out = self._sample_euclidean(idx.numel() * c, gen)
-        best = self.detour(cand_pose[:, :2], cand_goal).view(-1, c).argmax(dim=1)
-        pick = torch.arange(idx.numel(), device=self.device) * c + best
-        pose[idx], goal[idx] = cand_pose[pick], cand_goal[pick]
-        if outside is not None:
-            outside[idx] = cand_out[pick]
 
     def _sample_euclidean(self, n: int, gen: torch.Generator):
         """(pose [n, 3], goal [n, 2], outside [n] bool: no candidate was in the band)."""
@@ -289,38 +275,29 @@ class MapSetSampler:
     def sample(self, maps: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Episodes for slots on maps ``maps`` [n] (long, in [0, M)): pose [n, 3] (x, y m in each map's
         frame, yaw rad in [-pi, pi)) and goal [n, 2] (m)."""
-        if self.mode == "geodesic":
-            (pose, goal), outside = self._sample_geodesic(maps, gen), None
-        else:
-            pose, goal, outside = self._sample_euclidean(maps, gen)
-        if self.hard_share > 0:
-            self._harden(maps, pose, goal, outside, gen)
+        pose, goal, outside = self._draws(maps, gen)
+        if self.hard_share > 0:  # each slot's candidates drawn on its own map, their detours measured there
+            harden(pose, goal, outside, self.hard_share, self.hard_candidates, gen,
+                   draw=lambda slots, c: self._draws(maps[slots].repeat_interleave(c), gen),
+                   detour=lambda slots, start, end: self._detours(maps[slots], start, end))
         if outside is not None:
             self.out_of_band.index_add_(0, maps, outside.long())
         return pose, goal
 
-    def _harden(self, maps: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, outside: torch.Tensor | None,
-                gen: torch.Generator) -> None:
-        """As :meth:`EpisodeSampler._harden`, per slot on its map: the candidates are drawn on the slot's map and
-        their detours measured there (by that map's sampler)."""
-        n, c = maps.numel(), self.hard_candidates
-        idx = (torch.rand(n, generator=gen, device=self.device) < self.hard_share).nonzero().squeeze(1)
-        if idx.numel() == 0:
-            return
-        cand_maps = maps[idx].repeat_interleave(c)
-        if outside is None:
-            (cand_pose, cand_goal), cand_out = self._sample_geodesic(cand_maps, gen), None
-        else:
-            cand_pose, cand_goal, cand_out = self._sample_euclidean(cand_maps, gen)
-        ratio = torch.empty(cand_maps.numel(), dtype=torch.float32, device=self.device)
-        for m in torch.unique(cand_maps).tolist():
-            on = (cand_maps == m).nonzero().squeeze(1)
-            ratio[on] = self.samplers[m].detour(cand_pose[on, :2], cand_goal[on])
-        best = ratio.view(-1, c).argmax(dim=1)
-        pick = torch.arange(idx.numel(), device=self.device) * c + best
-        pose[idx], goal[idx] = cand_pose[pick], cand_goal[pick]
-        if outside is not None:
-            outside[idx] = cand_out[pick]
+    def _draws(self, maps: torch.Tensor, gen: torch.Generator):
+        """As :meth:`EpisodeSampler._draws`, per slot on its map ``maps`` [n]."""
+        if self.mode == "geodesic":
+            return (*self._sample_geodesic(maps, gen), None)
+        return self._sample_euclidean(maps, gen)
+
+    def _detours(self, maps: torch.Tensor, start: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """[k] :meth:`EpisodeSampler.detour` of each start [k, 2] / goal [k, 2] on its map ``maps`` [k], measured by
+        that map's own sampler."""
+        ratio = torch.empty(maps.numel(), dtype=torch.float32, device=self.device)
+        for m in torch.unique(maps).tolist():
+            on = (maps == m).nonzero().squeeze(1)
+            ratio[on] = self.samplers[m].detour(start[on], goal[on])
+        return ratio
 
     def _jitter(self, maps: torch.Tensor, k: int, gen: torch.Generator) -> torch.Tensor:
         """[n, k, 2] offsets uniform within each slot's map cell (m)."""
@@ -356,6 +333,23 @@ class MapSetSampler:
         goal = self.centres[goal_idx] + jitter[:, 1] * self.goal_jitter
         yaw = (torch.rand(n, generator=gen, device=dev) * 2.0 - 1.0) * math.pi
         return torch.cat([start, yaw[:, None]], dim=1), goal
+
+
+def harden(pose: torch.Tensor, goal: torch.Tensor, outside: torch.Tensor | None, share: float, candidates: int,
+           gen: torch.Generator, draw, detour) -> None:
+    """episode.hard_share, in place: each slot, with chance ``share``, takes the episode with the longest detour (path
+    length / straight line) of ``candidates`` fresh draws of the task's sampler. ``draw(slots, c)`` -> (pose, goal,
+    outside or None) of c candidates for each slot index in ``slots``, slot by slot; ``detour(slots, start, goal)``
+    -> [k] their ratios (``slots`` repeated per candidate). ``outside`` (euclidean fallbacks) follows the pick."""
+    slots = (torch.rand(pose.shape[0], generator=gen, device=pose.device) < share).nonzero().squeeze(1)
+    if slots.numel() == 0:
+        return
+    cand_pose, cand_goal, cand_out = draw(slots, candidates)
+    ratio = detour(slots.repeat_interleave(candidates), cand_pose[:, :2], cand_goal)
+    pick = torch.arange(slots.numel(), device=pose.device) * candidates + ratio.view(-1, candidates).argmax(dim=1)
+    pose[slots], goal[slots] = cand_pose[pick], cand_goal[pick]
+    if outside is not None:
+        outside[slots] = cand_out[pick]
 
 
 def _starts(sizes: list[int]) -> list[int]:
