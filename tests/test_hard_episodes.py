@@ -19,6 +19,22 @@ from test_sampling import cells, reference_distances, robot, serpentine
 HARD = {"episode.hard_share": 1.0, "episode.hard_candidates": 4}
 
 
+def replayed_hard_draws(sample, draw, detour, n: int, seed: int) -> torch.Tensor:
+    """Check that ``sample(gen)``'s n episodes (every slot hard, 4 candidates: HARD) are the longest detours of their
+    candidates, replaying its stream by hand: the task's draws (``draw(1, gen)``), the share's coins, then 4
+    candidates per slot (``draw(4, gen)`` -> pose, goal), measured by ``detour(start, goal)``. Returns the
+    candidates' ratios [n, 4]."""
+    pose, goal = sample(torch.Generator().manual_seed(seed))
+    gen = torch.Generator().manual_seed(seed)
+    draw(1, gen)
+    assert (torch.rand(n, generator=gen) < 1.0).all()
+    cand_pose, cand_goal = draw(4, gen)
+    ratio = detour(cand_pose[:, :2], cand_goal).view(n, 4)
+    best = ratio.argmax(dim=1) + torch.arange(n) * 4
+    assert torch.equal(pose, cand_pose[best]) and torch.equal(goal, cand_goal[best])
+    return ratio
+
+
 def test_detour_is_the_reference_path_length_over_the_straight_line():
     grid = blocked_room(0.05)
     preset = robot("euclidean", **HARD)
@@ -37,15 +53,9 @@ def test_detour_is_the_reference_path_length_over_the_straight_line():
 def test_a_hard_draw_is_the_longest_detour_of_its_candidates():
     grid = blocked_room(0.05)
     sampler = EpisodeSampler(grid, robot("euclidean", **HARD), torch.device("cpu"))
+    ratio = replayed_hard_draws(lambda gen: sampler.sample(32, gen),
+                                lambda c, gen: sampler._sample_euclidean(32 * c, gen)[:2], sampler.detour, 32, seed=4)
     pose, goal = sampler.sample(32, torch.Generator().manual_seed(4))
-    # the same stream by hand: the task's draws, the share's coins, then 4 candidates per hard slot
-    gen = torch.Generator().manual_seed(4)
-    sampler._sample_euclidean(32, gen)
-    assert (torch.rand(32, generator=gen) < 1.0).all()
-    cand_pose, cand_goal, _ = sampler._sample_euclidean(32 * 4, gen)
-    ratio = sampler.detour(cand_pose[:, :2], cand_goal).view(32, 4)
-    best = ratio.argmax(dim=1) + torch.arange(32) * 4
-    assert torch.equal(pose, cand_pose[best]) and torch.equal(goal, cand_goal[best])
     assert (sampler.detour(pose[:, :2], goal) >= ratio.amax(dim=1) - 1e-6).all()
     # and over many draws the share shows long ways round more often than the task does
     plain = EpisodeSampler(grid, robot("euclidean"), torch.device("cpu"))
@@ -73,14 +83,8 @@ def test_path_length_draws_harden_too_and_stay_pairs_of_the_band():
     map's geodesic pairs, so it is itself one of them (in the band by construction)."""
     grid = blocked_room(0.05)
     sampler = EpisodeSampler(grid, robot("geodesic", **HARD), torch.device("cpu"))
-    pose, goal = sampler.sample(32, torch.Generator().manual_seed(6))
-    gen = torch.Generator().manual_seed(6)
-    sampler._sample_geodesic(32, gen)
-    assert (torch.rand(32, generator=gen) < 1.0).all()
-    cand_pose, cand_goal = sampler._sample_geodesic(32 * 4, gen)
-    ratio = sampler.detour(cand_pose[:, :2], cand_goal).view(32, 4)
-    best = ratio.argmax(dim=1) + torch.arange(32) * 4
-    assert torch.equal(pose, cand_pose[best]) and torch.equal(goal, cand_goal[best])
+    replayed_hard_draws(lambda gen: sampler.sample(32, gen), lambda c, gen: sampler._sample_geodesic(32 * c, gen),
+                        sampler.detour, 32, seed=6)
     plain = EpisodeSampler(grid, robot("geodesic"), torch.device("cpu"))
     p0, g0 = plain.sample(512, torch.Generator().manual_seed(7))
     p1, g1 = EpisodeSampler(grid, robot("geodesic", **{"episode.hard_share": 0.5}),
@@ -97,17 +101,16 @@ def test_many_maps_harden_each_slot_on_its_own_map(mode):
     preset = robot(mode, **HARD)
     batched = MapSetSampler([EpisodeSampler(g, preset, torch.device("cpu")) for g in grids])
     maps = torch.tensor([0, 1, 1, 0, 1, 0, 0, 1] * 4)
-    pose, goal = batched.sample(maps, torch.Generator().manual_seed(8))
-    gen = torch.Generator().manual_seed(8)
     draw = batched._sample_geodesic if mode == "geodesic" else (lambda m, g: batched._sample_euclidean(m, g)[:2])
-    draw(maps, gen)
-    assert (torch.rand(maps.numel(), generator=gen) < 1.0).all()
     cand_maps = maps.repeat_interleave(4)
-    cand_pose, cand_goal = draw(cand_maps, gen)
-    ratio = torch.stack([batched.samplers[int(m)].detour(p[None, :2], g[None])[0]
-                         for m, p, g in zip(cand_maps, cand_pose, cand_goal)]).view(-1, 4)
-    best = ratio.argmax(dim=1) + torch.arange(maps.numel()) * 4
-    assert torch.equal(pose, cand_pose[best]) and torch.equal(goal, cand_goal[best])
+
+    def on_its_map(start, end):  # one candidate at a time, by its own map's sampler
+        return torch.stack([batched.samplers[int(m)].detour(p[None], g[None])[0]
+                            for m, p, g in zip(cand_maps, start, end)])
+
+    replayed_hard_draws(lambda gen: batched.sample(maps, gen), lambda c, gen: draw(maps.repeat_interleave(c), gen),
+                        on_its_map, maps.numel(), seed=8)
+    pose, goal = batched.sample(maps, torch.Generator().manual_seed(8))
     for m, g in enumerate(grids):
         on = maps == m
         free = free_space(g, preset.footprint.circumscribed_radius)
