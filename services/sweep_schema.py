@@ -97,7 +97,12 @@ class Sweep(Strict):
     @field_validator("base", mode="before")
     @classmethod
     def _base(cls, value: Any) -> Any:
-        return _base_keys(value)
+        # base as written: a recipe's training setup (setups.yaml) belongs to each trial's robot and is laid
+        # under the trial's own TrainConfig (train_config); laid under base here, it would be the default
+        # robot's, and its overrides and budget would come back as base keys the sweep sets elsewhere
+        if isinstance(_base_keys(value), dict):
+            return TrainConfig.model_validate(value, context={"resolved": True})
+        return value
 
     @field_serializer("base")
     def _dump_base(self, base: TrainConfig, info) -> dict[str, Any]:

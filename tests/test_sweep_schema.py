@@ -173,9 +173,31 @@ def test_yaml_round_trip():
 def test_shipped_sweeps_validate(path):
     sweep = load_sweep(path)
     assert sweep.name == path.stem
-    assert sweep.base.recipe in ("paper", "cpu", "paper-mirror")
+    assert sweep.base.recipe in ("paper", "cpu", "paper-mirror", "generalist")
     # every (robot, algorithm) trial resolves through the library's resolver, as `sweep run` checks first
     validate_train_configs(SimpleNamespace(sweep=sweep, source=str(path)))
+    # and each trial reads the sweep back from the dump the driver sends it (services.sweep._trainable)
+    assert parse_sweep(sweep.model_dump(mode="json")) == sweep
+
+
+def test_a_recipe_setup_is_the_trials_robots_not_a_base_key():
+    """A recipe with a training setup (setups.yaml `generalist`): base stays as written, the dump a trial
+    validates again holds no `overrides` or `budget` in base (the first run of tb2_generalist_optuna.yaml
+    failed every trial on that), and each trial gets its own robot's setup under the sweep's values."""
+    sweep = parse_sweep(minimal(robots=["turtlebot2", "go2"], base={"recipe": "generalist", "threads": 1},
+                                budget={"max_env_steps": 4096}, overrides={"algo.batch_size": 256}))
+    assert sweep.base.model_fields_set == {"recipe", "threads"}
+    dumped = sweep.model_dump(mode="json")["base"]
+    assert dumped == {"recipe": "generalist", "threads": 1}
+    assert parse_sweep(sweep.model_dump(mode="json")) == sweep
+    from flashnav.spec import config_from_data, resolve
+    tb2, go2 = (resolve(config_from_data(sweep.train_config(robot, "fastdsac", 0, "cpu", {"algo.n_step": 3}), robot))
+                for robot in ("turtlebot2", "go2"))
+    assert tb2.robot.episode.hard_share == 0.5 and tb2.robot.motion.w_bounds[1] > 1.5   # the TurtleBot2 setup's
+    assert go2.robot.episode.hard_share == 0.0 and go2.robot.motion.w_bounds[1] < 1.0   # Go2's own
+    for run in (tb2, go2):
+        assert run.robot.episode.goal_sampling == "geodesic" and run.config.maps is not None
+        assert run.config.budget.max_env_steps == 4096 and run.hparams.n_step == 3 and run.hparams.batch_size == 256
 
 
 def test_shipped_sweeps_content():
