@@ -150,24 +150,23 @@ def _write_seed(stage: Path, seed: int, result: Any, final: dict, done: dict, ex
     write_curve_csv(list(result.curve or []), seed_dir / "curve.csv")
     with open(seed_dir / "result.json", "w", encoding="utf-8") as f:
         json.dump(_plain(result.to_dict()) if hasattr(result, "to_dict") else final, f, indent=1)
-    policy = getattr(result, "policy_path", None)  # an exported policy, where training wrote one
-    if policy and Path(policy).is_file():
-        shutil.copy2(policy, seed_dir / f"policy{Path(policy).suffix}")
-    elif export:
+    if export:
         _export_policy(result, seed_dir)
     manifest = {"done": {str(s): f for s, f in done.items()}, "latest": seed}
     (stage / MANIFEST).write_text(json.dumps(manifest, indent=1))
 
 
 def _export_policy(result: Any, out_dir: Path) -> None:
-    """``policy.pt`` (TorchScript) + ``policy.json`` through flashnav.export; a failure costs the artifact only."""
-    learner = getattr(result, "learner", None)
-    if learner is None:
+    """``policy.pt`` (TorchScript) + ``policy.json`` through flashnav.export: the policy ``flashnav train --out``
+    exports, the best evaluation's (ties: the earliest; none: the final learner's), the one whose success the trial's
+    best_success_rate reports. A failure costs the artifact only."""
+    policy = getattr(result, "policy", None)
+    if policy is None:
         return
     try:
         from flashnav.export import export_policy
 
-        export_policy(learner.policy, result.spec.robot, out_dir, onnx=False)  # ONNX: `flashnav` can convert later
+        export_policy(policy, result.spec.robot, out_dir, onnx=False)  # ONNX: `flashnav` can convert later
     except Exception as exc:  # noqa: BLE001 - the run's metrics matter more than its artifact
         logger.warning("policy export failed: %s", exc)
 

@@ -127,6 +127,25 @@ def test_curve_csv_and_checkpoint_manifest(tmp_path):
     assert load_manifest(tmp_path / "nowhere") == {"done": {}, "latest": None}
 
 
+def test_the_trials_policy_artifact_is_the_best_evaluations(tmp_path, monkeypatch):
+    """policy.pt is what `flashnav train --out` exports (result.policy: the best evaluation's), not the final
+    learner's actor (it was, while best_success_rate reported the best evaluation's success)."""
+    import flashnav.export
+
+    exported = []
+    monkeypatch.setattr(flashnav.export, "export_policy",
+                        lambda policy, robot, out, onnx=True: exported.append((policy, robot, onnx)))
+    result = fake_result([0.9, 0.5])
+    best, final = object(), object()
+    result.learner = types.SimpleNamespace(policy=final)
+    result.policy = best
+    result.spec.robot = "preset"
+    _write_seed(tmp_path, 0, result, final_metrics(result), {0: {}}, export=True)
+    assert exported == [(best, "preset", False)]
+    _write_seed(tmp_path, 0, result, final_metrics(result), {0: {}}, export=False)   # export off: nothing
+    assert len(exported) == 1
+
+
 def test_device_from_assigned_gpus(monkeypatch):
     import ray
 
