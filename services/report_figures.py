@@ -1,5 +1,6 @@
 """The paper's figures from run data: learning curves (mean +- standard error over seeds) and the
-training-cycle breakdown. matplotlib with the Agg backend (no display needed).
+training-cycle breakdown; and the per-map success of policies on map suites (`flashnav report
+--generalisation`). matplotlib with the Agg backend (no display needed).
 
 Inputs: the normalised run frame (services.report.normalize_runs) and a curve frame with columns
 run_id, step (env steps), success_rate (0..1), mean_return, train_seconds (services.report.curves).
@@ -171,3 +172,36 @@ def write_figures(runs: pd.DataFrame, curves: pd.DataFrame, out_dir: str | Path,
     paths = {name: plot_curves(runs, curves, y, x, out / f"{name}.png", svg)[0] for name, (y, x) in specs.items()}
     paths["cycle_breakdown"] = plot_cycle_breakdown(runs, out / "cycle_breakdown.png", svg)[0]
     return paths
+
+
+MEAN_ROW = "mean over maps"  # services.report_generalisation.per_map_table's closing row of each suite
+
+
+def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False) -> list[Path]:
+    """One panel per suite: each map's success (per cent) for every policy, side by side, and each policy's mean
+    over the maps it was evaluated on as a dashed line of its colour. ``maps``: the per-map table of
+    services.report_generalisation (columns suite, map and one per policy, fractions; NaN where not evaluated)."""
+    policies = list(maps.columns[2:])
+    suites = list(dict.fromkeys(maps["suite"]))
+    widest = max((int((maps["suite"] == s).sum()) - 1 for s in suites), default=1)
+    fig, axes = plt.subplots(len(suites), 1, figsize=(max(6.0, 0.45 * widest + 2.5), 3.4 * len(suites)),
+                             squeeze=False, constrained_layout=True)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    markers = "osD^vP*Xh<>"
+    for ax, suite in zip(axes[:, 0], suites):
+        rows = maps[(maps["suite"] == suite) & (maps["map"] != MEAN_ROW)]
+        x = np.arange(len(rows))
+        spread = 0.6 / max(len(policies), 1)
+        for i, policy in enumerate(policies):
+            values = 100 * rows[policy].to_numpy(dtype=float)
+            color, offset = colors[i % len(colors)], (i - (len(policies) - 1) / 2) * spread
+            ax.plot(x + offset, values, linestyle="none", marker=markers[i % len(markers)], color=color,
+                    label=policy)
+            if np.isfinite(values).any():
+                ax.axhline(np.nanmean(values), color=color, linestyle="--", linewidth=1, alpha=0.8)
+        ax.set_xticks(x, rows["map"], rotation=60, ha="right", fontsize=8)
+        ax.set_ylabel("success [%]")
+        ax.set_title(f"{suite} (dashed: mean over maps)")
+        ax.grid(axis="y", alpha=0.3)
+        ax.legend(fontsize=8, loc="lower left")
+    return _save(fig, Path(path), svg)

@@ -1,7 +1,8 @@
 """The generalisation tables of `flashnav report --generalisation EVAL_JSON...`: policies on map suites.
 
 Input: the JSON files written by ``flashnav eval POLICY --maps SUITE --json FILE`` (``flashnav/eval_maps.py``,
-kind ``flashnav.eval_maps``), one per policy and suite. Two tables, pure pandas:
+kind ``flashnav.eval_maps``), one per policy and suite. Two tables, pure pandas (and, drawn from the second by
+services.report_figures.plot_per_map, a figure of every map's success per policy):
 
 - :func:`summary_table`: one row per file (policy x suite): mean / pooled / worst-map success, mean
   collision and timeout, maps and episodes, goal sampling, how many maps exceed the policy's goal-distance
@@ -12,6 +13,7 @@ kind ``flashnav.eval_maps``), one per policy and suite. Two tables, pure pandas:
 from __future__ import annotations
 
 import json
+from html import escape
 from pathlib import Path
 
 import pandas as pd
@@ -117,8 +119,10 @@ def per_map_markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def markdown(summary: pd.DataFrame, maps: pd.DataFrame) -> str:
-    """The page: :func:`summary_table` and :func:`per_map_table` as Markdown, with what they mean."""
+def markdown(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None) -> str:
+    """The page: :func:`summary_table` and :func:`per_map_table` as Markdown, with what they mean, and the per-map
+    figure's file (``figure``, relative to the page) where one was drawn."""
+    shown = [f"![success per map]({figure})", ""] if figure else []
     return "\n".join([
         "# Generalisation", "",
         "Success of each policy on map suites it was not trained on (`flashnav eval POLICY --maps SUITE`): the "
@@ -126,12 +130,13 @@ def markdown(summary: pd.DataFrame, maps: pd.DataFrame) -> str:
         "episodes; worst: the map with the lowest success. 'Beyond goal scale': maps whose diagonal exceeds the "
         "policy's goal-distance scale (its training map's diagonal), and the episodes whose goal-distance input "
         "went beyond it (passed unclipped).", "",
-        summary_markdown(summary), "## Success per map", "", per_map_markdown(maps)])
+        summary_markdown(summary), "## Success per map", "", *shown, per_map_markdown(maps)])
 
 
-def html(summary: pd.DataFrame, maps: pd.DataFrame) -> str:
-    """A self-contained page with :func:`summary_table` and :func:`per_map_table` (escaped cells; the
-    tables given are left as they are)."""
+def html(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None) -> str:
+    """A page with :func:`summary_table` and :func:`per_map_table` (escaped cells; the tables given are left as
+    they are) and the per-map figure's file (``figure``, relative to the page) where one was drawn."""
+    shown = f"<img src='{escape(figure, quote=True)}' alt='success per map'>" if figure else ""
     summary = summary.assign(**{c: summary[c].map(_pct) for c in
                                 ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean")})
     maps = maps.assign(**{c: maps[c].map(_pct) for c in maps.columns[2:]})
@@ -140,30 +145,36 @@ def html(summary: pd.DataFrame, maps: pd.DataFrame) -> str:
     return ("<!doctype html><html><head><meta charset='utf-8'><title>FlashNav generalisation</title>"
             f"<style>{style}</style></head><body><h1>Generalisation</h1>"
             "<p>Success rates in per cent; see report.md for the columns.</p><h2>Policies x suites</h2>"
-            + summary.to_html(index=False, escape=True) + "<h2>Success per map (%)</h2>"
+            + summary.to_html(index=False, escape=True) + "<h2>Success per map (%)</h2>" + shown
             + maps.to_html(index=False, escape=True, na_rep="") + "</body></html>\n")
 
 
 def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[str, Path]:
     """Write generalisation.md / generalisation.csv + generalisation_maps.csv / generalisation.html (the
-    formats among ``formats``) into ``out_dir``; returns {name: Path}."""
+    formats among ``formats``) into ``out_dir``, and the per-map figure generalisation.png (with "html", "png"
+    or "svg"; .svg too with "svg"), which the pages show; returns {name: Path}."""
     docs = load_evals(paths)
     summary, maps = summary_table(docs), per_map_table(docs)  # the rows, once; each format below formats them
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = {}
+    written, figure = {}, None
+    if {"html", "png", "svg"} & set(formats):
+        from services.report_figures import plot_per_map  # matplotlib only when a figure is asked for
+
+        written["generalisation_png"] = plot_per_map(maps, out / "generalisation.png", svg="svg" in formats)[0]
+        figure = written["generalisation_png"].name
 
     def put(name, filename, text):
         (out / filename).write_text(text, encoding="utf-8")
         written[name] = out / filename
 
     if "md" in formats:
-        put("generalisation_md", "generalisation.md", markdown(summary, maps))
+        put("generalisation_md", "generalisation.md", markdown(summary, maps, figure))
     if "csv" in formats:
         put("generalisation_csv", "generalisation.csv",
             summary.to_csv(index=False, float_format="%.4f", lineterminator="\n"))
         put("generalisation_maps_csv", "generalisation_maps.csv",
             maps.to_csv(index=False, float_format="%.4f", lineterminator="\n"))
     if "html" in formats:
-        put("generalisation_html", "generalisation.html", html(summary, maps))
+        put("generalisation_html", "generalisation.html", html(summary, maps, figure))
     return written

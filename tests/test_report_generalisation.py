@@ -74,7 +74,13 @@ def test_files_in_every_format_and_bad_input_named(tmp_path):
         paths[-1].write_text(json.dumps(d))
     written = write_generalisation(paths, tmp_path / "out")
     assert sorted(written) == ["generalisation_csv", "generalisation_html", "generalisation_maps_csv",
-                               "generalisation_md"]
+                               "generalisation_md", "generalisation_png"]
+    assert written["generalisation_png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "![success per map](generalisation.png)" in written["generalisation_md"].read_text()
+    assert "<img src='generalisation.png'" in written["generalisation_html"].read_text()
+    only_tables = write_generalisation(paths, tmp_path / "tables", formats=("md", "csv"))   # no figure asked for
+    assert "generalisation_png" not in only_tables and not (tmp_path / "tables" / "generalisation.png").exists()
+    assert "generalisation.png" not in only_tables["generalisation_md"].read_text()
     csv = written["generalisation_maps_csv"].read_text().splitlines()
     assert csv[0] == "suite,map,single,general" and "heldout,a,1.0000,0.8750" in csv
     html = written["generalisation_html"].read_text()
@@ -96,3 +102,25 @@ def test_report_command_with_only_generalisation_needs_no_mlflow(tmp_path, capsy
     assert main(["report", "--generalisation", str(path), "--out", str(out), "--format", "md,csv"]) == 0
     assert (out / "generalisation.md").is_file() and not (out / "report.md").exists()
     assert "generalisation_md" in capsys.readouterr().out
+
+
+def test_per_map_figure_one_panel_per_suite_every_policy_its_mean(monkeypatch, tmp_path):
+    """The figure draws, per suite, one marker per (policy, map) it was evaluated on (none where it was not)
+    and each policy's mean over those maps as a dashed line."""
+    import matplotlib.pyplot as plt
+
+    from services import report_figures
+
+    kept = {}
+    monkeypatch.setattr(report_figures, "_save", lambda fig, path, svg: kept.setdefault("fig", fig) and [path])
+    report_figures.plot_per_map(per_map_table(DOCS), tmp_path / "f.png")
+    heldout, real = kept["fig"].axes
+    assert heldout.get_title().startswith("heldout") and real.get_title().startswith("real")
+    assert [t.get_text() for t in heldout.get_xticklabels()] == ["a", "big"]
+    points = {line.get_label(): line.get_ydata() for line in heldout.lines if not line.get_linestyle() == "--"}
+    assert list(points["single"]) == [100.0, 50.0] and list(points["general"][:1]) == [87.5]
+    means = sorted(line.get_ydata()[0] for line in heldout.lines if line.get_linestyle() == "--")
+    assert means == [75.0, 87.5]   # single (100 + 50) / 2, general its one map
+    real_means = [line.get_ydata()[0] for line in real.lines if line.get_linestyle() == "--"]
+    assert real_means == [75.0]    # general was not evaluated on the real suite: no line of its own
+    plt.close(kept["fig"])
