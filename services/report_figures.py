@@ -174,22 +174,21 @@ def write_figures(runs: pd.DataFrame, curves: pd.DataFrame, out_dir: str | Path,
     return paths
 
 
-MEAN_ROW = "mean over maps"  # services.report_generalisation.per_map_table's closing row of each suite
-
 
 def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False) -> list[Path]:
     """One panel per suite: each map's success (per cent) for every policy, side by side, and each policy's mean
-    over the maps it was evaluated on as a dashed line of its colour. ``maps``: the per-map table of
-    services.report_generalisation (columns suite, map and one per policy, fractions; NaN where not evaluated)."""
+    over the maps it was evaluated on as a dashed line of its colour. ``maps``: one row per (suite, map), columns
+    suite, map and one per policy (fractions; NaN where not evaluated): services.report_generalisation's per-map
+    table without its mean rows."""
     policies = list(maps.columns[2:])
     suites = list(dict.fromkeys(maps["suite"]))
-    widest = max((int((maps["suite"] == s).sum()) - 1 for s in suites), default=1)
+    widest = max((int((maps["suite"] == s).sum()) for s in suites), default=1)
     fig, axes = plt.subplots(len(suites), 1, figsize=(max(6.0, 0.45 * widest + 2.5), 3.4 * len(suites)),
                              squeeze=False, constrained_layout=True)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     markers = "osD^vP*Xh<>"
     for ax, suite in zip(axes[:, 0], suites):
-        rows = maps[(maps["suite"] == suite) & (maps["map"] != MEAN_ROW)]
+        rows = maps[maps["suite"] == suite]
         x = np.arange(len(rows))
         spread = 0.6 / max(len(policies), 1)
         for i, policy in enumerate(policies):

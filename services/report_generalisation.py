@@ -22,6 +22,7 @@ import pandas as pd
 # torch and the simulator; tests/test_report_generalisation.py checks that they agree
 KIND = "flashnav.eval_maps"
 FORMAT = 1
+MEAN_ROW = "mean over maps"  # the per-map table's closing row of each suite
 SUMMARY_COLUMNS = ["policy", "suite", "robot", "goal_sampling", "maps", "episodes_per_map", "success_mean",
                    "success_pooled", "success_worst", "worst_map", "collision_mean", "timeout_mean",
                    "maps_beyond_scale", "episodes_beyond_scale", "goal_distance_scale", "machine", "date"]
@@ -84,7 +85,7 @@ def per_map_table(docs: list[dict]) -> pd.DataFrame:
             values = [cells[k][p] for k in maps if p in cells[k]]
             if values:
                 mean[p] = sum(values) / len(values)
-        rows.append({"suite": suite, "map": "mean over maps", **mean})
+        rows.append({"suite": suite, "map": MEAN_ROW, **mean})
     return pd.DataFrame(rows, columns=["suite", "map", *policies])
 
 
@@ -111,7 +112,7 @@ def per_map_markdown(table: pd.DataFrame) -> str:
     lines = ["| Suite | Map | " + " | ".join(f"{p} success %" for p in policies) + " |",
              "|---|---|" + "--:|" * len(policies)]
     for r in table.to_dict("records"):
-        bold = r["map"] == "mean over maps"
+        bold = r["map"] == MEAN_ROW
         cells = [_pct(r[p]) for p in policies]
         if bold:
             cells = [f"**{c}**" if c else c for c in cells]
@@ -161,7 +162,8 @@ def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[
     if {"html", "png", "svg"} & set(formats):
         from services.report_figures import plot_per_map  # matplotlib only when a figure is asked for
 
-        written["generalisation_png"] = plot_per_map(maps, out / "generalisation.png", svg="svg" in formats)[0]
+        written["generalisation_png"] = plot_per_map(maps[maps["map"] != MEAN_ROW], out / "generalisation.png",
+                                                     svg="svg" in formats)[0]
         figure = written["generalisation_png"].name
 
     def put(name, filename, text):
