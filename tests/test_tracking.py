@@ -54,7 +54,7 @@ class DirCheckpoint:
         yield str(self.path)
 
 
-def feed(callback, tr, seed: int, result, tmp_path: Path, done: dict | None = None) -> None:
+def feed(callback, tr, seed: int, result, tmp_path: Path, done: dict | None = None, export: bool = False) -> None:
     """Everything Tune passes for one seed: every evaluation, the final report, its checkpoint."""
     for point in result.curve:
         callback.on_trial_result(0, [], tr, {**point, "seed": seed, "final": 0.0})
@@ -65,7 +65,7 @@ def feed(callback, tr, seed: int, result, tmp_path: Path, done: dict | None = No
     stage = tmp_path / f"ckpt_{tr.trial_id}_{seed}"
     stage.mkdir(exist_ok=True)
     done = {**(done or {}), seed: final}
-    _write_seed(stage, seed, result, final, done)
+    _write_seed(stage, seed, result, final, done, export=export)
     callback.on_checkpoint(0, [], tr, DirCheckpoint(stage))
 
 
@@ -126,14 +126,19 @@ def test_censored_metrics_where_not_reached(tmp_path, store):
     assert metrics["reached_90"] == 0.0 and metrics["time_to_90"] == 4.0 and metrics["env_steps_to_100"] == 4000.0
 
 
-def test_policy_artifact_when_training_exported_one(tmp_path, store):
+def test_policy_artifact_is_the_trials_best_policy(tmp_path, store, monkeypatch):
+    """policy.pt reaches MLflow, exported from the result's policy (the best evaluation's: services.trainable)."""
+    import flashnav.export
+
+    monkeypatch.setattr(flashnav.export, "export_policy",
+                        lambda policy, robot, out, onnx=True: (Path(out) / "policy.pt").write_bytes(policy))
     result = fake_result(0)
-    policy = tmp_path / "exported.pt"
-    policy.write_bytes(b"policy")
-    result.policy_path = str(policy)
-    feed(store.callback("unit", {}), trial("pp_00000"), 0, result, tmp_path)
-    artifacts = {a.path for a in store.client.list_artifacts(children(store)[0].info.run_id)}
-    assert "policy.pt" in artifacts
+    result.policy, result.spec.robot = b"the best evaluation's policy", "preset"
+    feed(store.callback("unit", {}), trial("pp_00000"), 0, result, tmp_path, export=True)
+    run_id = children(store)[0].info.run_id
+    assert "policy.pt" in {a.path for a in store.client.list_artifacts(run_id)}
+    got = store.client.download_artifacts(run_id, "policy.pt", str(tmp_path / "down"))
+    assert Path(got).read_bytes() == b"the best evaluation's policy"
 
 
 def test_multi_seed_trial_gives_one_child_per_seed(tmp_path, store):
