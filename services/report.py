@@ -237,7 +237,9 @@ def _markdown(ours, paper, prov, figures, out: Path, steps=None) -> str:
                   "Best / mean environment steps over the seeds that reached the threshold (machine-independent: "
                   "comparable with the paper's budgets); k/n seeds reached; [95 % bootstrap interval of the "
                   "mean]. Last column: seeds that reached 100 % within the paper's environment-step budget "
-                  "(its recipe's total) for the embodiment x algorithm.", "", to_markdown(steps)]
+                  "(its recipe's total) for the embodiment x algorithm; — where the paper has no budget or the runs are "
+                  "not on the paper's task (trained or scored on other maps: a generalist, a fine-tuning).", "",
+                  to_markdown(steps)]
     lines += ["## Time to success threshold", "",
              "Best / mean wall-clock training seconds over the seeds that reached the threshold; k/n seeds "
              "reached; [95 % bootstrap interval of the mean]. Bold: fastest platform per embodiment x "

@@ -70,7 +70,8 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time
     ties are all bold; cells without a value are never bold), then threads (the learner thread
     counts of the row's runs, "1, 2"; "" on GPUs). With ``kind="env_steps_to"`` also budget (the
     paper's env-step budget of the embodiment x algorithm, flashnav.learn.hparams.paper_budget; NaN
-    where the paper has none) and budget_<t> (seeds that reached t within it).
+    where the paper has none or the row's runs are not all on the paper's task, :func:`on_paper_task`) and
+    budget_<t> (seeds that reached t within it).
     """
     if kind not in KINDS:
         raise ValueError(f"unknown table kind {kind!r}; use one of {', '.join(KINDS)}")
@@ -84,7 +85,7 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time
             reached = grp[f"reached_{t}"].fillna(0).astype(float).to_numpy()
             stats = over_seeds(values, reached=reached)
             if kind == "env_steps_to":
-                budget = paper_budget(str(row["algorithm"]), str(row["embodiment"]))
+                budget = paper_budget(str(row["algorithm"]), str(row["embodiment"])) if on_paper_task(grp) else None
                 row["budget"] = math.nan if budget is None else budget
                 row[f"budget_{t}"] = within_budget(values, budget, reached)
             row[f"best_{t}"] = stats.best if stats.k else math.nan
@@ -101,6 +102,19 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time
         table[col] = pd.Series([None if pd.isna(v) else float(v) for v in table[col]], dtype=object)
     table = sort_table(table)
     return mark_best(table, thresholds)
+
+
+#: Run-config keys (MLflow params) that move a run off the paper's task: other maps to train on or be scored on.
+OFF_TASK_PARAMS = ("params.map", "params.maps", "params.eval.maps")
+
+
+def on_paper_task(runs: pd.DataFrame) -> bool:
+    """Whether every run trained and was evaluated on its robot's bundled map, the task the paper's env-step
+    budget is for: none sets ``map``, ``maps`` (or a ``maps.*`` key) or ``eval.maps`` (a generalist trial is
+    scored on generated validation maps, a fine-tuning on one building). A frame without these params (runs
+    logged before configs were) counts as on the task."""
+    cols = [c for c in runs.columns if c in OFF_TASK_PARAMS or c.startswith("params.maps.")]
+    return not any(runs[c].map(lambda v: not (pd.isna(v) or str(v) in ("None", ""))).any() for c in cols)
 
 
 def sort_table(table: pd.DataFrame, platforms: list[str] | None = None) -> pd.DataFrame:

@@ -123,6 +123,25 @@ def test_steps_table_and_paper_budget(runs):
         threshold_table(runs, kind="seconds")
 
 
+def test_paper_budget_only_for_runs_on_the_papers_task(runs):
+    """A generalist trial (its maps, scored on validation maps) or a fine-tuning on one building is not the task
+    the paper's budget is for: its row shows no budget; runs with the params logged as "None" (MLflow's spelling
+    of a null) stay on the task."""
+    on = runs.assign(**{"params.map": "None", "params.maps": "None", "params.eval.maps": "None"})
+    assert threshold_table(on, kind="env_steps_to")["budget"].notna().any()
+    pd.testing.assert_frame_equal(threshold_table(on, kind="env_steps_to"), threshold_table(runs, kind="env_steps_to"))
+    for key, value in (("params.maps.family", "['rooms', 'mazes']"), ("params.eval.maps", "validation"),
+                       ("params.map", "/maps/building.yaml")):
+        off = threshold_table(runs.assign(**{key: value}), kind="env_steps_to")
+        assert off["budget"].isna().all() and (off["budget_100"] == 0).all(), key
+        assert "in paper budget" in to_markdown(off) and "(≤ " not in to_markdown(off)
+    one = runs.copy()
+    one["params.eval.maps"] = None
+    one.loc[one.index[0], "params.eval.maps"] = "validation"   # one off-task run makes its whole row off-task
+    mixed = threshold_table(one, kind="env_steps_to")
+    assert mixed["budget"].isna().sum() == 1
+
+
 def test_bold_cells(table):
     for _, row in table.iterrows():
         assert _bold_cells(row) == BOLD.get((row["embodiment"], row["algorithm"], row["platform"]), set())
