@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -175,3 +175,21 @@ def within_budget(values: Sequence[float | None], budget: float | None, reached:
     if budget is None:
         return 0
     return sum(1 for v in reached_values(values, reached) if v <= budget)
+
+
+#: Run-config keys (dotted) that take a run off the paper's task: other maps to train on or to be scored on.
+OFF_TASK_KEYS = ("map", "maps", "eval.maps")
+
+
+def _is_set(value) -> bool:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return False
+    return str(value) not in ("None", "", "nan", "<NA>")
+
+
+def on_paper_task(config: Mapping[str, Any]) -> bool:
+    """Whether a run trained and was scored on its robot's bundled map, the task the paper's env-step budget
+    (:func:`within_budget`) is for. ``config``: the run's config as dotted keys (``maps.family``; MLflow's
+    params, where a null reads "None"): off the task when ``map``, ``maps`` (or a ``maps.*`` key) or
+    ``eval.maps`` is set - a generalist is scored on generated validation maps, a fine-tuning on one building."""
+    return not any(_is_set(v) for k, v in config.items() if k in OFF_TASK_KEYS or k.startswith("maps."))

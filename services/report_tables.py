@@ -15,6 +15,7 @@ import pandas as pd
 from flashnav.machine import split_device_name
 from flashnav.learn.hparams import paper_budget
 from flashnav.metrics import THRESHOLD_TAGS, bootstrap_mean_ci, over_seeds, within_budget  # noqa: F401 - bootstrap_mean_ci re-exported
+from flashnav.metrics import on_paper_task as paper_task
 from flashnav.names import ALGORITHM_LABELS, ROBOT_LABELS
 
 THRESHOLDS = THRESHOLD_TAGS  # column-name tags: "90" -> best_90, "90% success"
@@ -104,17 +105,12 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time
     return mark_best(table, thresholds)
 
 
-#: Run-config keys (MLflow params) that move a run off the paper's task: other maps to train on or be scored on.
-OFF_TASK_PARAMS = ("params.map", "params.maps", "params.eval.maps")
-
-
 def on_paper_task(runs: pd.DataFrame) -> bool:
-    """Whether every run trained and was evaluated on its robot's bundled map, the task the paper's env-step
-    budget is for: none sets ``map``, ``maps`` (or a ``maps.*`` key) or ``eval.maps`` (a generalist trial is
-    scored on generated validation maps, a fine-tuning on one building). A frame without these params (runs
-    logged before configs were) counts as on the task."""
-    cols = [c for c in runs.columns if c in OFF_TASK_PARAMS or c.startswith("params.maps.")]
-    return not any(runs[c].map(lambda v: not (pd.isna(v) or str(v) in ("None", ""))).any() for c in cols)
+    """Whether every run of the frame is on the paper's task (flashnav.metrics.on_paper_task over its
+    ``params.*`` columns); a frame without those params (runs logged before configs were) counts as on it."""
+    cols = [c for c in runs.columns if c.startswith("params.")]
+    return all(paper_task({c[len("params."):]: v for c, v in zip(cols, values)})
+               for values in runs[cols].itertuples(index=False, name=None))
 
 
 def sort_table(table: pd.DataFrame, platforms: list[str] | None = None) -> pd.DataFrame:

@@ -71,3 +71,43 @@ def test_bad_sources_and_options_are_named(tmp_path, capsys):
     a = _run(tmp_path, "a", _metrics(0, [1.0], to100=5120))
     assert cli_main(["bench", "runs", str(a), "--last", "0"]) == 2
     assert "--last must be >= 1" in capsys.readouterr().out
+
+
+def _trial(root, name: str, checkpoints: dict[int, list[dict]]):
+    """A Tune trial folder as `flashnav sweep run` leaves it: checkpoint_<i>/seed_<s>/result.json; the latest
+    checkpoint holds every seed the trial finished (services/trainable.py)."""
+    for i, results in checkpoints.items():
+        for r in results:
+            d = root / name / f"checkpoint_{i:06d}" / f"seed_{r['config']['seed']}"
+            d.mkdir(parents=True)
+            (d / "result.json").write_text(json.dumps(r))
+
+
+def test_a_sweep_output_reads_each_trials_latest_checkpoint(tmp_path, capsys):
+    sweep = tmp_path / "ray" / "tb2" / "20261130-100445" / "turtlebot2-fastdsac"
+    _trial(sweep, "train_trial_aa_1_algorithm=fastdsac,algo_n_step=3", {
+        0: [_metrics(0, [0.5, 0.9])],
+        1: [_metrics(0, [0.5, 0.9]), _metrics(1, [0.6, 1.0], to100=10240)]})   # seed 0 again, and seed 1 done
+    _trial(sweep, "train_trial_bb_2_algorithm=fastdsac,algo_n_step=1", {0: [_metrics(0, [0.7, 0.95])]})
+    (sweep / "experiment_state.json").write_text("{}")
+    records = load_runs(tmp_path / "ray")
+    assert [r["label"] for r in records] == ["train_trial_aa_1 seed 0", "train_trial_aa_1 seed 1",
+                                             "train_trial_bb_2 seed 0"]
+    (g,) = group_rows([run_row(r) for r in records])
+    assert g["runs"] == 3 and g["to_1.0"]["reached"] == 1 and g["budget"] == 200_704
+    assert cli_main(["bench", "runs", str(tmp_path / "ray" / "tb2")]) == 0
+    assert "train_trial_bb_2 seed 0" in capsys.readouterr().out
+
+
+def test_no_paper_budget_for_runs_off_the_papers_task(tmp_path):
+    """A generalist (its maps, scored on validation maps) or a fine-tuning on a building is not the task the
+    paper's env-step budget is for: the group shows none."""
+    on = _metrics(0, [1.0], to100=5120)
+    on["config"].update({"map": None, "maps": None, "eval": {"maps": None}})
+    assert group_rows([run_row(load_runs(_run(tmp_path, "on", on))[0])])[0]["budget"] == 200_704
+    for name, extra in (("gen", {"maps": {"family": ["mazes"], "count": 16}, "eval": {"maps": "validation"}}),
+                        ("ft", {"map": "/maps/building.yaml"})):
+        m = _metrics(0, [1.0], to100=5120)
+        m["config"].update(extra)
+        rows = [run_row(load_runs(_run(tmp_path, name, m))[0]), run_row(load_runs(tmp_path / "on")[0])]
+        assert group_rows(rows)[0]["budget"] is None and group_rows(rows)[0]["within_budget"] is None, name

@@ -1,6 +1,7 @@
 """``flashnav bench runs``: the table of finished training runs, environment steps first (issue 16, item 1).
 
-Reads ``flashnav train`` run folders (their ``metrics.json``) and ``flashnav bench train --json`` files,
+Reads ``flashnav train`` run folders (their ``metrics.json``), ``flashnav sweep run`` output folders (each
+trial's per-seed ``result.json``) and ``flashnav bench train --json`` files,
 and prints one row per run - environment steps to 90 / 95 / 100 % on the fixed evaluation set, the best
 evaluation, the mean and the worst of the last evaluations (how steady the end of the run is), and where
 the training episodes reached 100 % - then one row per robot x algorithm with the paper-budget view: how
@@ -18,38 +19,62 @@ from rich.console import Console
 from rich.table import Table
 
 from flashnav.learn.hparams import paper_budget
-from flashnav.metrics import THRESHOLDS, over_seeds, within_budget
+from flashnav.metrics import THRESHOLDS, on_paper_task, over_seeds, within_budget
+from flashnav.yamlio import flatten_dotted
 
 LAST = 10  # the last evaluations read for "steady at the end"
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
-    p = bsub.add_parser("runs", help="the table of finished runs (run folders and bench train --json files): "
+    p = bsub.add_parser("runs", help="the table of finished runs (run folders, sweep outputs, bench train --json "
+                                     "files): "
                                      "env steps to 90/95/100 %%, best, last evaluations, paper budget")
-    p.add_argument("sources", nargs="+", metavar="JSON_OR_RUN_DIR",
-                   help="a flashnav train run folder (its metrics.json) or a flashnav bench train --json file")
+    p.add_argument("sources", nargs="+", metavar="JSON_OR_RUN_OR_SWEEP_DIR",
+                   help="a flashnav train run folder (its metrics.json), a flashnav sweep run output folder "
+                        "(runs/ray/NAME/STAMP: each trial's latest checkpoint) or a flashnav bench train --json file")
     p.add_argument("--last", type=int, default=LAST, help="how many of the last evaluations the steadiness columns read")
     p.add_argument("--json", metavar="FILE", help="also write the rows and the groups as JSON")
     p.set_defaults(func=run_bench_runs)
 
 
+def _record(result: dict, label: str) -> dict:
+    c = result["config"]
+    return {**result, "label": label, "robot": c["robot"], "algorithm": c["algorithm"], "seed": c["seed"]}
+
+
+def sweep_results(folder: Path) -> list[Path]:
+    """The per-seed ``result.json`` files of a ``flashnav sweep run`` output (runs/ray/NAME/STAMP or any folder
+    above its trials): each trial's latest checkpoint holds every seed the trial finished, so only that one is
+    read. Sorted by trial folder and seed."""
+    latest: dict[Path, Path] = {}
+    for ckpt in folder.rglob("checkpoint_*"):
+        if ckpt.is_dir() and (ckpt.parent not in latest or ckpt.name > latest[ckpt.parent].name):
+            latest[ckpt.parent] = ckpt
+    return sorted((f for c in latest.values() for f in c.glob("seed_*/result.json")),
+                  key=lambda f: (str(f.parent.parent.parent), int(f.parent.name.split("_")[-1])))
+
+
 def load_runs(source: Path) -> list[dict]:
-    """The run records of a run folder (``label``: the folder's name) or a ``bench train --json`` file
-    (``source``: the file's stem), each with ``robot``, ``algorithm``, ``seed``, ``curve`` and the threshold
-    records; a ValueError names the source."""
+    """The run records of a run folder (``label``: the folder's name), of a sweep's output folder (``label``:
+    the trial's name - Tune's ``train_trial_<id>_<n>`` - and seed) or of a ``bench train --json`` file
+    (``source``: the file's stem), each with ``robot``, ``algorithm``, ``seed``, ``curve``, the threshold records
+    and, from run folders and sweeps, ``config``; a ValueError names the source."""
     try:
         if source.is_dir():
-            m = json.loads((source / "metrics.json").read_text(encoding="utf-8"))
-            c = m["config"]
-            return [{**m, "label": source.name, "robot": c["robot"], "algorithm": c["algorithm"], "seed": c["seed"]}]
+            if not (source / "metrics.json").exists() and (found := sweep_results(source)):
+                return [_record(json.loads(f.read_text(encoding="utf-8")),
+                                f"{f.parent.parent.parent.name.split('_algorithm=')[0]} seed {f.parent.name[5:]}")
+                        for f in found]
+            return [_record(json.loads((source / "metrics.json").read_text(encoding="utf-8")), source.name)]
         data = json.loads(source.read_text(encoding="utf-8"))
         runs = data["runs"]
         if not isinstance(runs, list):
             raise TypeError("its runs are not a list")
         return [{**r, "source": source.stem} for r in runs]
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ValueError(f"{source}: not a flashnav train run folder with metrics.json or a flashnav bench train "
-                         f"--json file ({type(e).__name__}: {e})") from None
+        raise ValueError(f"{source}: not a flashnav train run folder with metrics.json, a flashnav sweep run output "
+                         f"(trial checkpoints with result.json) or a flashnav bench train --json file "
+                         f"({type(e).__name__}: {e})") from None
 
 
 def run_label(r: dict) -> str:
@@ -72,12 +97,14 @@ def run_row(r: dict, last: int = LAST) -> dict:
             **{f"to_{t}": r["env_steps_to_threshold"].get(str(t)) for t in THRESHOLDS},
             "best": max(p["success_rate"] for p in curve), "last_mean": sum(tail) / len(tail), "last_min": min(tail),
             "last_n": len(tail), "train_episodes_100": train.get(str(THRESHOLDS[-1])),
-            "env_steps": r.get("env_steps", curve[-1].get("env_steps")), "stop_reason": r.get("stop_reason")}
+            "env_steps": r.get("env_steps", curve[-1].get("env_steps")), "stop_reason": r.get("stop_reason"),
+            "paper_task": on_paper_task(flatten_dotted(r.get("config") or {}))}
 
 
 def group_rows(rows: list[dict]) -> list[dict]:
     """Per robot x algorithm: runs, k reached and mean env steps per threshold, 100 % within the paper's
-    budget (k / runs; None where the paper has no recipe for the pair) and ``cut_short``: the runs without
+    budget (k / runs; None where the paper has no recipe for the pair or a run is off the paper's task: trained
+    or scored on other maps, flashnav.metrics.on_paper_task) and ``cut_short``: the runs without
     100 % that ended before that budget (stopped by time, interrupted, a snapshot of a run still going), which
     the budget's k / runs counts as misses although they never had the whole budget."""
     groups: dict[tuple, list[dict]] = {}
@@ -85,7 +112,7 @@ def group_rows(rows: list[dict]) -> list[dict]:
         groups.setdefault((row["robot"], row["algorithm"]), []).append(row)
     out = []
     for (robot, algo), rs in groups.items():
-        budget = paper_budget(algo, Path(robot).stem)
+        budget = paper_budget(algo, Path(robot).stem) if all(x.get("paper_task", True) for x in rs) else None
         g = {"robot": robot, "algorithm": algo, "runs": len(rs), "budget": budget}
         for t in THRESHOLDS:
             stats = over_seeds([x[f"to_{t}"] for x in rs], interval=False)
