@@ -198,3 +198,23 @@ def test_the_generalist_sweep_validates_and_its_trials_resolve():
         assert spec.config.budget.max_env_steps == 409600 and spec.config.eval.episodes == 512
         assert spec.to_dict()["eval_maps"]["families"] == list(MAP_FAMILIES)
         assert [g.name for g in spec.eval_env_maps()] == [f"{f}_800000" for f in MAP_FAMILIES]
+
+def test_the_go2_generalist_sweep_starts_from_its_recipe_and_the_turtlebot2_studys_best():
+    """sweeps/go2_generalist_optuna.yaml: Go2's own generalist setup (its action bounds, no hardened episodes),
+    the same validation suite and budget; start point 0 is the Go2 recipe before the study, start point 1 the
+    TurtleBot2 recipe (its study's best), each resolving to exactly those values."""
+    from services.sweep_schema import load_sweep
+
+    sweep = load_sweep(ROOT / "sweeps/go2_generalist_optuna.yaml", sets=["base.eval.maps_per_family=1"])
+    assert sweep.robots == ["go2"] and sweep.budget.max_env_steps == 409600
+    tb2 = resolve(TrainConfig.model_validate({"recipe": "generalist", "robot": "turtlebot2"})).hparams
+    resolved = []
+    for point in sweep.search.start_points:
+        spec = resolve(TrainConfig.model_validate(sweep.train_config("go2", "fastdsac", 0, "cpu", point)))
+        assert spec.robot_name == "go2" and spec.robot.episode.goal_sampling == "geodesic"
+        assert spec.robot.episode.hard_share == 0.0 and spec.robot.motion.w_bounds[1] < 1.0   # Go2's own
+        assert spec.config.eval.episodes == 512 and spec.config.maps.count == 16
+        h = spec.hparams
+        resolved.append((h.updates_per_step, h.batch_size, h.temperature, h.n_step))
+    assert resolved[0] == (8, 512, 1.34, 1)   # the Go2 generalist before the study
+    assert resolved[1] == (tb2.updates_per_step, tb2.batch_size, tb2.temperature, tb2.n_step) == (9, 512, 0.6958791808396919, 3)
