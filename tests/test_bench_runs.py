@@ -111,3 +111,15 @@ def test_no_paper_budget_for_runs_off_the_papers_task(tmp_path):
         m["config"].update(extra)
         rows = [run_row(load_runs(_run(tmp_path, name, m))[0]), run_row(load_runs(tmp_path / "on")[0])]
         assert group_rows(rows)[0]["budget"] is None and group_rows(rows)[0]["within_budget"] is None, name
+
+
+def test_bench_plot_reads_a_sweep_output_and_one_trial_folder(tmp_path):
+    from flashnav.bench.train import load_curves
+
+    sweep = tmp_path / "ray" / "tb2" / "stamp" / "turtlebot2-fastdsac"
+    _trial(sweep, "train_trial_aa_1_algorithm=fastdsac", {0: [_metrics(0, [0.5, 0.9])]})
+    _trial(sweep, "train_trial_bb_2_algorithm=fastdsac", {0: [_metrics(0, [0.7, 0.95])]})
+    runs, when = load_curves(tmp_path / "ray")
+    assert [r["label"] for r in runs] == ["train_trial_aa_1 seed 0", "train_trial_bb_2 seed 0"] and when[:2] == "20"
+    one, _ = load_curves(sweep / "train_trial_bb_2_algorithm=fastdsac")
+    assert [r["curve"][-1]["success_rate"] for r in one] == [0.95]

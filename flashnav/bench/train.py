@@ -27,10 +27,11 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", metavar="PNG", help="draw success against training seconds, one line per seed")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="as for flashnav train")
     p.set_defaults(func=run_bench_train)
-    q = bsub.add_parser("plot", help="draw the success curves of `bench train --json` files and/or "
-                                     "`flashnav train` run folders")
-    q.add_argument("sources", nargs="*", metavar="JSON_OR_RUN_DIR",
-                   help="a file written by flashnav bench train --json, or a run folder (its metrics.json)")
+    q = bsub.add_parser("plot", help="draw the success curves of `bench train --json` files, `flashnav train` "
+                                     "run folders and `flashnav sweep run` outputs")
+    q.add_argument("sources", nargs="*", metavar="JSON_OR_RUN_OR_SWEEP_DIR",
+                   help="a file written by flashnav bench train --json, a run folder (its metrics.json) or a sweep's "
+                        "output folder or one trial's folder in it (each trial's latest checkpoint)")
     q.add_argument("--arm", nargs="+", action="append", default=[], metavar=("NAME", "JSON_OR_RUN_DIR"),
                    help="NAME and its sources: one colour and one legend entry per arm instead of per run "
                         "(repeat for each arm, e.g. --arm fine-tuned runs/ft-s* --arm scratch runs/sc-s*)")
@@ -150,15 +151,17 @@ def run_bench_plot(args) -> int:
 
 
 def load_curves(source: Path) -> tuple[list[dict], str]:
-    """The runs (records with ``curve``) of a ``bench train --json`` file, or the one run of a
-    ``flashnav train`` folder (its metrics.json; labelled with the folder's name), and their date."""
+    """The runs (records with ``curve``) of a ``bench train --json`` file, the one run of a ``flashnav train``
+    folder (its metrics.json; labelled with the folder's name) or the trials of a ``flashnav sweep run`` output
+    (each trial's latest checkpoint, :func:`flashnav.bench.runs.load_runs`), and their date."""
     from flashnav.bench.runs import load_runs
 
     runs = load_runs(source)
     if not runs or not all("curve" in r for r in runs):
         raise KeyError("curve")
-    if source.is_dir():
-        return runs, dt.datetime.fromtimestamp((source / "metrics.json").stat().st_mtime).strftime("%Y-%m-%d")
+    if source.is_dir():  # a run folder (its metrics.json) or a sweep's output (the folder itself)
+        stamp = source / "metrics.json" if (source / "metrics.json").exists() else source
+        return runs, dt.datetime.fromtimestamp(stamp.stat().st_mtime).strftime("%Y-%m-%d")
     with open(source, encoding="utf-8") as f:
         return runs, json.load(f).get("date", "?")
 
