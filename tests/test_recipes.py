@@ -43,14 +43,15 @@ def test_the_go2_generalist_has_the_turtlebot2_setup_and_its_hyperparameters():
     assert tb2_overrides.pop("robot.episode.hard_share") == 0.5  # more long detours: measured on the TurtleBot2 only
     assert setups["go2"] == {**setups["turtlebot2"], "overrides": tb2_overrides}
     tb2, go2 = (load_hparams("fastdsac", robot, "generalist").model_dump() for robot in ("turtlebot2", "go2"))
-    # Go2's cpu recipe differs from TurtleBot2's; the generalist's Go2 row restores TB2's values as they were before
-    # the goal's sine and cosine and the Optuna study (both measured on the TurtleBot2 generalist only), and the
-    # paper's per-robot collector sync interval (pipeline.yaml) stays Go2's
+    # Go2's cpu recipe differs from TurtleBot2's; each robot's generalist row is its own Optuna study's pick
+    # (sweeps/tb2_generalist_optuna.yaml, go2_generalist_optuna.yaml), the goal's sine and cosine is the
+    # TurtleBot2's only (measured on its generalist), and the paper's per-robot collector sync interval
+    # (pipeline.yaml) stays Go2's
     assert {k for k in tb2 if tb2[k] != go2[k]} == {"env_steps_per_sync", "goal_sincos", "updates_per_step",
-                                                   "temperature", "n_step"}
+                                                   "batch_size", "temperature", "n_step"}
     assert tb2["goal_sincos"] and not go2["goal_sincos"]
-    assert (tb2["updates_per_step"], tb2["n_step"], go2["updates_per_step"], go2["temperature"], go2["n_step"]) == \
-        (9, 3, 8, 1.34, 1)
+    assert (tb2["updates_per_step"], tb2["batch_size"], tb2["temperature"], tb2["n_step"]) == (9, 512, 0.6958791808396919, 3)
+    assert (go2["updates_per_step"], go2["batch_size"], go2["temperature"], go2["n_step"]) == (8, 256, 1.2066141432362034, 5)
     spec = resolve(config_from_cli(None, {"recipe": "generalist", "robot": "go2", "device": "cpu"},
                                    ["maps.count=2", "eval.maps_per_family=1", "eval.episodes=16"]))
     assert spec.robot.name == "go2" and spec.robot.episode.goal_sampling == "geodesic"
