@@ -106,12 +106,15 @@ def make_searcher(sweep: Sweep, url: str, name: str, algorithm: str):
     """ConcurrencyLimiter(OptunaSearch) for one (robot, algorithm) study; metric/mode come from TuneConfig.
 
     The sweep's ``start_points`` are enqueued in the study (a fresh one: a resumed sweep restores its
-    searcher instead and enqueues nothing again).
+    searcher instead and enqueues nothing again). TPE draws at random until ``search.startup_trials`` trials
+    (start points included; Optuna's default 10) have finished, then from a model of the results.
     """
     import optuna
     from ray.tune.search import ConcurrencyLimiter
 
-    sampler = optuna.samplers.TPESampler(seed=sweep.search.sampler_seed)
+    startup = sweep.search.startup_trials
+    sampler = optuna.samplers.TPESampler(seed=sweep.search.sampler_seed,
+                                         **({"n_startup_trials": startup} if startup else {}))
     searcher = FinalOnlyOptunaSearch(sampler=sampler, study_name=name, storage=storage(url),
                                      points_to_evaluate=start_points(sweep, algorithm) or None)
     return ConcurrencyLimiter(searcher, max_concurrent=sweep.max_concurrent_trials or 4)

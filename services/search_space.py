@@ -75,6 +75,10 @@ class Search(Strict):
     study_name: str | None = Field(None, description="default: <sweep>-<robot>-<algorithm>-<invocation stamp>")
     storage: str | None = Field(None, description="Optuna RDB URL; default sqlite:///<runs>/optuna.db")
     sampler_seed: int | None = None
+    startup_trials: int | None = Field(
+        None, gt=0, description="trials (start points included) drawn at random before TPE models the results "
+        "(Optuna's n_startup_trials; default: Optuna's 10): a study of no more trials than this is a seeded random "
+        "search, whatever the results")
     best_seeds: int = Field(10, gt=0, description="seeds of the best-config sweep YAML written at the end")
     parameters: dict[str, Distribution] = Field(default_factory=dict, description="config path -> distribution")
     algorithm_parameters: dict[str, dict[str, Distribution]] = Field(default_factory=dict)

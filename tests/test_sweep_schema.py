@@ -342,3 +342,20 @@ def test_optuna_dry_run_creates_no_database(tmp_path, monkeypatch):
     monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
     assert sweep_main(["run", str(ROOT / "sweeps/tb2_optuna.yaml"), "--dry-run"]) == 0
     assert not (tmp_path / "runs").exists()
+
+
+def test_startup_trials_reach_the_tpe_sampler():
+    """search.startup_trials is TPE's n_startup_trials (a 10-trial study at Optuna's default 10 is a seeded random
+    search: sessions 47-48 drew the same points in two studies); unset keeps Optuna's default; 0 is refused."""
+    from services.optuna_search import make_searcher
+
+    def sampler(**search):
+        sweep = parse_sweep(minimal(search={"n_trials": 4, "parameters": {"algo.batch_size": {"choice": [256, 512]}},
+                                            **search}))
+        return make_searcher(sweep, "sqlite:///:memory:", "unit", "fastdsac").searcher._sampler
+
+    assert sampler(startup_trials=3)._n_startup_trials == 3
+    assert sampler()._n_startup_trials == 10
+    with pytest.raises(ValueError, match="startup_trials"):
+        parse_sweep(minimal(search={"n_trials": 4, "startup_trials": 0,
+                                    "parameters": {"algo.batch_size": {"choice": [256, 512]}}}))
