@@ -174,7 +174,6 @@ def write_figures(runs: pd.DataFrame, curves: pd.DataFrame, out_dir: str | Path,
     return paths
 
 
-
 def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False) -> list[Path]:
     """One panel per suite: each map's success (per cent) for every policy, side by side, and each policy's mean
     over the maps it was evaluated on as a dashed line of its colour. ``maps``: one row per (suite, map), columns

@@ -15,7 +15,7 @@ import pandas as pd
 from flashnav.machine import split_device_name
 from flashnav.learn.hparams import paper_budget
 from flashnav.metrics import THRESHOLD_TAGS, bootstrap_mean_ci, over_seeds, within_budget  # noqa: F401 - bootstrap_mean_ci re-exported
-from flashnav.metrics import on_paper_task as paper_task
+from flashnav.metrics import on_paper_task
 from flashnav.names import ALGORITHM_LABELS, ROBOT_LABELS
 
 THRESHOLDS = THRESHOLD_TAGS  # column-name tags: "90" -> best_90, "90% success"
@@ -71,7 +71,7 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time
     ties are all bold; cells without a value are never bold), then threads (the learner thread
     counts of the row's runs, "1, 2"; "" on GPUs). With ``kind="env_steps_to"`` also budget (the
     paper's env-step budget of the embodiment x algorithm, flashnav.learn.hparams.paper_budget; NaN
-    where the paper has none or the row's runs are not all on the paper's task, :func:`on_paper_task`) and
+    where the paper has none or the row's runs are not all on the paper's task, :func:`runs_on_paper_task`) and
     budget_<t> (seeds that reached t within it).
     """
     if kind not in KINDS:
@@ -86,7 +86,7 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time
             reached = grp[f"reached_{t}"].fillna(0).astype(float).to_numpy()
             stats = over_seeds(values, reached=reached)
             if kind == "env_steps_to":
-                budget = paper_budget(str(row["algorithm"]), str(row["embodiment"])) if on_paper_task(grp) else None
+                budget = paper_budget(str(row["algorithm"]), str(row["embodiment"])) if runs_on_paper_task(grp) else None
                 row["budget"] = math.nan if budget is None else budget
                 row[f"budget_{t}"] = within_budget(values, budget, reached)
             row[f"best_{t}"] = stats.best if stats.k else math.nan
@@ -105,11 +105,11 @@ def threshold_table(runs: pd.DataFrame, thresholds=THRESHOLDS, kind: str = "time
     return mark_best(table, thresholds)
 
 
-def on_paper_task(runs: pd.DataFrame) -> bool:
+def runs_on_paper_task(runs: pd.DataFrame) -> bool:
     """Whether every run of the frame is on the paper's task (flashnav.metrics.on_paper_task over its
     ``params.*`` columns); a frame without those params (runs logged before configs were) counts as on it."""
     cols = [c for c in runs.columns if c.startswith("params.")]
-    return all(paper_task({c[len("params."):]: v for c, v in zip(cols, values)})
+    return all(on_paper_task({c[len("params."):]: v for c, v in zip(cols, values)})
                for values in runs[cols].itertuples(index=False, name=None))
 
 

@@ -26,6 +26,7 @@ import yaml
 from ray import tune
 
 from flashnav.yamlio import flatten_dotted
+from flashnav.names import TRIAL_SEED_DIR
 from services.schema_base import CURVE_METRICS, FINAL_METRICS
 
 logger = logging.getLogger(__name__)
@@ -203,7 +204,7 @@ class MlflowSweepCallback(tune.Callback):
                 run_id = found[0].info.run_id if found else None
             if run_id is None:
                 return
-            self._log_artifacts(run_id, Path(directory) / f"seed_{seed}")
+            self._log_artifacts(run_id, Path(directory) / TRIAL_SEED_DIR.format(seed=seed))
             if child:
                 self.client.set_terminated(run_id, status="FINISHED")
             self._skip.add(key)

@@ -32,6 +32,7 @@ import yaml
 
 from flashnav.spec import config_from_data
 from flashnav.metrics import THRESHOLD_TAGS, THRESHOLDS, censor, threshold_of, time_to_threshold
+from flashnav.names import TRIAL_RESULT_FILE, TRIAL_SEED_DIR
 from services import device as devices
 from services.search_space import Search
 from services.sweep_schema import Sweep
@@ -142,13 +143,13 @@ def load_manifest(directory: str | Path) -> dict:
 
 def _write_seed(stage: Path, seed: int, result: Any, final: dict, done: dict, export: bool = False) -> None:
     """Add ``seed_<seed>/`` (config, curve, result, policy) to the staging folder and rewrite the manifest."""
-    seed_dir = stage / f"seed_{seed}"
+    seed_dir = stage / TRIAL_SEED_DIR.format(seed=seed)
     shutil.rmtree(seed_dir, ignore_errors=True)
     seed_dir.mkdir()
     with open(seed_dir / "config.yaml", "w", encoding="utf-8") as f:
         yaml.safe_dump(_plain(result.spec.to_dict()), f, sort_keys=False)
     write_curve_csv(list(result.curve or []), seed_dir / "curve.csv")
-    with open(seed_dir / "result.json", "w", encoding="utf-8") as f:
+    with open(seed_dir / TRIAL_RESULT_FILE, "w", encoding="utf-8") as f:
         json.dump(_plain(result.to_dict()) if hasattr(result, "to_dict") else final, f, indent=1)
     if export:
         _export_policy(result, seed_dir)

@@ -20,6 +20,7 @@ from rich.table import Table
 
 from flashnav.learn.hparams import paper_budget
 from flashnav.metrics import THRESHOLDS, on_paper_task, over_seeds, within_budget
+from flashnav.names import METRICS_FILE, TRIAL_RESULT_FILE, TRIAL_SEED_DIR
 from flashnav.yamlio import flatten_dotted
 
 LAST = 10  # the last evaluations read for "steady at the end"
@@ -43,15 +44,26 @@ def _record(result: dict, label: str) -> dict:
 
 
 def sweep_results(folder: Path) -> list[Path]:
-    """The per-seed ``result.json`` files of a ``flashnav sweep run`` output (runs/ray/NAME/STAMP or any folder
-    above its trials): each trial's latest checkpoint holds every seed the trial finished, so only that one is
-    read. Sorted by trial folder and seed."""
+    """The per-seed result files of a ``flashnav sweep run`` output (runs/ray/NAME/STAMP or any folder above its
+    trials): each trial's latest checkpoint holds every seed the trial finished, so only that one is read."""
     latest: dict[Path, Path] = {}
     for ckpt in folder.rglob("checkpoint_*"):
         if ckpt.is_dir() and (ckpt.parent not in latest or ckpt.name > latest[ckpt.parent].name):
             latest[ckpt.parent] = ckpt
-    return sorted((f for c in latest.values() for f in c.glob("seed_*/result.json")),
-                  key=lambda f: (str(f.parent.parent.parent), int(f.parent.name.split("_")[-1])))
+    pattern = f"{TRIAL_SEED_DIR.format(seed='*')}/{TRIAL_RESULT_FILE}"
+    return [f for c in latest.values() for f in c.glob(pattern)]
+
+
+def _trial_records(found: list[Path]) -> list[dict]:
+    """The records of a sweep's result files, labelled with the trial's name (Tune's ``train_trial_<id>_<n>``)
+    and seed, sorted by trial folder and seed."""
+    records = []
+    for path in found:
+        trial = path.parent.parent.parent  # <trial>/checkpoint_<i>/seed_<s>/result.json
+        result = json.loads(path.read_text(encoding="utf-8"))
+        label = f"{trial.name.split('_algorithm=')[0]} seed {result['config']['seed']}"
+        records.append((str(trial), _record(result, label)))
+    return [r for _, r in sorted(records, key=lambda x: (x[0], x[1]["seed"]))]
 
 
 def load_runs(source: Path) -> list[dict]:
@@ -61,19 +73,17 @@ def load_runs(source: Path) -> list[dict]:
     and, from run folders and sweeps, ``config``; a ValueError names the source."""
     try:
         if source.is_dir():
-            if not (source / "metrics.json").exists() and (found := sweep_results(source)):
-                return [_record(json.loads(f.read_text(encoding="utf-8")),
-                                f"{f.parent.parent.parent.name.split('_algorithm=')[0]} seed {f.parent.name[5:]}")
-                        for f in found]
-            return [_record(json.loads((source / "metrics.json").read_text(encoding="utf-8")), source.name)]
+            if not (source / METRICS_FILE).exists() and (found := sweep_results(source)):
+                return _trial_records(found)
+            return [_record(json.loads((source / METRICS_FILE).read_text(encoding="utf-8")), source.name)]
         data = json.loads(source.read_text(encoding="utf-8"))
         runs = data["runs"]
         if not isinstance(runs, list):
             raise TypeError("its runs are not a list")
         return [{**r, "source": source.stem} for r in runs]
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ValueError(f"{source}: not a flashnav train run folder with metrics.json, a flashnav sweep run output "
-                         f"(trial checkpoints with result.json) or a flashnav bench train --json file "
+        raise ValueError(f"{source}: not a flashnav train run folder with {METRICS_FILE}, a flashnav sweep run output "
+                         f"(trial checkpoints with {TRIAL_RESULT_FILE}) or a flashnav bench train --json file "
                          f"({type(e).__name__}: {e})") from None
 
 

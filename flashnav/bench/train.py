@@ -15,7 +15,7 @@ from rich.table import Table
 from flashnav.learn.hparams import paper_budget
 from flashnav.learn.progress import TrainProgress
 from flashnav.metrics import THRESHOLDS, over_seeds, within_budget
-from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, RECIPE_CHOICES, ROBOTS
+from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, METRICS_FILE, RECIPE_CHOICES, ROBOTS
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -160,7 +160,7 @@ def load_curves(source: Path) -> tuple[list[dict], str]:
     if not runs or not all("curve" in r for r in runs):
         raise KeyError("curve")
     if source.is_dir():  # a run folder (its metrics.json) or a sweep's output (the folder itself)
-        stamp = source / "metrics.json" if (source / "metrics.json").exists() else source
+        stamp = source / METRICS_FILE if (source / METRICS_FILE).exists() else source
         return runs, dt.datetime.fromtimestamp(stamp.stat().st_mtime).strftime("%Y-%m-%d")
     with open(source, encoding="utf-8") as f:
         return runs, json.load(f).get("date", "?")
