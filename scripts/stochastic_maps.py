@@ -1,0 +1,86 @@
+"""Does sampling the policy's own Gaussian get a memoryless generalist out of dead ends? (issue 15, done-means 2)
+
+    .venv/bin/python scripts/stochastic_maps.py RUN_DIR [--maps heldout] [--only mazes] [--scales 1,0.5,0.25]
+                                                [--episodes 128] [--seed 12345] [--json FILE]
+
+Loads a FastDSAC run's final learner (``RUN_DIR/checkpoint.pt`` with its ``config.yaml``) and evaluates it per map, as
+``flashnav eval POLICY --maps SUITE`` does (the same fixed episodes: goals by path length, ``--episodes`` per map,
+``--seed``), once with the deterministic actor (tanh of the mean: what ``flashnav eval`` plays) and once per scale f
+with actions sampled from the actor's tanh-Gaussian, its standard deviation multiplied by f (1: the DEM policy the
+learner collects with at scale 1). A deterministic reactive policy that loops in a dead end repeats its loop; a
+sampled one might wander out of it. ``--only`` keeps the maps whose name contains that text.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import torch
+import yaml
+
+from flashnav.checkpoint import load_checkpoint
+from flashnav.eval_maps import evaluate_maps, suite_path
+from flashnav.learn.fastdsac import policy_log_std
+from flashnav.learn.loop import run_learner
+from flashnav.learn.networks import DeterministicActor, squashed_gaussian
+from flashnav.maps.bundled import resolve_maps
+from flashnav.names import EVAL_SEED
+from flashnav.presets import load_robot
+from flashnav.spec import RunSpec
+
+
+def sampled(actor, hp, scale: float, seed: int):
+    """The actor's tanh-Gaussian with its standard deviation times ``scale``, drawn from its own generator."""
+    gen = torch.Generator().manual_seed(seed)
+    shift = math.log(scale)
+
+    def policy(obs: torch.Tensor) -> torch.Tensor:
+        mu, log_std = policy_log_std(actor(obs), hp)
+        noise = torch.randn(mu.shape, generator=gen, device=mu.device)
+        return squashed_gaussian(mu, log_std + shift, noise, hp.action_headroom)[0].clamp(-1.0, 1.0)
+
+    return policy
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("run", help="a flashnav train --out directory of a FastDSAC run")
+    p.add_argument("--maps", default="heldout", help="a benchmark suite (heldout, real) or a folder / glob of map YAMLs")
+    p.add_argument("--only", default="", help="keep the maps whose name contains this")
+    p.add_argument("--scales", default="1,0.5,0.25", help="standard-deviation multipliers of the sampled arms")
+    p.add_argument("--episodes", type=int, default=128)
+    p.add_argument("--seed", type=int, default=EVAL_SEED)
+    p.add_argument("--json", default=None, help="write every arm's per-map rates here")
+    args = p.parse_args()
+    run = Path(args.run)
+    spec = RunSpec.from_dict(yaml.safe_load((run / "config.yaml").read_text()))
+    if spec.algorithm != "fastdsac":
+        raise SystemExit(f"{run}: a {spec.algorithm} run; this samples FastDSAC's DEM policy")
+    scales = [float(s) for s in args.scales.split(",") if s]
+    if any(s <= 0 for s in scales):
+        raise SystemExit(f"--scales {args.scales}: every scale must be > 0")
+    learner = run_learner(spec, "cpu")
+    learner.load_state_dict(load_checkpoint(run / "checkpoint.pt")["learner"])
+    actor, hp = learner.state.actor, learner.state.hp
+    preset = load_robot(spec.robot, **{"episode.goal_sampling": "geodesic"})
+    grids = [g for g in resolve_maps(suite_path(args.maps), preset.map) if args.only in g.name]
+    if not grids:
+        raise SystemExit(f"--maps {args.maps} --only {args.only!r}: no map")
+    arms = [("deterministic", DeterministicActor(actor))] + [(f"sampled x{s:g}", sampled(actor, hp, s, 0)) for s in scales]
+    out = {}
+    with torch.no_grad():
+        for name, policy in arms:
+            r = evaluate_maps(policy, preset, grids, args.episodes, args.seed, goal_distance_scale=spec.goal_distance_max)
+            out[name] = {m["map"]: m["success_rate"] for m in r["maps"]}
+            rates = " ".join(f"{m['map']} {m['success_rate']:.1%}" for m in r["maps"])
+            print(f"{name:>14}: mean {r['aggregate']['mean']['success_rate']:.1%} | {rates}", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"run": str(run), "maps": args.maps, "episodes": args.episodes,
+                                               "seed": args.seed, "success": out}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
