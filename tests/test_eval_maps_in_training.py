@@ -218,3 +218,18 @@ def test_the_go2_generalist_sweep_starts_from_its_recipe_and_the_turtlebot2_stud
         resolved.append((h.updates_per_step, h.batch_size, h.temperature, h.n_step))
     assert resolved[0] == (8, 512, 1.34, 1)   # the Go2 generalist before the study
     assert resolved[1] == (tb2.updates_per_step, tb2.batch_size, tb2.temperature, tb2.n_step) == (9, 512, 0.6958791808396919, 3)
+
+
+@pytest.mark.parametrize("robot, sweep_file", [("turtlebot2", "tb2_generalist_optuna.yaml"),
+                                               ("go2", "go2_generalist_optuna.yaml")])
+def test_the_generalist_recipe_trains_as_long_as_its_study_measured(robot, sweep_file):
+    """`flashnav train --recipe generalist` runs the env-step budget every held-out figure of the recipe comes from
+    (its Optuna study's; docs/benchmarks.md "How long to train a generalist"): a run of the recipe repeats the
+    measured runs, and a run's own budget still wins."""
+    from services.sweep_schema import load_sweep
+
+    sweep = load_sweep(ROOT / "sweeps" / sweep_file, sets=["base.eval.maps_per_family=1"])
+    spec = resolve(TrainConfig.model_validate({"recipe": "generalist", "robot": robot}))
+    assert spec.config.budget.max_env_steps == sweep.budget.max_env_steps == 409600
+    own = resolve(config_from_cli(None, {"recipe": "generalist", "robot": robot}, ["budget.max_env_steps=3000000"]))
+    assert own.config.budget.max_env_steps == 3000000
