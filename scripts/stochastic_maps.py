@@ -1,14 +1,17 @@
 """Does sampling the policy's own Gaussian get a memoryless generalist out of dead ends? (issue 15, done-means 2)
 
     .venv/bin/python scripts/stochastic_maps.py RUN_DIR [--maps heldout] [--only mazes] [--scales 1,0.5,0.25]
-                                                [--episodes 128] [--seed 12345] [--json FILE]
+                                                [--episodes 128] [--seed 12345] [--sample-seed 0] [--json FILE]
 
 Loads a FastDSAC run's final learner (``RUN_DIR/checkpoint.pt`` with its ``config.yaml``) and evaluates it per map, as
 ``flashnav eval POLICY --maps SUITE`` does (the same fixed episodes: goals by path length, ``--episodes`` per map,
 ``--seed``), once with the deterministic actor (tanh of the mean: what ``flashnav eval`` plays) and once per scale f
-with actions sampled from the actor's tanh-Gaussian, its standard deviation multiplied by f (1: the DEM policy the
-learner collects with at scale 1). A deterministic reactive policy that loops in a dead end repeats its loop; a
-sampled one might wander out of it. ``--only`` keeps the maps whose name contains that text.
+with actions sampled from the actor's tanh-Gaussian, its standard deviation multiplied by f (1: the policy the learner
+updates, DEM scale 1; the collector draws a scale per env from the recipe's range), each sampled arm's draws from a
+generator seeded with ``--sample-seed``. A deterministic reactive policy that loops in a dead end repeats its loop; a
+sampled one might wander out of it. ``--only`` keeps the maps whose name contains that text. ``--json`` writes every
+arm's success rate and episode outcomes (``s``/``c``/``t`` per episode, as ``flashnav eval --json``) per map, with the
+checkpoint's env steps.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from flashnav.learn.fastdsac import policy_log_std
 from flashnav.learn.loop import run_learner
 from flashnav.learn.networks import DeterministicActor, squashed_gaussian
 from flashnav.maps.bundled import resolve_maps
-from flashnav.names import EVAL_SEED
+from flashnav.names import CHECKPOINT_FILE, CONFIG_FILE, EVAL_SEED
 from flashnav.presets import load_robot
 from flashnav.spec import RunSpec
 
@@ -52,34 +55,57 @@ def main() -> None:
     p.add_argument("--only", default="", help="keep the maps whose name contains this")
     p.add_argument("--scales", default="1,0.5,0.25", help="standard-deviation multipliers of the sampled arms")
     p.add_argument("--episodes", type=int, default=128)
-    p.add_argument("--seed", type=int, default=EVAL_SEED)
-    p.add_argument("--json", default=None, help="write every arm's per-map rates here")
+    p.add_argument("--seed", type=int, default=EVAL_SEED, help="start/goal sampling seed (flashnav eval's --seed)")
+    p.add_argument("--sample-seed", type=int, default=0, help="seed of each sampled arm's action noise")
+    p.add_argument("--json", default=None, help="write every arm's per-map rates and outcomes here")
     args = p.parse_args()
+    scales = parse_scales(args.scales)
     run = Path(args.run)
-    spec = RunSpec.from_dict(yaml.safe_load((run / "config.yaml").read_text()))
+    for needed in (CONFIG_FILE, CHECKPOINT_FILE):
+        if not (run / needed).is_file():
+            raise SystemExit(f"{run}: no {needed} (a flashnav train --out folder holds config.yaml and checkpoint.pt)")
+    spec = RunSpec.from_dict(yaml.safe_load((run / CONFIG_FILE).read_text()))
     if spec.algorithm != "fastdsac":
         raise SystemExit(f"{run}: a {spec.algorithm} run; this samples FastDSAC's DEM policy")
-    scales = [float(s) for s in args.scales.split(",") if s]
-    if any(s <= 0 for s in scales):
-        raise SystemExit(f"--scales {args.scales}: every scale must be > 0")
+    checkpoint = load_checkpoint(run / CHECKPOINT_FILE)
     learner = run_learner(spec, "cpu")
-    learner.load_state_dict(load_checkpoint(run / "checkpoint.pt")["learner"])
+    learner.load_state_dict(checkpoint["learner"])
     actor, hp = learner.state.actor, learner.state.hp
     preset = load_robot(spec.robot, **{"episode.goal_sampling": "geodesic"})
     grids = [g for g in resolve_maps(suite_path(args.maps), preset.map) if args.only in g.name]
     if not grids:
         raise SystemExit(f"--maps {args.maps} --only {args.only!r}: no map")
-    arms = [("deterministic", DeterministicActor(actor))] + [(f"sampled x{s:g}", sampled(actor, hp, s, 0)) for s in scales]
-    out = {}
+    arms = [("deterministic", DeterministicActor(actor))] + [
+        (f"sampled x{s:g}", sampled(actor, hp, s, args.sample_seed)) for s in scales]
+    success, outcomes = {}, {}
     with torch.no_grad():
         for name, policy in arms:
             r = evaluate_maps(policy, preset, grids, args.episodes, args.seed, goal_distance_scale=spec.goal_distance_max)
-            out[name] = {m["map"]: m["success_rate"] for m in r["maps"]}
+            success[name] = {m["map"]: m["success_rate"] for m in r["maps"]}
+            outcomes[name] = {m["map"]: m["outcomes"] for m in r["maps"]}
             rates = " ".join(f"{m['map']} {m['success_rate']:.1%}" for m in r["maps"])
             print(f"{name:>14}: mean {r['aggregate']['mean']['success_rate']:.1%} | {rates}", flush=True)
     if args.json:
-        Path(args.json).write_text(json.dumps({"run": str(run), "maps": args.maps, "episodes": args.episodes,
-                                               "seed": args.seed, "success": out}, indent=1))
+        env_steps = (checkpoint.get("extra") or {}).get("metrics", {}).get("env_steps")
+        Path(args.json).write_text(json.dumps({
+            "run": str(run), "checkpoint_env_steps": env_steps, "maps": args.maps, "episodes": args.episodes,
+            "seed": args.seed, "sample_seed": args.sample_seed, "success": success, "outcomes": outcomes}, indent=1))
+
+
+def parse_scales(text: str) -> list[float]:
+    """``--scales`` "1,0.5" -> [1.0, 0.5] ("" -> none: the deterministic arm alone); each a finite number > 0."""
+    scales = []
+    for item in (part.strip() for part in text.split(",")):
+        if not item:
+            continue
+        try:
+            value = float(item)
+        except ValueError:
+            raise SystemExit(f"--scales {text}: {item!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise SystemExit(f"--scales {text}: every scale must be a finite number > 0, got {item}")
+        scales.append(value)
+    return scales
 
 
 if __name__ == "__main__":
