@@ -22,7 +22,6 @@ import math
 from pathlib import Path
 
 import torch
-import yaml
 
 from flashnav.checkpoint import load_checkpoint
 from flashnav.eval_maps import evaluate_maps, suite_path
@@ -33,6 +32,7 @@ from flashnav.maps.bundled import resolve_maps
 from flashnav.names import CHECKPOINT_FILE, CONFIG_FILE, EVAL_SEED
 from flashnav.presets import load_robot
 from flashnav.spec import RunSpec
+from flashnav.yamlio import load_yaml
 
 
 def sampled(actor, hp, scale: float, seed: int):
@@ -64,7 +64,7 @@ def main() -> None:
     for needed in (CONFIG_FILE, CHECKPOINT_FILE):
         if not (run / needed).is_file():
             raise SystemExit(f"{run}: no {needed} (a flashnav train --out folder holds config.yaml and checkpoint.pt)")
-    spec = RunSpec.from_dict(yaml.safe_load((run / CONFIG_FILE).read_text()))
+    spec = RunSpec.from_dict(load_yaml(run / CONFIG_FILE), str(run / CONFIG_FILE))
     if spec.algorithm != "fastdsac":
         raise SystemExit(f"{run}: a {spec.algorithm} run; this samples FastDSAC's DEM policy")
     checkpoint = load_checkpoint(run / CHECKPOINT_FILE)

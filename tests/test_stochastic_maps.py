@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 import torch
-import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
@@ -18,20 +17,16 @@ import stochastic_maps  # noqa: E402
 from flashnav.checkpoint import save_checkpoint  # noqa: E402
 from flashnav.cli import main as cli_main  # noqa: E402
 from flashnav.export import export_policy  # noqa: E402
-from flashnav.learn.loop import run_learner  # noqa: E402
 from flashnav.learn.networks import DeterministicActor  # noqa: E402
 from flashnav.maps import generate_map, save_ros_map  # noqa: E402
-from flashnav.spec import TrainConfig, resolve  # noqa: E402
-
-SMALL = {"algo.actor_hidden": [24, 24], "algo.critic_hidden": [24, 24], "algo.num_envs": 8, "algo.batch_size": 16}
+from flashnav.yamlio import dump_yaml  # noqa: E402
+from test_finetune import trained_checkpoint  # noqa: E402
 
 
 def small_run(tmp_path, algorithm="fastdsac", **overrides):
-    spec = resolve(TrainConfig(algorithm=algorithm, device="cpu", recipe="cpu", seed=1, overrides={**SMALL, **overrides}))
-    learner = run_learner(spec, "cpu")
-    run = tmp_path / "run"
-    save_checkpoint(run / "checkpoint.pt", learner.state_dict(), spec.to_dict(), {"saved_at": "2026-11-30T16:00:00"})
-    (run / "config.yaml").write_text(yaml.safe_dump(spec.to_dict()))
+    """A small learner after a few updates, its checkpoint and the run's config.yaml: a run folder."""
+    learner, spec, run = trained_checkpoint(tmp_path, algorithm, **overrides)
+    dump_yaml(spec.to_dict(), run / "config.yaml")
     return learner, spec, run
 
 
