@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# What is left of the GPU checklist (shared/notes/gpu.md; issue 16 item 6 was measured in full by session 49, 2026-11-30:
-# docs/benchmarks.md, the "GPU: ..." sections), most wanted first, in one script of about 9 minutes on an H200:
-#   1. the CUDA tests with the people shield's (session 49 ran 41 of them, all passing, before a 100-s limit cut pytest:
-#      the step now has 240 s);
-#   2. FastDSAC's `paper-mirror` (issue 16 DM1's recipe, 8/10 on the CPU) on the GPU for seeds 3-8 (seeds 0-2 ran in
-#      session 49: 1/3; seed 9 is for the next call), three trainings at once (~115 s of wall time each in session 49),
-#      so that the GPU path (collector stream, CUDA graphs, the numba.cuda raycaster) gets ten seeds to set beside the
-#      CPU's ten. Read its seconds as shared-GPU seconds.
+# What is left of the GPU checklist (shared/notes/gpu.md; issue 16 item 6 was measured in full by session 49, 2026-11-30,
+# and FastDSAC `paper-mirror` on ten TurtleBot2 seeds by session 50: docs/benchmarks.md, the "GPU: ..." sections), most
+# wanted first, in one script of about 9 minutes on an H200:
+#   1. the CUDA tests (session 50: all 44 passed in 87 s), a regression check of the GPU paths;
+#   2. FastDSAC's `paper-mirror` on Go2 (issue 16 DM1's Go2 bar, 20/30 on the CPU) on the GPU for seeds 2-7 to the whole
+#      budget of 401,408 env steps (session 50 ran seeds 0-1 to it: 1/2, and seeds 2-7 six at once, cut at 333-343 k
+#      by the call's time: six at once is too many for one call), three lanes of two (~170 s of wall time each at three
+#      at once in session 50); seeds 8-9 for the next call. Read its seconds as shared-GPU seconds.
 # Each step has its own time limit, so a slow step costs its limit, not the rest; END (default 540 s) bounds the whole.
 # Writes under OUT (default runs/gpu); the table of step 2 is `flashnav bench runs OUT/mirror-*/`.
 # Usage: OUT=/tmp/gpu bash scripts/gpu_checklist.sh
@@ -40,12 +40,12 @@ timeout 240 $PY -m pytest -q -p no:cacheprovider tests/test_raycast_cuda.py test
     tests/test_cuda_graph.py tests/test_shield.py -k "gpu or cuda" > "$OUT/tests.txt" 2>&1
 echo "pytest exit $? (124: cut by the step's limit)" >> "$OUT/tests.txt"; tail -4 "$OUT/tests.txt"
 
-echo "== 2. paper-mirror, FastDSAC, TurtleBot2, seeds 3-8, three at once, $(left) s left $(el)"
+echo "== 2. paper-mirror, FastDSAC, Go2, seeds 2-7, three at once, $(left) s left $(el)"
 lane() { for S in "$@"; do [ "$(left)" -gt 90 ] || break
-  timeout -s TERM -k 20 "$(( $(left) - 30 ))" $FN train --algo fastdsac --recipe paper-mirror --seed "$S" --device $DEV \
-      eval.episodes=$EPISODES budget.max_train_seconds=100000 threads=1 $TINY --out "$OUT/mirror-fastdsac-s$S" --overwrite \
-      > "$OUT/mirror-fastdsac-s$S.log" 2>&1; done; }
-lane 3 6 & lane 4 7 & lane 5 8 &
+  timeout -s TERM -k 20 "$(( $(left) - 30 ))" $FN train --algo fastdsac --robot go2 --recipe paper-mirror --seed "$S" \
+      --device $DEV eval.episodes=$EPISODES budget.max_train_seconds=100000 threads=1 $TINY --out "$OUT/mirror-go2-s$S" \
+      --overwrite > "$OUT/mirror-go2-s$S.log" 2>&1; done; }
+lane 2 5 & lane 3 6 & lane 4 7 &
 wait
 $FN bench runs "$OUT"/mirror-*/ --json "$OUT/mirror.json" > "$OUT/mirror.txt" 2>&1; tail -24 "$OUT/mirror.txt"
 echo "== end $(el)"
