@@ -51,7 +51,8 @@ def _is_union_tag(part: str) -> bool:
 def problems(exc: ValidationError) -> list[tuple[list[str], dict]]:
     """(key path, pydantic error item) per problem, the one home of how a validation error is read: an unknown
     key's name joins its path; where a value failed every member of a union (``maps``: a string, a list or
-    generated maps) and one member said why in words, only that reason is kept, under the key's own path (not
+    generated maps) and one member said why in words, or failed inside one of its fields (the member the value was
+    meant for: ``maps.count=0`` of generated maps), only that reason is kept, under the key's own path (not
     "maps.str: ..., maps.list[str]: ...")."""
     errors, out = exc.errors(), []
 
@@ -59,11 +60,15 @@ def problems(exc: ValidationError) -> list[tuple[list[str], dict]]:
         parts = [str(p) for p in loc]
         return next((tuple(parts[:k]) for k, p in enumerate(parts) if k and _is_union_tag(p)), None)
 
-    reasons = {head(e["loc"]) for e in errors if e["type"] == "value_error"} - {None}
+    def meant(e) -> bool:  # a reason in words, or an error inside a member's own field (deeper than its tag)
+        h = head(e["loc"])
+        return e["type"] == "value_error" or (h is not None and len(e["loc"]) > len(h) + 1)
+
+    reasons = {head(e["loc"]) for e in errors if meant(e)} - {None}
     for item in errors:
         loc = [str(part) for part in item["loc"]]
         if head(item["loc"]) in reasons:
-            if item["type"] != "value_error":
+            if not meant(item):
                 continue  # a union member the value was not meant for
             loc = [part for k, part in enumerate(loc) if not (k and _is_union_tag(part))]
         if item["type"] == "unknown_key":

@@ -16,15 +16,18 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", default=None, help="ROS map YAML (default: the preset's bundled map)")
     p.add_argument("--envs", type=int, default=16, help="parallel environments (one episode each)")
     p.add_argument("--seed", type=seed_arg, default=0)
-    p.add_argument("--out", default="runs/demo.png", help="PNG with the trajectories")
+    p.add_argument("--out", default="runs/demo.png",
+                   help="the trajectories picture (PNG; .pdf, .svg, ... by its suffix; .png added without one)")
     p.set_defaults(func=run_demo)
 
 
 def run_demo(args) -> int:
     from flashnav.sim.env import make_env
     from flashnav.sim.oracle import OracleController
+    from flashnav.outputs import check_figure_file
     from flashnav.viz import draw_trajectories
 
+    out = check_figure_file(args.out, "--out")  # before any work: a bad path costs nothing
     env = make_env(args.robot, args.envs, map=args.map, seed=args.seed)
     print(f"{env}  map {env.map}")
     env.reset(seed=args.seed)
@@ -50,7 +53,7 @@ def run_demo(args) -> int:
     seconds = time.perf_counter() - start
     counts = {k: outcome.count(k) for k in ("success", "collision", "timeout")}
     print(f"oracle: {counts} over {args.envs} episodes ({seconds:.1f} s, planning included)")
-    out = draw_trajectories(env.frame_map, [np.array(p) for p in paths], goals, outcome, args.out,
+    out = draw_trajectories(env.frame_map, [np.array(p) for p in paths], goals, outcome, out,
                             title=f"{env.preset.name}: oracle controller, {counts['success']}/{args.envs} reached")
     print(f"trajectories: {out}")
     return 0

@@ -8,7 +8,12 @@ ValueError that names the flag and the path, and create nothing (no empty folder
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
+
+#: What a figure flag (``--out`` of a picture, ``--plot``, ``--sheet``) may end with: matplotlib's raster and vector
+#: formats that every backend writes.
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".eps", ".ps")
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -24,8 +29,19 @@ def _check_creatable(path: Path, flag: str) -> None:
     base = _nearest_existing(path.absolute().parent)
     if not base.is_dir():
         raise ValueError(f"{flag} {path}: cannot be created because {base} is a file, not a folder")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise ValueError(f"{flag} {path}: cannot be created: no permission to write in {base}")
+    _check_writable_dir(base, f"{flag} {path}: cannot be created")
+
+
+def _check_writable_dir(folder: Path, what: str) -> None:
+    """Raise ValueError (``what``: the message's start) unless a file can be made in ``folder``: tried with a
+    temporary file, removed at once, since permission bits do not tell (root passes every ``os.access``; a read-only
+    or pseudo file system such as /proc refuses anyway)."""
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".flashnav-write-check-")
+    except OSError as exc:
+        raise ValueError(f"{what}: cannot write in {folder} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def check_output_dir(path: str | Path, flag: str) -> Path:
@@ -34,8 +50,7 @@ def check_output_dir(path: str | Path, flag: str) -> Path:
     if path.exists():
         if not path.is_dir():
             raise ValueError(f"{flag} {path}: exists and is a file, not a folder")
-        if not os.access(path, os.W_OK | os.X_OK):
-            raise ValueError(f"{flag} {path}: no permission to write in this folder")
+        _check_writable_dir(path, f"{flag} {path}")
     else:
         _check_creatable(path, flag)
     return path
@@ -52,6 +67,19 @@ def check_output_file(path: str | Path, flag: str) -> Path:
     else:
         _check_creatable(path, flag)
     return path
+
+
+def check_figure_file(path: str | Path, flag: str) -> Path:
+    """A picture file to be written (``.png`` added when ``path`` has no suffix): a suffix that matplotlib writes
+    (:data:`FIGURE_SUFFIXES`) and a path that :func:`check_output_file` accepts. Returns the path that will be
+    written; raises ValueError naming ``flag`` and ``path``."""
+    path = Path(path)
+    if not path.suffix:
+        path = path.with_suffix(".png")
+    if path.suffix.lower() not in FIGURE_SUFFIXES:
+        raise ValueError(f"{flag} {path}: a picture is written as {', '.join(FIGURE_SUFFIXES)}; got "
+                         f"{path.suffix!r}")
+    return check_output_file(path, flag)
 
 
 def write_json_report(path: str | Path, report: dict) -> Path:

@@ -339,18 +339,17 @@ def _scenario_guide(args):
 
 
 def run_render(args) -> int:
-    from flashnav.outputs import check_output_file
+    from flashnav.outputs import check_figure_file, check_output_file
     from flashnav.rollout import agent_tracks, rollout, took_over_points, write_gif
     from flashnav.viz import draw_trajectories
 
-    out_png = Path(args.out) if Path(args.out).suffix else Path(args.out).with_suffix(".png")  # what is written
-    check_output_file(out_png, "--out")
+    if args.gif and Path(args.out).suffix.lower() == ".gif":
+        raise ValueError(f"--out {args.out}: names the trajectories picture, and --gif writes the animation beside "
+                         f"it as {Path(args.out).name}: give --out {Path(args.out).with_suffix('.png')}")
+    out_png = check_figure_file(args.out, "--out")  # what is written (.png added without a suffix)
     agent_overrides(args)  # --agents without --scenario: an error before any work
     _check_shield(args)
     if args.gif:
-        if out_png.suffix.lower() == ".gif":
-            raise ValueError(f"--out {args.out}: names the trajectories picture, and --gif writes the animation beside "
-                             f"it as {out_png.name}: give --out {out_png.with_suffix('.png')}")
         check_output_file(out_png.with_suffix(".gif"), "--gif")
     if args.scenario is None:
         policy, meta, env = load_policy_and_env(args)

@@ -154,11 +154,16 @@ def _check_section(part: str, path: list[str], known: Any, what: str, dotted: st
 
 
 def _fields_at(model: type[BaseModel], path: list[str]) -> set[str]:
-    """Field names of the sub-model reached from ``model`` along ``path`` (empty if none is)."""
+    """Field names of the sub-model reached from ``model`` along ``path`` (empty if none is). A field that is a
+    union (``maps``: a name, a list or generated maps) reaches the model among its members."""
+    import typing
+
     for part in path:
         field = model.model_fields.get(part)
         sub = getattr(field, "annotation", None)
         if not (isinstance(sub, type) and issubclass(sub, BaseModel)):
+            sub = next((m for m in typing.get_args(sub) if isinstance(m, type) and issubclass(m, BaseModel)), None)
+        if sub is None:
             return set()
         model = sub
     return set(model.model_fields)

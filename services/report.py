@@ -318,7 +318,13 @@ def _cli(args) -> int:
 
     from flashnav.outputs import check_output_dir
 
-    formats = tuple(f.strip() for f in args.format.split(",") if f.strip())
+    formats = tuple(f.strip() for f in args.format.split(","))
+    bad = sorted({f for f in formats if f not in FORMATS})
+    if bad or not formats:  # before any work and before any folder is made
+        shown = ", ".join(repr(f) for f in bad) or repr(args.format)
+        print(f"flashnav report: error: --format {args.format}: unknown format(s) {shown}; choose from "
+              f"{', '.join(FORMATS)} (comma-separated)", file=sys.stderr)
+        return 2
     for key, value in HTTP_ENV.items():  # a server that dies mid-report fails in seconds, not minutes
         os.environ.setdefault(key, value)
     try:

@@ -271,3 +271,89 @@ def test_a_union_value_error_says_only_its_reason(tmp_path, capsys):
     line = fails(capsys, "train", "--maps", "family:room", "maps.count=2", "--out", str(tmp_path / "r"))
     assert line == ("flashnav train: error: training config: maps.family: unknown map family 'room' (did you mean "
                     "'rooms'?); use one of rooms, offices, halls, warehouses, mazes, clutter (got 'room')")
+
+
+def test_a_union_member_failing_inside_its_field_says_only_that(tmp_path, capsys):
+    """Generated maps with a bad count, and a generated-maps key without --maps family:F: the member the value was
+    meant for answers alone (it once said "maps.str: ..., maps.list[str]: ..." around it, or "unknown key 'count';
+    known:" with nothing after it)."""
+    line = fails(capsys, "train", "--maps", "family:rooms", "maps.count=0", "--out", str(tmp_path / "r"))
+    assert line == "flashnav train: error: training config: maps.count: Input should be greater than 0 (got 0)"
+    line = fails(capsys, "train", "maps.count=3", "--out", str(tmp_path / "r"))
+    assert line == "flashnav train: error: training config: maps.family: Field required"
+    assert not (tmp_path / "r").exists()
+
+
+# ---- pictures and files written after the work: checked before it -------------------------------------
+@pytest.mark.parametrize("argv", [("demo", "--envs", "2"), ("bench", "plot", "DIR")])
+def test_a_picture_flag_needs_a_picture_suffix_and_a_folder(argv, run_dir, tmp_path, capsys):
+    """`demo` and `bench plot` once ran their episodes or read their runs, then failed in matplotlib (".txt") or
+    in mkdir (a folder under a file) without naming --out."""
+    argv = tuple(str(run_dir) if a == "DIR" else a for a in argv)
+    (tmp_path / "file").write_text("x")
+    line = fails(capsys, *argv, "--out", str(tmp_path / "d.txt"))
+    assert f"--out {tmp_path / 'd.txt'}: a picture is written as .png, .pdf, .svg" in line and "got '.txt'" in line
+    line = fails(capsys, *argv, "--out", str(tmp_path / "file" / "d.png"))
+    assert f"cannot be created because {tmp_path / 'file'} is a file" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_an_output_folder_nothing_can_be_written_in(tmp_path, capsys, monkeypatch):
+    """Permission bits do not tell (root passes os.access; /proc refuses anyway): the check tries a file."""
+    import tempfile
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    line = fails(capsys, "train", "--out", str(tmp_path / "run"), "budget.max_env_steps=1")
+    assert line == (f"flashnav train: error: --out {tmp_path / 'run'}: cannot be created: cannot write in {tmp_path} "
+                    "(Permission denied)")
+
+
+@pytest.mark.parametrize("args, says", [
+    (("--max-steps", "0"), "--seconds must be > 0 and --max-steps >= 1, got 2.0 and 0"),
+    (("--seconds", "-1"), "--seconds must be > 0 and --max-steps >= 1, got -1.0 and 2000"),
+    (("--quick", "--robots", "bogus"), "--quick runs turtlebot2, 64 envs and 0.5-s rows: drop --robots"),
+    (("--robots", "turtlebot2,bogus"), "--robots bogus: unknown robot 'bogus'"),
+    (("--num-envs", "abc"), "--num-envs abc: comma-separated whole numbers >= 1"),
+    (("--num-envs", "0"), "every size >= 1"),
+])
+def test_bench_sim_checks_its_flags_before_the_first_row(args, says, capsys):
+    assert says in fails(capsys, "bench", "sim", "--raycasters", "exact", "--no-irsim", *args)
+
+
+def test_bench_sim_json_is_checked_before_the_first_row(tmp_path, capsys):
+    assert f"--json {tmp_path}: is a folder" in fails(capsys, "bench", "sim", "--quick", "--no-irsim", "--json",
+                                                       str(tmp_path))
+
+
+@pytest.mark.parametrize("fmt, says", [("bogus", "unknown format(s) 'bogus'"), ("md,,pdf", "'', 'pdf'")])
+def test_report_formats_are_checked_before_a_folder_is_made(fmt, says, tmp_path, capsys):
+    """`report --format bogus` once exited 0 with an empty folder; `md,,pdf` dropped pdf without a word."""
+    doc = tmp_path / "g.json"
+    doc.write_text("{}")
+    line = fails(capsys, "report", "--generalisation", str(doc), "--format", fmt, "--out", str(tmp_path / "rep"))
+    assert line.startswith(f"flashnav report: error: --format {fmt}: ") and says in line
+    assert not (tmp_path / "rep").exists()
+
+
+def test_a_preset_whose_map_is_a_ros_map_file(tmp_path, capsys):
+    """A robot preset may name its map as a ROS map YAML path (config.RobotPreset.map): demo once read it as a
+    bundled map's name ("unknown bundled map '/.../x.yaml'")."""
+    import yaml
+
+    shutil.copy(MAPS / "turtlebot2.yaml", tmp_path / "m.yaml")
+    shutil.copy(MAPS / yaml.safe_load((MAPS / "turtlebot2.yaml").read_text())["image"], tmp_path)
+    import flashnav.presets
+
+    preset = yaml.safe_load((Path(flashnav.presets.__file__).parent / "turtlebot2.yaml").read_text())
+    preset.update(name="otherbot", map=str(tmp_path / "m.yaml"))
+    (tmp_path / "otherbot.yaml").write_text(yaml.safe_dump(preset))
+    assert main(["demo", "--robot", str(tmp_path / "otherbot.yaml"), "--envs", "2", "--out", str(tmp_path / "d")]) == 0
+    assert (tmp_path / "d.png").is_file()
+
+
+def test_bench_train_checks_json_and_plot_before_training(tmp_path, capsys):
+    assert f"--json {tmp_path}: is a folder" in fails(capsys, "bench", "train", "--seeds", "1", "--json", str(tmp_path))
+    assert "--plot c.txt: a picture is written as" in fails(capsys, "bench", "train", "--seeds", "1", "--plot", "c.txt")

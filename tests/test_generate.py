@@ -144,6 +144,26 @@ def test_command_line_errors_are_one_line(argv, said, tmp_path, monkeypatch, cap
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["--family", "rooms", "--out", "afile"], "--out afile: exists and is a file, not a folder"),
+    (["--family", "rooms", "--out", "afile/sub"], "--out afile/sub: cannot be created because"),
+    (["--width", "5", "--height", "5", "--out", "afile/one.yaml"], "--out afile/one.yaml: cannot be created because"),
+    (["--family", "rooms", "--out", "maps", "--sheet", "sheet.txt"], "--sheet sheet.txt: a picture is written as"),
+    (["--family", "rooms", "--out", "maps", "--sheet", "afile/s.png"], "--sheet afile/s.png: cannot be created"),
+    (["--width", "5", "--height", "5", "--out", "one.yaml", "--sheet", "s.png"], "--sheet needs --family"),
+])
+def test_output_paths_are_checked_before_any_map_is_made(argv, said, tmp_path, monkeypatch, capsys):
+    """A folder under a file once ended in a traceback (FileExistsError, NotADirectoryError), and a sheet that
+    matplotlib cannot write failed only after every map was written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and said in err and "Traceback" not in err
+    assert [p.name for p in tmp_path.iterdir()] == ["afile"]
+
+
 @pytest.mark.parametrize("name", ["turtlebot2", "go2"])
 def test_bundled_map_comment_reproduces_it(name):
     """The command in the YAML's comment regenerates the bundled map bit for bit. If the generator

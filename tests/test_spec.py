@@ -73,7 +73,7 @@ def test_an_unknown_section_is_named_not_created():
     """``create`` makes only the sections the model has: ``foo.bar=1`` names ``foo`` and lists the sections
     (it once created ``foo`` and then said "unknown key 'bar'; known:" with nothing after it)."""
     data: dict = {}
-    with pytest.raises(ValueError, match=r"no section 'foo'; sections here: algo, budget, eval, robot"):
+    with pytest.raises(ValueError, match=r"no section 'foo'; sections here: algo, budget, eval, maps, robot"):
         set_dotted(data, "foo.bar", 1, known=TrainConfig, create=True, other_sections=("algo", "robot"))
     with pytest.raises(ValueError, match=r"no section 'algoo'; did you mean algo\?"):
         set_dotted(data, "algoo.batch_size", 1, known=TrainConfig, create=True, other_sections=("algo", "robot"))

@@ -72,16 +72,40 @@ def run_sim(args) -> int:
     from flashnav.bench.irsim_peer import irsim_available, irsim_steps
 
     console = Console()
-    robots, sizes = _csv(args.robots), _csv(args.num_envs, int)
+    from flashnav.outputs import check_output_file
+    from flashnav.presets import load_robot
+
+    if args.quick:  # the smoke run's own robot, size and seconds: say so rather than ignore what was given
+        given = [f for f, v, d in (("--robots", args.robots, ",".join(ROBOTS)), ("--num-envs", args.num_envs, "1,64,1024"),
+                                   ("--seconds", args.seconds, 2.0)) if v != d]
+        if given:
+            raise ValueError(f"--quick runs {DEFAULT_ROBOT}, 64 envs and 0.5-s rows: drop {' and '.join(given)} "
+                             "(or --quick)")
+        args.robots, args.num_envs, args.seconds = DEFAULT_ROBOT, "64", 0.5
+    robots = _csv(args.robots)
+    try:
+        sizes = _csv(args.num_envs, int)
+    except ValueError:
+        raise ValueError(f"--num-envs {args.num_envs}: comma-separated whole numbers >= 1, e.g. 1,64,1024") from None
+    if not robots or not sizes or min(sizes) < 1:
+        raise ValueError(f"--robots {args.robots!r} and --num-envs {args.num_envs!r}: at least one robot and one "
+                         "batch size, every size >= 1")
+    for robot in robots:  # every preset before the first row: a typo in the last one must not cost the others
+        try:
+            load_robot(robot)
+        except ValueError as exc:
+            raise ValueError(f"--robots {robot}: {exc}") from None
     raycasters = parse_names("raycaster", args.raycasters, RAYCASTERS, "--raycasters")
+    if not (args.seconds > 0 and args.max_steps >= 1):
+        raise ValueError(f"--seconds must be > 0 and --max-steps >= 1, got {args.seconds} and {args.max_steps}")
+    if args.json:
+        check_output_file(args.json, "--json")
     seconds = args.seconds
     if args.agents < 0 or args.tracks < 0 or args.memory < 0:
         raise ValueError(f"--agents, --tracks and --memory must be >= 0, got {args.agents}, {args.tracks} and "
                          f"{args.memory}")
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
-    if args.quick:
-        robots, sizes, seconds = [DEFAULT_ROBOT], [64], 0.5
     from flashnav.machine import learner_threads, machine_name
 
     machine, threads = machine_name(args.device), learner_threads(args.device)

@@ -77,6 +77,12 @@ def run_bench_train(args) -> int:
     from flashnav.learn.loop import train
     from flashnav.spec import config_from_cli, resolve
 
+    from flashnav.outputs import check_figure_file, check_output_file
+
+    if args.json:  # before any training: a bad path costs nothing
+        check_output_file(args.json, "--json")
+    if args.plot:
+        args.plot = check_figure_file(args.plot, "--plot")
     console = Console()
     if not console.is_terminal:  # a log file: rich's 80 columns would cut the eleven-column table to stubs
         console = Console(width=220)
@@ -124,8 +130,10 @@ def _plot_title(when: str, budget_seconds: float | None) -> str:
 
 
 def run_bench_plot(args) -> int:
+    from flashnav.outputs import check_figure_file
     from flashnav.viz import plot_training_runs
 
+    args.out = check_figure_file(args.out, "--out")
     x = "env_steps" if args.x == "env-steps" else "train_seconds"
     bad = [a[0] for a in args.arm if len(a) < 2]
     if bad or not (args.sources or args.arm):

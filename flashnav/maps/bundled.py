@@ -67,9 +67,9 @@ def resolve_map(map: OccupancyMap | str | Path | None, default: str) -> Occupanc
     """Turn what a user or a preset names as a map into an ``OccupancyMap``.
 
     Args:
-        map: ``None`` (the bundled map ``default``), an ``OccupancyMap`` (returned as is), a bundled
+        map: ``None`` (the map ``default``), an ``OccupancyMap`` (returned as is), a bundled
             map name (e.g. ``"turtlebot2"``), or a path to a ROS map YAML.
-        default: bundled map name used when ``map`` is None.
+        default: what is used when ``map`` is None: a preset's ``map``, a bundled map name or a ROS map YAML path.
 
     Raises:
         ValueError: a string that is neither a bundled name nor an existing ``.yaml``/``.yml`` file.
@@ -77,7 +77,9 @@ def resolve_map(map: OccupancyMap | str | Path | None, default: str) -> Occupanc
         TypeError: any other kind of value.
     """
     if map is None:
-        return bundled_map(default)
+        if default in bundled_map_names():
+            return bundled_map(default)
+        map = default  # noqa: A001  (a preset whose own map is a ROS map YAML)
     if isinstance(map, OccupancyMap):
         return map
     if isinstance(map, (str, Path)):

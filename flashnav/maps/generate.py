@@ -55,6 +55,18 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _generate(p: argparse.ArgumentParser, a: argparse.Namespace, families: tuple[str, ...]) -> None:
+    from flashnav.outputs import check_figure_file, check_output_dir, check_output_file
+
+    # the paths first (ValueErrors naming the flag): a folder under a file, or a sheet matplotlib cannot write,
+    # must not cost the maps
+    if a.family:
+        check_output_dir(a.out, "--out")
+        if a.sheet:
+            a.sheet = check_figure_file(a.sheet, "--sheet")
+    elif a.sheet:
+        p.error("--sheet needs --family (a contact sheet of the family maps)")
+    else:
+        check_output_file(a.out, "--out")
     if a.family:
         _write_families(p, a, families)
         return
