@@ -96,7 +96,10 @@ def load_checkpoint(path: str | Path, map_location: torch.device | str | None = 
     try:
         payload = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # pickle errors, zip errors, disallowed globals: all mean "not ours"
-        raise ValueError(f"{path}: not a readable FlashNav checkpoint ({type(exc).__name__}: {exc})") from None
+        # torch's first line only: the rest of its weights_only text advises weights_only=False, which a checkpoint
+        # from elsewhere must never get (it would run the file's code)
+        first = next((line.strip() for line in str(exc).splitlines() if line.strip()), "")
+        raise ValueError(f"{path}: not a readable FlashNav checkpoint ({type(exc).__name__}: {first[:200]})") from None
     if not isinstance(payload, dict) or "format_version" not in payload:
         raise ValueError(f"{path}: not a FlashNav checkpoint (no format_version)")
     found, supported = payload["format_version"], SUPPORTED_CHECKPOINT_VERSIONS

@@ -242,6 +242,8 @@ def run_eval(args) -> int:
         return run_eval_maps(args, *load_policy_for(args, args.device))
     if args.goal_sampling is not None:
         raise ValueError("--goal-sampling goes with --maps (for one map: --maps FILE.yaml)")
+    if args.label is not None:
+        raise ValueError(f"--label {args.label} goes with --maps (it names the policy in that JSON and the report)")
     if args.scenario is not None:
         return run_scenarios(args)
     if args.guide is not None:

@@ -357,3 +357,19 @@ def test_a_preset_whose_map_is_a_ros_map_file(tmp_path, capsys):
 def test_bench_train_checks_json_and_plot_before_training(tmp_path, capsys):
     assert f"--json {tmp_path}: is a folder" in fails(capsys, "bench", "train", "--seeds", "1", "--json", str(tmp_path))
     assert "--plot c.txt: a picture is written as" in fails(capsys, "bench", "train", "--seeds", "1", "--plot", "c.txt")
+
+
+def test_eval_label_goes_with_maps(run_dir, capsys):
+    """--label names the policy in `eval --maps`'s JSON; without --maps it was accepted and ignored."""
+    assert "--label foo goes with --maps" in fails(capsys, "eval", str(run_dir / "policy.onnx"), "--label", "foo")
+
+
+def test_a_checkpoint_that_is_not_one_never_advises_weights_only_false(tmp_path, capsys):
+    import pickle
+
+    bad = tmp_path / "bad.pt"
+    torch.save({"x": shutil.copy}, bad)  # a global: refused under weights_only, with torch's advice to turn it off
+    (tmp_path / "code.pt").write_bytes(pickle.dumps(shutil.copy))
+    for path in (bad, tmp_path / "code.pt"):
+        line = fails(capsys, "train", "--init-from", str(path), "--out", str(tmp_path / "r"))
+        assert f"{path}: not a readable FlashNav checkpoint" in line and "weights_only=False" not in line

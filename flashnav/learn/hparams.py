@@ -193,7 +193,10 @@ def recipe_values(algorithm: str, robot: str, recipe: str) -> dict[str, Any]:
     pipeline, own = load_preset_file("pipeline"), load_preset_file(algorithm)
     if robot not in (own.get("paper") or {}):
         have = sorted(k for k in (own.get("paper") or {}) if k != "shared")
-        raise ValueError(f"{algorithm}.yaml: no recipe for robot {robot!r}; have {', '.join(have) or 'none'}")
+        raise ValueError(f"{algorithm}.yaml: no recipe for robot {robot!r}; have {', '.join(have) or 'none'} (a "
+                         "preset's `name:` picks its recipe: a robot of your own trains with the hyperparameters "
+                         "of the one it is closest to when its preset keeps that robot's name, or with a recipe "
+                         f"section for {robot!r} added to {algorithm}.yaml)")
     layers = [pipeline.get("shared"), pipeline.get(robot), own["paper"].get("shared"), own["paper"][robot]]
     chain: list[str] = []  # the recipe after the recipes it is based on (``base:``), paper excluded
     while recipe != "paper":
