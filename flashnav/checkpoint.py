@@ -8,6 +8,7 @@ int, float, bool and None only (:func:`save_checkpoint` refuses anything else, n
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -80,6 +81,17 @@ def _check_plain(value: Any, where: str) -> None:
                         "str, int, float, bool and None (convert it, e.g. model_dump() or state_dict())")
 
 
+def _reason(exc: Exception) -> str:
+    """What torch.load(weights_only=True) refused, in one sentence: its WeightsUnpickler reason where it gives one
+    (an unsupported global or operand), else its first line."""
+    text = str(exc)
+    if "WeightsUnpickler error:" in text:
+        text = text.split("WeightsUnpickler error:", 1)[1]
+    line = next((ln.strip() for ln in text.splitlines() if ln.strip()), "")
+    first = re.match(r"(.*?\.)(?:\s|$)", line)
+    return (first.group(1) if first else line)[:200]
+
+
 def load_checkpoint(path: str | Path, map_location: torch.device | str | None = "cpu") -> dict[str, Any]:
     """Read a checkpoint written by :func:`save_checkpoint` (``weights_only=True``: no code runs).
 
@@ -96,10 +108,9 @@ def load_checkpoint(path: str | Path, map_location: torch.device | str | None = 
     try:
         payload = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # pickle errors, zip errors, disallowed globals: all mean "not ours"
-        # torch's first line only: the rest of its weights_only text advises weights_only=False, which a checkpoint
-        # from elsewhere must never get (it would run the file's code)
-        first = next((line.strip() for line in str(exc).splitlines() if line.strip()), "")
-        raise ValueError(f"{path}: not a readable FlashNav checkpoint ({type(exc).__name__}: {first[:200]})") from None
+        # the reason alone: torch's weights_only text around it offers loading with weights_only False, which a
+        # checkpoint from elsewhere must never get (it would run the file's code)
+        raise ValueError(f"{path}: not a readable FlashNav checkpoint ({type(exc).__name__}: {_reason(exc)})") from None
     if not isinstance(payload, dict) or "format_version" not in payload:
         raise ValueError(f"{path}: not a FlashNav checkpoint (no format_version)")
     found, supported = payload["format_version"], SUPPORTED_CHECKPOINT_VERSIONS
