@@ -375,3 +375,12 @@ def test_a_checkpoint_that_is_not_one_never_advises_weights_only_false(tmp_path,
         line = fails(capsys, "train", "--init-from", str(path), "--out", str(tmp_path / "r"))
         assert f"{path}: not a readable FlashNav checkpoint (UnpicklingError: {why}" in line
         assert "False" not in line and "two options" not in line  # torch's advice to load it unsafely
+
+
+def test_a_map_image_given_for_its_yaml_is_named_as_such(tmp_path, capsys):
+    """`--map turtlebot2.pgm` once said "not a UTF-8 text file"."""
+    shutil.copy(MAPS / "turtlebot2.pgm", tmp_path)
+    shutil.copy(MAPS / "turtlebot2.yaml", tmp_path)
+    line = fails(capsys, "demo", "--map", str(tmp_path / "turtlebot2.pgm"), "--envs", "2", "--out", str(tmp_path / "d"))
+    assert line == (f"flashnav demo: error: {tmp_path / 'turtlebot2.pgm'}: is a map image; give its ROS map YAML "
+                    f"(resolution, origin, thresholds) ({tmp_path / 'turtlebot2.yaml'} is beside it)")

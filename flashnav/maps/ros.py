@@ -146,6 +146,10 @@ def _read_yaml(yaml_path: Path) -> dict[str, Any]:
     occupied_thresh, free_thresh (float), mode (str)."""
     if not yaml_path.is_file():
         raise FileNotFoundError(f"{yaml_path}: map YAML not found")
+    if yaml_path.suffix.lower() in (".pgm", ".png", ".bmp", ".jpg", ".jpeg", ".tif", ".tiff"):
+        beside = yaml_path.with_suffix(".yaml")
+        hint = f" ({beside} is beside it)" if beside.is_file() else ""
+        raise ValueError(f"{yaml_path}: is a map image; give its ROS map YAML (resolution, origin, thresholds){hint}")
     doc = load_yaml(yaml_path)
     if not isinstance(doc, dict):
         raise ValueError(
