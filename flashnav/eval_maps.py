@@ -227,7 +227,10 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     sampling = args.goal_sampling or "geodesic"
     preset = load_robot(robot, **{"episode.goal_sampling": sampling})
     scale = float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))
-    grids = resolve_maps(suite_path(args.maps), preset.map)
+    try:
+        grids = resolve_maps(suite_path(args.maps), preset.map)
+    except ValueError as exc:  # what `eval --maps` takes beyond resolve_maps's forms: the committed suites
+        raise ValueError(f"--maps: {exc}; or a committed benchmark suite: {', '.join(BENCHMARK_SUITES)}") from None
     start = time.perf_counter()
     guide = getattr(args, "guide", None)
     guide_from = getattr(args, "guide_from", None) or "map"

@@ -384,3 +384,10 @@ def test_a_map_image_given_for_its_yaml_is_named_as_such(tmp_path, capsys):
     line = fails(capsys, "demo", "--map", str(tmp_path / "turtlebot2.pgm"), "--envs", "2", "--out", str(tmp_path / "d"))
     assert line == (f"flashnav demo: error: {tmp_path / 'turtlebot2.pgm'}: is a map image; give its ROS map YAML "
                     f"(resolution, origin, thresholds) ({tmp_path / 'turtlebot2.yaml'} is beside it)")
+
+
+def test_eval_maps_names_the_committed_suites_when_nothing_matches(capsys):
+    policy = Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx"
+    line = fails(capsys, "eval", str(policy), "--maps", "bogus_suite")
+    assert line.startswith("flashnav eval: error: --maps: maps 'bogus_suite': no such directory or file")
+    assert line.endswith("; or a committed benchmark suite: heldout, real")
