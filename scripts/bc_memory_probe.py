@@ -1,0 +1,242 @@
+"""Can a recurrent policy on the policy's own observation solve fresh mazes? A behaviour-cloning probe (issue 15).
+
+    .venv/bin/python scripts/bc_memory_probe.py EVAL_MAZE_YAML [...] [--train-maps 48] [--episodes 32]
+        [--rounds 3] [--epochs 6] [--eval-episodes 64] [--models mlp,gru] [--json OUT]
+
+Every reactive generalist fails issue 15's held-out mazes the same way (82-87 %, every failure a wrong turn,
+"wandered"), where the optimistic mapless planner (`scripts/mapless_planner.py`: it remembers the walls its scans
+have hit and plans through the rest) solves 99 % of fresh mazes. Before building a recurrent learner (GRU actor and
+critics, sequence replay with burn-in, hidden state in the ONNX export: several sessions of work), this probe asks
+the cheaper question whether a recurrent network *can* do what the planner does from the policy's observation alone
+(the 30 pooled sectors, the goal's distance and bearing, the velocities: not the planner's raw 1,080 beams):
+
+- the teacher is the mapless planner (it uses only what the robot has sensed, so its choices are learnable in
+  principle from the sensed history), on TurtleBot2 with the `generalist` recipe's task (the platform turn rate,
+  goals 1-5 m by path length);
+- both students, a feed-forward MLP and a GRU of the same width, are trained by DAgger (Ross et al., 2011): round 0
+  on the teacher's own episodes, each later round on episodes the student drives itself (mixed with the teacher's
+  action with probability ``0.5 ** round`` per step), labelled by the teacher at every state it visits, all rounds'
+  data aggregated; training mazes are fresh generated mazes (seeds from ``--train-seed``, below the reserved
+  validation and held-out seeds), new ones every round;
+- each student is then played, deterministic and alone, on the fixed episodes of the evaluation mazes
+  (`flashnav eval --maps`'s episodes: give validation mazes, never the held-out suite).
+
+If the GRU reaches the planner and the MLP stays where the reactive RL policies are, memory through recurrence is
+worth the recurrent learner; if both stay there, the observation (pooled sectors) or the imitation is the limit and
+the recurrent learner alone would not close the gap. Supervised learning is the easier problem: a recurrent RL
+learner can do no better than its architecture's imitation ceiling suggests, and may do worse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn as nn
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mapless_planner import MaplessPlanner  # noqa: E402  (the teacher)
+
+from flashnav.eval_maps import fixed_episodes  # noqa: E402
+from flashnav.learn.features import IPAPRec, ObsLayout  # noqa: E402
+from flashnav.maps.families import generate_family  # noqa: E402
+from flashnav.maps.ros import load_ros_map  # noqa: E402
+from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
+from flashnav.presets import load_robot  # noqa: E402
+from flashnav.sim.env import make_env  # noqa: E402
+from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
+
+GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
+
+
+class Student(nn.Module):
+    """IPAPRec (the learners' input transform, goal angle as sine and cosine) -> ReLU layer -> a GRU cell or a
+    second ReLU layer -> tanh actions. ``step(obs [N, D], h)`` -> (actions [N, 2], h)."""
+
+    def __init__(self, layout: ObsLayout, kind: str, width: int = 256):
+        super().__init__()
+        self.kind = kind
+        self.inp = IPAPRec(layout)
+        self.enc = nn.Sequential(nn.Linear(layout.feature_dim, width), nn.ReLU())
+        self.core = nn.GRU(width, width, batch_first=True) if kind == "gru" else nn.Sequential(
+            nn.Linear(width, width), nn.ReLU())
+        self.head = nn.Linear(width, 2)
+        self.width = width
+
+    def forward(self, obs: torch.Tensor, h: torch.Tensor | None = None):
+        """obs [B, T, D] -> actions [B, T, 2], last hidden state (None for the MLP)."""
+        x = self.enc(self.inp(obs))
+        if self.kind == "gru":
+            x, h = self.core(x, h)
+        else:
+            x = self.core(x)
+        return torch.tanh(self.head(x)), h
+
+    @torch.no_grad()
+    def step(self, obs: torch.Tensor, h):
+        a, h = self(obs[:, None], h)
+        return a[:, 0], h
+
+
+def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: float, rng: np.random.Generator,
+         fixed: bool, teach: bool = True) -> dict:
+    """``episodes`` episodes on ``grid`` (one per slot): the teacher labels every step of every slot until its
+    episode ends; who drives: the teacher with probability ``mix`` per step, else the student (None: always the
+    teacher). ``fixed``: `flashnav eval --maps`'s fixed episodes (seed ``seed``), else the env's draws with
+    ``reset(seed=seed)``. ``teach=False`` (an evaluation: the student alone) skips the teacher. Returns the sequences (obs [T_i, D], labels [T_i, 2]) and each episode's outcome."""
+    env = make_env(preset, episodes, map=grid, seed=seed)
+    obs, _ = env.reset(seed=seed)
+    if fixed:
+        start, goal = fixed_episodes(env, 0, episodes, seed)
+        obs = env.set_state(start, goal)
+    teacher = MaplessPlanner(env) if teach else None
+    if teacher is not None:
+        teacher.plan_all()
+    h = None
+    done = np.zeros(episodes, dtype=bool)
+    success, collision = np.zeros(episodes, dtype=bool), np.zeros(episodes, dtype=bool)
+    obs_seq, lab_seq = [], []
+    lengths = np.full(episodes, preset.episode.horizon)
+    for t in range(preset.episode.horizon):
+        label = teacher.act() if teacher is not None else torch.zeros(episodes, 2)
+        obs_seq.append(obs.clone())
+        lab_seq.append(label.clone())
+        if student is None:
+            act = label
+        else:
+            act, h = student.step(obs, h)
+            if mix > 0:
+                take = torch.as_tensor(rng.random(episodes) < mix)
+                act = torch.where(take[:, None], label, act)
+        obs, _, terminated, truncated, info = env.step(act)
+        end = (terminated | truncated).numpy() & ~done
+        success[end], collision[end] = info["success"].numpy()[end], info["collision"].numpy()[end]
+        lengths[end] = t + 1  # the steps recorded before the episode ended: 0..t
+        done |= end
+        if done.all():
+            break
+        if teacher is not None:
+            teacher.update(np.nonzero(~done)[0])
+    obs_t, lab_t = torch.stack(obs_seq, 1), torch.stack(lab_seq, 1)  # [N, T, D], [N, T, 2]
+    seqs = [(obs_t[i, : lengths[i]], lab_t[i, : lengths[i]]) for i in range(episodes)]
+    return {"seqs": seqs, "success": success, "collision": collision}
+
+
+def train(student: Student, data: list[tuple[torch.Tensor, torch.Tensor]], epochs: int, batch: int,
+          lr: float, rng: np.random.Generator) -> float:
+    """Supervised epochs over episode sequences (padded; a mask drops the padding): mean squared action error."""
+    opt = torch.optim.Adam(student.parameters(), lr=lr)
+    order = np.arange(len(data))
+    last = float("nan")
+    for _ in range(epochs):
+        rng.shuffle(order)
+        losses = []
+        for k in range(0, len(order), batch):
+            part = [data[i] for i in order[k:k + batch]]
+            t_max = max(len(o) for o, _ in part)
+            obs = torch.stack([torch.cat([o, o[-1:].expand(t_max - len(o), -1)]) for o, _ in part])
+            lab = torch.stack([torch.cat([a, a[-1:].expand(t_max - len(a), -1)]) for _, a in part])
+            mask = torch.stack([torch.arange(t_max) < len(o) for o, _ in part]).float()
+            pred, _ = student(obs)
+            loss = (((pred - lab) ** 2).sum(-1) * mask).sum() / mask.sum()
+            opt.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(student.parameters(), 1.0)
+            opt.step()
+            losses.append(loss.item())
+        last = float(np.mean(losses))
+    return last
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("eval_maps", nargs="+", metavar="EVAL_MAZE_YAML",
+                   help="the mazes to evaluate on (validation mazes: never the held-out suite)")
+    p.add_argument("--train-maps", type=int, default=48, help="fresh training mazes per round")
+    p.add_argument("--train-seed", type=int, default=600_000, help="the first training maze's seed")
+    p.add_argument("--episodes", type=int, default=32, help="episodes per training maze")
+    p.add_argument("--rounds", type=int, default=3, help="DAgger rounds (round 0: the teacher drives)")
+    p.add_argument("--epochs", type=int, default=6, help="training epochs over the aggregated data after each round")
+    p.add_argument("--batch", type=int, default=64, help="episodes per gradient step")
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--width", type=int, default=256)
+    p.add_argument("--eval-episodes", type=int, default=64, help="fixed episodes per evaluation maze")
+    p.add_argument("--models", default="mlp,gru", help="comma-separated: mlp, gru")
+    p.add_argument("--sectors", type=int, default=None,
+                   help="the students' pooled LiDAR sectors (default: the preset's 30; 1,080 beams must divide by it)")
+    p.add_argument("--seed", type=int, default=0, help="seeds the networks, the shuffles and the mixing")
+    p.add_argument("--json", help="write the results here")
+    a = p.parse_args()
+    kinds = a.models.split(",")
+    for k in kinds:
+        if k not in ("mlp", "gru"):
+            p.error(f"--models: unknown model {k!r} (mlp, gru)")
+    for m in a.eval_maps:
+        if not Path(m).is_file():
+            p.error(f"evaluation map {m}: no such file")
+    last_seed = a.train_seed + a.rounds * a.train_maps - 1
+    if last_seed >= VALIDATION_SEEDS[0]:
+        p.error(f"--train-seed {a.train_seed}: the training mazes would reach seed {last_seed}, reserved for "
+                f"validation and held-out suites (>= {VALIDATION_SEEDS[0]})")
+    torch.set_num_threads(1)  # small batches: one thread is faster than two that contend
+    torch.manual_seed(a.seed)
+    rng = np.random.default_rng(a.seed)
+    overrides = {"episode.goal_sampling": "geodesic", "motion.w_bounds": [-math.pi / 2, math.pi / 2]}  # the generalist's task
+    if a.sectors is not None:
+        overrides["lidar.sectors"] = a.sectors
+    robot = load_robot("turtlebot2", **overrides)
+    preset = evaluation_preset(robot)
+    layout = ObsLayout.from_robot(preset, GOAL_BOUND_M)
+    layout = ObsLayout(**{**layout.__dict__, "goal_sincos": True})
+    students = {k: Student(layout, k, a.width) for k in kinds}
+    data: dict[str, list] = {k: [] for k in kinds}
+    eval_grids = [load_ros_map(m) for m in a.eval_maps]
+    log: dict = {"args": vars(a), "rounds": []}
+    t0 = time.perf_counter()
+
+    def evaluate(student: Student) -> dict:
+        per_map = {}
+        for m, grid in zip(a.eval_maps, eval_grids):
+            r = play(preset, grid, a.eval_episodes, EVAL_SEED, student, 0.0, rng, fixed=True, teach=False)
+            per_map[Path(m).stem] = float(r["success"].mean())
+        return {"mean": float(np.mean(list(per_map.values()))), "worst": min(per_map.values()), "per_map": per_map}
+
+    for rnd in range(a.rounds):
+        mix = 0.5 ** rnd
+        seeds = range(a.train_seed + rnd * a.train_maps, a.train_seed + (rnd + 1) * a.train_maps)
+        row: dict = {"round": rnd, "mix": mix if rnd else 1.0}
+        shared = None
+        for k in kinds:
+            runs = []
+            if rnd == 0:  # the teacher drives: the same data for every student
+                if shared is None:
+                    shared = [play(preset, generate_family("mazes", s, robot_radius=0.3), a.episodes, s, None, 1.0,
+                                   rng, fixed=False) for s in seeds]
+                runs = shared
+            else:
+                runs = [play(preset, generate_family("mazes", s, robot_radius=0.3), a.episodes, s, students[k], mix,
+                             rng, fixed=False) for s in seeds]
+            data[k] += [q for r in runs for q in r["seqs"]]
+            drove = float(np.mean([r["success"].mean() for r in runs]))
+            loss = train(students[k], data[k], a.epochs, a.batch, a.lr, rng)
+            ev = evaluate(students[k])
+            row[k] = {"collected_success": drove, "episodes": len(data[k]),
+                      "steps": int(sum(len(o) for o, _ in data[k])), "loss": loss, "eval": ev}
+            print(f"[{time.perf_counter() - t0:.0f} s] round {rnd} {k}: driving {drove:.1%} while collecting, "
+                  f"{len(data[k])} episodes, loss {loss:.4f}; evaluation mazes mean {ev['mean']:.1%}, worst "
+                  f"{ev['worst']:.1%}", flush=True)
+        log["rounds"].append(row)
+        if a.json:
+            Path(a.json).write_text(json.dumps(log, indent=1), encoding="utf-8")
+    if a.json:
+        print(f"json: {a.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,86 @@
+"""scripts/bc_memory_probe.py: DAgger students (MLP and GRU) of the mapless planner on mazes (issue 15)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+
+import bc_memory_probe  # noqa: E402
+import mapless_planner  # noqa: E402
+
+from flashnav.learn.features import ObsLayout  # noqa: E402
+from flashnav.maps import save_ros_map  # noqa: E402
+from flashnav.maps.families import generate_family  # noqa: E402
+from flashnav.names import EVAL_SEED  # noqa: E402
+from flashnav.presets import load_robot  # noqa: E402
+from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
+
+PRESET = evaluation_preset(load_robot("turtlebot2", **{"episode.goal_sampling": "geodesic",
+                                                        "motion.w_bounds": [-math.pi / 2, math.pi / 2]}))
+
+
+@pytest.fixture(scope="module")
+def maze(tmp_path_factory):
+    grid = generate_family("mazes", 7, size=(6.0, 6.0), resolution=0.05)
+    return save_ros_map(grid, tmp_path_factory.mktemp("maze") / "maze.yaml")
+
+
+def test_the_teacher_alone_plays_the_planner_scripts_episodes(maze):
+    """With no student, ``play`` is scripts/mapless_planner.py's planner on `flashnav eval --maps`'s fixed episodes:
+    the same outcome episode by episode, and each recorded sequence ends with its episode."""
+    from flashnav.maps.ros import load_ros_map
+
+    ref = mapless_planner.run_map(PRESET, str(maze), 8, EVAL_SEED)["mapless"]["per_episode"]
+    run = bc_memory_probe.play(PRESET, load_ros_map(maze), 8, EVAL_SEED, None, 1.0, np.random.default_rng(0), fixed=True)
+    assert run["success"].tolist() == [e["success"] for e in ref]
+    assert run["collision"].tolist() == [e["collision"] for e in ref]
+    assert [len(o) for o, _ in run["seqs"]] == [e["steps"] for e in ref]
+    for obs, labels in run["seqs"]:
+        assert obs.shape[1] == 30 + 2 + 2 and labels.shape[1] == 2 and labels.abs().max() <= 1
+
+
+@pytest.mark.parametrize("kind", ["mlp", "gru"])
+def test_a_student_steps_as_it_reads_sequences_and_learns_its_labels(kind):
+    """Step by step with its hidden state is the same network as over a whole sequence (what training sees), and a
+    few epochs on one sequence bring the loss down."""
+    torch.manual_seed(0)
+    layout = ObsLayout(**{**ObsLayout.from_robot(PRESET, 10.0).__dict__, "goal_sincos": True})
+    student = bc_memory_probe.Student(layout, kind, width=32)
+    obs = torch.rand(3, 12, layout.obs_dim) * 4 + 0.5
+    whole, _ = student(obs)
+    h, steps = None, []
+    for t in range(12):
+        a, h = student.step(obs[:, t], h)
+        steps.append(a)
+    torch.testing.assert_close(torch.stack(steps, 1), whole.detach())
+    labels = torch.tanh(obs[..., :2] - 2)
+    data = [(obs[i], labels[i]) for i in range(3)]
+    rng = np.random.default_rng(0)
+    first = bc_memory_probe.train(student, data, 1, 3, 1e-3, rng)
+    last = bc_memory_probe.train(student, data, 150, 3, 3e-3, rng)
+    assert last < 0.5 * first
+
+
+def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "probe.json"
+    monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), "--train-maps", "1", "--episodes", "4",
+                                      "--rounds", "2", "--epochs", "1", "--eval-episodes", "4", "--width", "16",
+                                      "--json", str(out)])
+    bc_memory_probe.main()
+    doc = json.loads(out.read_text())
+    assert [r["round"] for r in doc["rounds"]] == [0, 1] and doc["rounds"][1]["mix"] == 0.5
+    for k in ("mlp", "gru"):
+        assert doc["rounds"][0][k]["episodes"] == 4 and doc["rounds"][1][k]["episodes"] == 8
+        assert set(doc["rounds"][1][k]["eval"]["per_map"]) == {"maze"}
+    monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), "--train-seed", "799999"])
+    with pytest.raises(SystemExit):
+        bc_memory_probe.main()
+    assert "reserved for validation and held-out suites" in capsys.readouterr().err
