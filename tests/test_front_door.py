@@ -391,3 +391,11 @@ def test_eval_maps_names_the_committed_suites_when_nothing_matches(capsys):
     line = fails(capsys, "eval", str(policy), "--maps", "bogus_suite")
     assert line.startswith("flashnav eval: error: --maps: maps 'bogus_suite': no such directory or file")
     assert line.endswith("; or a committed benchmark suite: heldout, real")
+
+
+def test_eval_maps_per_family_goes_with_the_validation_suite(tmp_path, capsys):
+    """Without eval.maps: validation it was accepted and ignored."""
+    line = fails(capsys, "train", "eval.maps_per_family=3", "--out", str(tmp_path / "r"))
+    assert line == ("flashnav train: error: eval.maps_per_family=3 goes with eval.maps: validation (--eval-maps "
+                    "validation); eval.maps is None")
+    assert not (tmp_path / "r").exists()

@@ -147,6 +147,10 @@ __all__ = ["VALIDATION", "benchmark_dir", "check_eval_maps_value", "check_not_be
 def load_eval_maps(config, robot) -> tuple[tuple[OccupancyMap, ...] | None, dict[str, Any] | None]:
     """A TrainConfig's ``eval.maps`` resolved for ``robot`` (its preset) with :func:`resolve_eval_maps`:
     (maps, record), checked to give every map an episode; (None, None) for the training maps."""
+    default = type(config.eval).model_fields["maps_per_family"].default  # a stored config.yaml holds the default
+    if config.eval.maps_per_family != default and config.eval.maps != "validation":  # ignored: say so, not drop it
+        raise ValueError(f"eval.maps_per_family={config.eval.maps_per_family} goes with eval.maps: validation "
+                         f"(--eval-maps validation); eval.maps is {config.eval.maps!r}")
     if config.eval.maps is None:
         return None, None
     families = config.maps.family if isinstance(config.maps, GeneratedMaps) else None
