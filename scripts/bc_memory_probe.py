@@ -161,7 +161,8 @@ def main() -> None:
     p.add_argument("--train-maps", type=int, default=48, help="fresh training mazes per round")
     p.add_argument("--train-seed", type=int, default=600_000, help="the first training maze's seed")
     p.add_argument("--episodes", type=int, default=32, help="episodes per training maze")
-    p.add_argument("--rounds", type=int, default=3, help="DAgger rounds (round 0: the teacher drives)")
+    p.add_argument("--rounds", type=int, default=3,
+                   help="DAgger rounds (round 0: the teacher drives; 0 rounds: the teacher's evaluation alone)")
     p.add_argument("--epochs", type=int, default=6, help="training epochs over the aggregated data after each round")
     p.add_argument("--batch", type=int, default=64, help="episodes per gradient step")
     p.add_argument("--lr", type=float, default=1e-3)
@@ -171,6 +172,8 @@ def main() -> None:
     p.add_argument("--sectors", type=int, default=None,
                    help="the students' pooled LiDAR sectors (default: the preset's 30; 1,080 beams must divide by it)")
     p.add_argument("--seed", type=int, default=0, help="seeds the networks, the shuffles and the mixing")
+    p.add_argument("--no-teacher-eval", action="store_true",
+                   help="skip the teacher's own evaluation on the evaluation mazes (the students' ceiling)")
     p.add_argument("--json", help="write the results here")
     a = p.parse_args()
     kinds = a.models.split(",")
@@ -200,12 +203,19 @@ def main() -> None:
     log: dict = {"args": vars(a), "rounds": []}
     t0 = time.perf_counter()
 
-    def evaluate(student: Student) -> dict:
+    def evaluate(student: Student | None) -> dict:
+        """The student alone (None: the teacher alone) on the evaluation mazes' fixed episodes."""
         per_map = {}
         for m, grid in zip(a.eval_maps, eval_grids):
-            r = play(preset, grid, a.eval_episodes, EVAL_SEED, student, 0.0, rng, fixed=True, teach=False)
+            r = play(preset, grid, a.eval_episodes, EVAL_SEED, student, 0.0 if student else 1.0, rng, fixed=True,
+                     teach=student is None)
             per_map[Path(m).stem] = float(r["success"].mean())
         return {"mean": float(np.mean(list(per_map.values()))), "worst": min(per_map.values()), "per_map": per_map}
+
+    if not a.no_teacher_eval:  # the ceiling, on the same episodes
+        log["teacher"] = evaluate(None)
+        print(f"[{time.perf_counter() - t0:.0f} s] the teacher alone: evaluation mazes mean {log['teacher']['mean']:.1%}, "
+              f"worst {log['teacher']['worst']:.1%}", flush=True)
 
     for rnd in range(a.rounds):
         mix = 0.5 ** rnd
@@ -235,6 +245,7 @@ def main() -> None:
         if a.json:
             Path(a.json).write_text(json.dumps(log, indent=1), encoding="utf-8")
     if a.json:
+        Path(a.json).write_text(json.dumps(log, indent=1), encoding="utf-8")
         print(f"json: {a.json}")
 
 

@@ -77,6 +77,7 @@ def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, ca
     bc_memory_probe.main()
     doc = json.loads(out.read_text())
     assert [r["round"] for r in doc["rounds"]] == [0, 1] and doc["rounds"][1]["mix"] == 0.5
+    assert set(doc["teacher"]["per_map"]) == {"maze"} and 0 <= doc["teacher"]["mean"] <= 1
     for k in ("mlp", "gru"):
         assert doc["rounds"][0][k]["episodes"] == 4 and doc["rounds"][1][k]["episodes"] == 8
         assert set(doc["rounds"][1][k]["eval"]["per_map"]) == {"maze"}
