@@ -229,7 +229,9 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     scale = float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))
     try:
         grids = resolve_maps(suite_path(args.maps), preset.map)
-    except ValueError as exc:  # what `eval --maps` takes beyond resolve_maps's forms: the committed suites
+    except ValueError as exc:  # naming nothing: `eval --maps` also takes the committed suites
+        if "no such directory or file" not in str(exc) and "matches no file" not in str(exc):
+            raise
         raise ValueError(f"--maps: {exc}; or a committed benchmark suite: {', '.join(BENCHMARK_SUITES)}") from None
     start = time.perf_counter()
     guide = getattr(args, "guide", None)

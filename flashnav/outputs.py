@@ -13,7 +13,8 @@ from pathlib import Path
 
 #: What a figure flag (``--out`` of a picture, ``--plot``, ``--sheet``) may end with: matplotlib's raster and vector
 #: formats that every backend writes.
-FIGURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".eps", ".ps")
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".eps", ".ps", ".pgf",
+                   ".raw", ".rgba")
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -37,11 +38,10 @@ def _check_writable_dir(folder: Path, what: str) -> None:
     temporary file, removed at once, since permission bits do not tell (root passes every ``os.access``; a read-only
     or pseudo file system such as /proc refuses anyway)."""
     try:
-        fd, probe = tempfile.mkstemp(dir=folder, prefix=".flashnav-write-check-")
+        with tempfile.TemporaryFile(dir=folder, prefix=".flashnav-write-check-"):  # unnamed where the OS allows
+            pass
     except OSError as exc:
         raise ValueError(f"{what}: cannot write in {folder} ({exc.strerror or exc})") from None
-    os.close(fd)
-    os.unlink(probe)
 
 
 def check_output_dir(path: str | Path, flag: str) -> Path:

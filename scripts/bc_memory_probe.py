@@ -187,6 +187,16 @@ def main() -> None:
     if last_seed >= VALIDATION_SEEDS[0]:
         p.error(f"--train-seed {a.train_seed}: the training mazes would reach seed {last_seed}, reserved for "
                 f"validation and held-out suites (>= {VALIDATION_SEEDS[0]})")
+    from flashnav.maps.validation import check_not_benchmark
+    from flashnav.outputs import check_output_file
+
+    try:  # before an hour of work: the JSON's path, and evaluation maps that are not the held-out suites
+        if a.json:
+            check_output_file(a.json, "--json")
+        eval_grids = [load_ros_map(m) for m in a.eval_maps]
+        check_not_benchmark(eval_grids, key="EVAL_MAZE_YAML")
+    except ValueError as exc:
+        p.error(str(exc))
     torch.set_num_threads(1)  # small batches: one thread is faster than two that contend
     torch.manual_seed(a.seed)
     rng = np.random.default_rng(a.seed)
@@ -199,7 +209,6 @@ def main() -> None:
     layout = ObsLayout(**{**layout.__dict__, "goal_sincos": True})
     students = {k: Student(layout, k, a.width) for k in kinds}
     data: dict[str, list] = {k: [] for k in kinds}
-    eval_grids = [load_ros_map(m) for m in a.eval_maps]
     log: dict = {"args": vars(a), "rounds": []}
     t0 = time.perf_counter()
 

@@ -318,10 +318,10 @@ def _cli(args) -> int:
 
     from flashnav.outputs import check_output_dir
 
-    formats = tuple(f.strip() for f in args.format.split(","))
+    formats = tuple(f.strip() for f in args.format.split(",") if f.strip())
     bad = sorted({f for f in formats if f not in FORMATS})
     if bad or not formats:  # before any work and before any folder is made
-        shown = ", ".join(repr(f) for f in bad) or repr(args.format)
+        shown = ", ".join(repr(f) for f in bad) or "none"
         print(f"flashnav report: error: --format {args.format}: unknown format(s) {shown}; choose from "
               f"{', '.join(FORMATS)} (comma-separated)", file=sys.stderr)
         return 2

@@ -85,3 +85,10 @@ def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, ca
     with pytest.raises(SystemExit):
         bc_memory_probe.main()
     assert "reserved for validation and held-out suites" in capsys.readouterr().err
+    from flashnav.maps.validation import benchmark_dir
+
+    heldout = sorted((benchmark_dir() / "heldout").glob("mazes_*.yaml"))[0]
+    monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(heldout)])
+    with pytest.raises(SystemExit):
+        bc_memory_probe.main()
+    assert "is a map of the 'heldout' benchmark suite" in capsys.readouterr().err

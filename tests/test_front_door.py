@@ -305,7 +305,7 @@ def test_an_output_folder_nothing_can_be_written_in(tmp_path, capsys, monkeypatc
     def refuse(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    monkeypatch.setattr(tempfile, "TemporaryFile", refuse)
     line = fails(capsys, "train", "--out", str(tmp_path / "run"), "budget.max_env_steps=1")
     assert line == (f"flashnav train: error: --out {tmp_path / 'run'}: cannot be created: cannot write in {tmp_path} "
                     "(Permission denied)")
@@ -319,16 +319,27 @@ def test_an_output_folder_nothing_can_be_written_in(tmp_path, capsys, monkeypatc
     (("--num-envs", "abc"), "--num-envs abc: comma-separated whole numbers >= 1"),
     (("--num-envs", "0"), "every size >= 1"),
 ])
-def test_bench_sim_checks_its_flags_before_the_first_row(args, says, capsys):
+def test_bench_sim_checks_its_flags_before_the_first_row(args, says, capsys, monkeypatch):
+    from flashnav.bench import sim
+
+    monkeypatch.setattr(sim, "time_steps", _must_not_run)
     assert says in fails(capsys, "bench", "sim", "--raycasters", "exact", "--no-irsim", *args)
 
 
-def test_bench_sim_json_is_checked_before_the_first_row(tmp_path, capsys):
+def _must_not_run(*args, **kwargs):
+    raise AssertionError("the work started before the bad input was named")
+
+
+def test_bench_sim_json_is_checked_before_the_first_row(tmp_path, capsys, monkeypatch):
+    from flashnav.bench import sim
+
+    monkeypatch.setattr(sim, "time_steps", _must_not_run)
     assert f"--json {tmp_path}: is a folder" in fails(capsys, "bench", "sim", "--quick", "--no-irsim", "--json",
                                                        str(tmp_path))
 
 
-@pytest.mark.parametrize("fmt, says", [("bogus", "unknown format(s) 'bogus'"), ("md,,pdf", "'', 'pdf'")])
+@pytest.mark.parametrize("fmt, says", [("bogus", "unknown format(s) 'bogus'"), ("md,,pdf", "format(s) 'pdf';"),
+                                       (",", "unknown format(s) none")])
 def test_report_formats_are_checked_before_a_folder_is_made(fmt, says, tmp_path, capsys):
     """`report --format bogus` once exited 0 with an empty folder; `md,,pdf` dropped pdf without a word."""
     doc = tmp_path / "g.json"
@@ -354,7 +365,10 @@ def test_a_preset_whose_map_is_a_ros_map_file(tmp_path, capsys):
     assert (tmp_path / "d.png").is_file()
 
 
-def test_bench_train_checks_json_and_plot_before_training(tmp_path, capsys):
+def test_bench_train_checks_json_and_plot_before_training(tmp_path, capsys, monkeypatch):
+    from flashnav.learn import loop
+
+    monkeypatch.setattr(loop, "train", _must_not_run)
     assert f"--json {tmp_path}: is a folder" in fails(capsys, "bench", "train", "--seeds", "1", "--json", str(tmp_path))
     assert "--plot c.txt: a picture is written as" in fails(capsys, "bench", "train", "--seeds", "1", "--plot", "c.txt")
 
@@ -370,10 +384,9 @@ def test_a_checkpoint_that_is_not_one_never_advises_weights_only_false(tmp_path,
     bad = tmp_path / "bad.pt"
     torch.save({"x": shutil.copy}, bad)  # a global: refused under weights_only, with torch's advice to turn it off
     (tmp_path / "code.pt").write_bytes(pickle.dumps(shutil.copy))
-    for path, why in ((bad, "Unsupported global: GLOBAL shutil.copy was not an allowed global by default.)"),
-                      (tmp_path / "code.pt", "Unsupported operand")):
+    for path in (bad, tmp_path / "code.pt"):  # torch's own reason follows; its wording is torch's to change
         line = fails(capsys, "train", "--init-from", str(path), "--out", str(tmp_path / "r"))
-        assert f"{path}: not a readable FlashNav checkpoint (UnpicklingError: {why}" in line
+        assert f"{path}: not a readable FlashNav checkpoint (UnpicklingError: " in line
         assert "False" not in line and "two options" not in line  # torch's advice to load it unsafely
 
 

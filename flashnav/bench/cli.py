@@ -17,11 +17,11 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmarks (simulator, evaluation, training)")
     bsub = bench.add_subparsers(dest="bench_command", metavar="BENCH")
     p = bsub.add_parser("sim", help="simulator env-steps/s per raycaster x num_envs x robot, vs the paper's march and ir-sim")
-    p.add_argument("--robots", default=",".join(ROBOTS), help="comma-separated presets")
+    p.add_argument("--robots", default=None, help=f"comma-separated presets (default {','.join(ROBOTS)})")
     p.add_argument("--raycasters", default="exact,exact-torch,march", help="comma-separated raycasters")
-    p.add_argument("--num-envs", default="1,64,1024", help="comma-separated batch sizes")
+    p.add_argument("--num-envs", default=None, help="comma-separated batch sizes (default 1,64,1024)")
     p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N")
-    p.add_argument("--seconds", type=float, default=2.0, help="minimum timed seconds per row")
+    p.add_argument("--seconds", type=float, default=None, help="minimum timed seconds per row (default 2)")
     p.add_argument("--max-steps", type=int, default=2000, help="maximum timed steps per row")
     p.add_argument("--no-irsim", action="store_true", help="skip the ir-sim peer")
     p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
@@ -76,12 +76,15 @@ def run_sim(args) -> int:
     from flashnav.presets import load_robot
 
     if args.quick:  # the smoke run's own robot, size and seconds: say so rather than ignore what was given
-        given = [f for f, v, d in (("--robots", args.robots, ",".join(ROBOTS)), ("--num-envs", args.num_envs, "1,64,1024"),
-                                   ("--seconds", args.seconds, 2.0)) if v != d]
+        given = [f for f, v in (("--robots", args.robots), ("--num-envs", args.num_envs), ("--seconds", args.seconds))
+                 if v is not None]
         if given:
             raise ValueError(f"--quick runs {DEFAULT_ROBOT}, 64 envs and 0.5-s rows: drop {' and '.join(given)} "
                              "(or --quick)")
         args.robots, args.num_envs, args.seconds = DEFAULT_ROBOT, "64", 0.5
+    args.robots = ",".join(ROBOTS) if args.robots is None else args.robots
+    args.num_envs = "1,64,1024" if args.num_envs is None else args.num_envs
+    args.seconds = 2.0 if args.seconds is None else args.seconds
     robots = _csv(args.robots)
     try:
         sizes = _csv(args.num_envs, int)
