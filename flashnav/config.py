@@ -307,7 +307,8 @@ class RobotPreset(Strict):
     lidar: Lidar
     episode: Episode
     reward: Reward
-    map: str = Field(description="bundled map name (flashnav/maps/data/NAME.yaml) or a ROS map YAML path")
+    map: str = Field(description="bundled map name (flashnav/maps/data/NAME.yaml) or a ROS map YAML path (a relative "
+                                 "one from a preset file is relative to that file's folder)")
     map_size: tuple[float, float] = Field(description="the paper's map extent (x, y), metres, for reference")
     agents: Agents = Field(default_factory=Agents, description="moving obstacles (none by default)")
     observation: Observation = Field(default_factory=Observation, description="opt-in observation extras")

@@ -359,10 +359,12 @@ def test_a_preset_whose_map_is_a_ros_map_file(tmp_path, capsys):
     import flashnav.presets
 
     preset = yaml.safe_load((Path(flashnav.presets.__file__).parent / "turtlebot2.yaml").read_text())
-    preset.update(name="otherbot", map=str(tmp_path / "m.yaml"))
-    (tmp_path / "otherbot.yaml").write_text(yaml.safe_dump(preset))
-    assert main(["demo", "--robot", str(tmp_path / "otherbot.yaml"), "--envs", "2", "--out", str(tmp_path / "d")]) == 0
-    assert (tmp_path / "d.png").is_file()
+    for name, where in (("abs", str(tmp_path / "m.yaml")), ("rel", "m.yaml")):  # relative: to the preset's folder
+        preset.update(name="otherbot", map=where)
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(preset))
+        out = tmp_path / f"d-{name}"
+        assert main(["demo", "--robot", str(tmp_path / f"{name}.yaml"), "--envs", "2", "--out", str(out)]) == 0
+        assert out.with_suffix(".png").is_file()
 
 
 def test_bench_train_checks_json_and_plot_before_training(tmp_path, capsys, monkeypatch):

@@ -46,6 +46,9 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
         own = load_yaml(robot) or {}
         if not isinstance(own, dict):
             raise ValueError(f"{robot}: a robot preset must be a mapping")
+        m = own.get("map")
+        if isinstance(m, str) and m.lower().endswith((".yaml", ".yml")) and not Path(m).expanduser().is_absolute():
+            own = {**own, "map": str(Path(robot).parent / m)}  # like a ROS map's image: beside its YAML
         data, source = deep_merge(load_preset_file("simulator"), own), str(robot)
     for key, value in overrides.items():
         set_dotted(data, key, value, known=RobotPreset, what="robot override")
