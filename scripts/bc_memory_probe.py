@@ -30,6 +30,7 @@ learner can do no better than its architecture's imitation ceiling suggests, and
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -55,6 +56,16 @@ from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
 
 
+def task(sectors: int | None = None):
+    """(preset, students' input layout) of the `generalist` recipe's TurtleBot2 task as evaluations play it: the
+    platform turn rate, goals by path length; ``sectors`` pooled LiDAR sectors (None: the preset's)."""
+    overrides = {"episode.goal_sampling": "geodesic", "motion.w_bounds": [-math.pi / 2, math.pi / 2]}
+    if sectors is not None:
+        overrides["lidar.sectors"] = sectors
+    preset = evaluation_preset(load_robot("turtlebot2", **overrides))
+    return preset, dataclasses.replace(ObsLayout.from_robot(preset, GOAL_BOUND_M), goal_sincos=True)
+
+
 class Student(nn.Module):
     """IPAPRec (the learners' input transform, goal angle as sine and cosine) -> ReLU layer -> a GRU cell or a
     second ReLU layer -> tanh actions. ``step(obs [N, D], h)`` -> (actions [N, 2], h)."""
@@ -67,7 +78,6 @@ class Student(nn.Module):
         self.core = nn.GRU(width, width, batch_first=True) if kind == "gru" else nn.Sequential(
             nn.Linear(width, width), nn.ReLU())
         self.head = nn.Linear(width, 2)
-        self.width = width
 
     def forward(self, obs: torch.Tensor, h: torch.Tensor | None = None):
         """obs [B, T, D] -> actions [B, T, 2], last hidden state (None for the MLP)."""
@@ -89,7 +99,8 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
     """``episodes`` episodes on ``grid`` (one per slot): the teacher labels every step of every slot until its
     episode ends; who drives: the teacher with probability ``mix`` per step, else the student (None: always the
     teacher). ``fixed``: `flashnav eval --maps`'s fixed episodes (seed ``seed``), else the env's draws with
-    ``reset(seed=seed)``. ``teach=False`` (an evaluation: the student alone) skips the teacher. Returns the sequences (obs [T_i, D], labels [T_i, 2]) and each episode's outcome."""
+    ``reset(seed=seed)``. ``teach=False`` (an evaluation: the student alone) skips the teacher. Returns the
+    sequences (obs [T_i, D], labels [T_i, 2]) and each episode's outcome."""
     env = make_env(preset, episodes, map=grid, seed=seed)
     obs, _ = env.reset(seed=seed)
     if fixed:
@@ -183,6 +194,8 @@ def main() -> None:
     for m in a.eval_maps:
         if not Path(m).is_file():
             p.error(f"evaluation map {m}: no such file")
+    if a.rounds == 0 and a.no_teacher_eval:
+        p.error("--rounds 0 with --no-teacher-eval: nothing to do")
     last_seed = a.train_seed + a.rounds * a.train_maps - 1
     if last_seed >= VALIDATION_SEEDS[0]:
         p.error(f"--train-seed {a.train_seed}: the training mazes would reach seed {last_seed}, reserved for "
@@ -200,17 +213,15 @@ def main() -> None:
     torch.set_num_threads(1)  # small batches: one thread is faster than two that contend
     torch.manual_seed(a.seed)
     rng = np.random.default_rng(a.seed)
-    overrides = {"episode.goal_sampling": "geodesic", "motion.w_bounds": [-math.pi / 2, math.pi / 2]}  # the generalist's task
-    if a.sectors is not None:
-        overrides["lidar.sectors"] = a.sectors
-    robot = load_robot("turtlebot2", **overrides)
-    preset = evaluation_preset(robot)
-    layout = ObsLayout.from_robot(preset, GOAL_BOUND_M)
-    layout = ObsLayout(**{**layout.__dict__, "goal_sincos": True})
+    preset, layout = task(a.sectors)
     students = {k: Student(layout, k, a.width) for k in kinds}
     data: dict[str, list] = {k: [] for k in kinds}
     log: dict = {"args": vars(a), "rounds": []}
     t0 = time.perf_counter()
+
+    def save() -> None:  # after each stage: an interrupted probe keeps what it measured
+        if a.json:
+            Path(a.json).write_text(json.dumps(log, indent=1), encoding="utf-8")
 
     def evaluate(student: Student | None) -> dict:
         """The student alone (None: the teacher alone) on the evaluation mazes' fixed episodes."""
@@ -225,22 +236,18 @@ def main() -> None:
         log["teacher"] = evaluate(None)
         print(f"[{time.perf_counter() - t0:.0f} s] the teacher alone: evaluation mazes mean {log['teacher']['mean']:.1%}, "
               f"worst {log['teacher']['worst']:.1%}", flush=True)
+        save()
 
     for rnd in range(a.rounds):
         mix = 0.5 ** rnd
         seeds = range(a.train_seed + rnd * a.train_maps, a.train_seed + (rnd + 1) * a.train_maps)
         row: dict = {"round": rnd, "mix": mix if rnd else 1.0}
-        shared = None
+        grids = [(s, generate_family("mazes", s, robot_radius=0.3)) for s in seeds]  # the round's mazes, once
+        if rnd == 0:  # the teacher drives: the same data for every student
+            shared = [play(preset, grid, a.episodes, s, None, 1.0, rng, fixed=False) for s, grid in grids]
         for k in kinds:
-            runs = []
-            if rnd == 0:  # the teacher drives: the same data for every student
-                if shared is None:
-                    shared = [play(preset, generate_family("mazes", s, robot_radius=0.3), a.episodes, s, None, 1.0,
-                                   rng, fixed=False) for s in seeds]
-                runs = shared
-            else:
-                runs = [play(preset, generate_family("mazes", s, robot_radius=0.3), a.episodes, s, students[k], mix,
-                             rng, fixed=False) for s in seeds]
+            runs = shared if rnd == 0 else [play(preset, grid, a.episodes, s, students[k], mix, rng, fixed=False)
+                                            for s, grid in grids]
             data[k] += [q for r in runs for q in r["seqs"]]
             drove = float(np.mean([r["success"].mean() for r in runs]))
             loss = train(students[k], data[k], a.epochs, a.batch, a.lr, rng)
@@ -251,10 +258,8 @@ def main() -> None:
                   f"{len(data[k])} episodes, loss {loss:.4f}; evaluation mazes mean {ev['mean']:.1%}, worst "
                   f"{ev['worst']:.1%}", flush=True)
         log["rounds"].append(row)
-        if a.json:
-            Path(a.json).write_text(json.dumps(log, indent=1), encoding="utf-8")
+        save()
     if a.json:
-        Path(a.json).write_text(json.dumps(log, indent=1), encoding="utf-8")
         print(f"json: {a.json}")
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -16,15 +15,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import bc_memory_probe  # noqa: E402
 import mapless_planner  # noqa: E402
 
-from flashnav.learn.features import ObsLayout  # noqa: E402
 from flashnav.maps import save_ros_map  # noqa: E402
 from flashnav.maps.families import generate_family  # noqa: E402
 from flashnav.names import EVAL_SEED  # noqa: E402
-from flashnav.presets import load_robot  # noqa: E402
-from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
 
-PRESET = evaluation_preset(load_robot("turtlebot2", **{"episode.goal_sampling": "geodesic",
-                                                        "motion.w_bounds": [-math.pi / 2, math.pi / 2]}))
+PRESET, LAYOUT = bc_memory_probe.task()
 
 
 @pytest.fixture(scope="module")
@@ -52,9 +47,8 @@ def test_a_student_steps_as_it_reads_sequences_and_learns_its_labels(kind):
     """Step by step with its hidden state is the same network as over a whole sequence (what training sees), and a
     few epochs on one sequence bring the loss down."""
     torch.manual_seed(0)
-    layout = ObsLayout(**{**ObsLayout.from_robot(PRESET, 10.0).__dict__, "goal_sincos": True})
-    student = bc_memory_probe.Student(layout, kind, width=32)
-    obs = torch.rand(3, 12, layout.obs_dim) * 4 + 0.5
+    student = bc_memory_probe.Student(LAYOUT, kind, width=32)
+    obs = torch.rand(3, 12, LAYOUT.obs_dim) * 4 + 0.5
     whole, _ = student(obs)
     h, steps = None, []
     for t in range(12):
