@@ -221,7 +221,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     """``flashnav eval POLICY --maps ...``: parsed arguments and the loaded policy, its metadata, robot and
     device from :mod:`flashnav.policy_cli` (which checks the arguments and the output file first)."""
     from flashnav.machine import machine_name
-    from flashnav.maps.bundled import resolve_maps
+    from flashnav.maps.bundled import MapsNotFound, resolve_maps
     from flashnav.presets import load_robot
 
     sampling = args.goal_sampling or "geodesic"
@@ -229,9 +229,7 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     scale = float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))
     try:
         grids = resolve_maps(suite_path(args.maps), preset.map)
-    except ValueError as exc:  # naming nothing: `eval --maps` also takes the committed suites
-        if "no such directory or file" not in str(exc) and "matches no file" not in str(exc):
-            raise
+    except MapsNotFound as exc:  # naming nothing: `eval --maps` also takes the committed suites
         raise ValueError(f"--maps: {exc}; or a committed benchmark suite: {', '.join(BENCHMARK_SUITES)}") from None
     start = time.perf_counter()
     guide = getattr(args, "guide", None)

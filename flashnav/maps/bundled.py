@@ -99,6 +99,11 @@ def resolve_map(map: OccupancyMap | str | Path | None, default: str) -> Occupanc
     )
 
 
+class MapsNotFound(ValueError):
+    """A single string given as maps that names nothing: no file, folder, bundled map or glob match (a caller that
+    takes more forms, such as `eval --maps` and its committed suites, can say so)."""
+
+
 def resolve_maps(maps, default: str) -> list[OccupancyMap]:
     """Turn what a user names as a set of maps into a list of ``OccupancyMap`` (in a stable order).
 
@@ -109,9 +114,9 @@ def resolve_maps(maps, default: str) -> list[OccupancyMap]:
         default: the bundled map for a ``None`` entry.
 
     Raises:
-        ValueError: an empty sequence, a directory with no map YAML, a pattern matching no file, a
-            single string naming nothing that exists, or an entry :func:`resolve_map` refuses (the message
-            names it).
+        MapsNotFound: a pattern matching no file, or a single string naming nothing that exists.
+        ValueError: an empty sequence, a directory with no map YAML, or an entry :func:`resolve_map` refuses
+            (the message names it).
     """
     if isinstance(maps, (str, Path)):
         text = str(maps)
@@ -126,10 +131,10 @@ def resolve_maps(maps, default: str) -> list[OccupancyMap]:
 
             files = sorted(glob.glob(str(path)))
             if not files:
-                raise ValueError(f"maps pattern {text!r} matches no file")
+                raise MapsNotFound(f"maps pattern {text!r} matches no file")
             return [resolve_map(Path(f), default) for f in files]
         if not path.exists() and text not in bundled_map_names():
-            raise ValueError(
+            raise MapsNotFound(
                 f"maps {text!r}: no such directory or file; maps are a directory of ROS map YAML files, a glob "
                 f"pattern (quote it), or one map: a bundled name ({', '.join(bundled_map_names())}) or a .yaml path"
             )
