@@ -70,11 +70,10 @@ def _csv(text: str, cast=str) -> list:
 def run_sim(args) -> int:
     from flashnav.bench import sim
     from flashnav.bench.irsim_peer import irsim_available, irsim_steps
-
-    console = Console()
     from flashnav.outputs import check_output_file
     from flashnav.presets import load_robot
 
+    console = Console()
     if args.quick:  # the smoke run's own robot, size and seconds: say so rather than ignore what was given
         given = [f for f, v in (("--robots", args.robots), ("--num-envs", args.num_envs), ("--seconds", args.seconds))
                  if v is not None]

@@ -75,9 +75,8 @@ def summarise(runs: list[dict], budget: int | None = None) -> dict:
 
 def run_bench_train(args) -> int:
     from flashnav.learn.loop import train
-    from flashnav.spec import config_from_cli, resolve
-
     from flashnav.outputs import check_figure_file, check_output_file
+    from flashnav.spec import config_from_cli, resolve
 
     if args.json:  # before any training: a bad path costs nothing
         check_output_file(args.json, "--json")
