@@ -1,7 +1,7 @@
 """Can a recurrent policy on the policy's own observation solve fresh mazes? A behaviour-cloning probe (issue 15).
 
     .venv/bin/python scripts/bc_memory_probe.py EVAL_MAZE_YAML [...] [--train-maps 48] [--episodes 32]
-        [--rounds 3] [--epochs 6] [--eval-episodes 64] [--models mlp,gru] [--json OUT]
+        [--rounds 3] [--epochs 6] [--eval-episodes 64] [--models mlp,gru] [--bins K] [--json OUT]
 
 Every reactive generalist fails issue 15's held-out mazes the same way (82-87 %, every failure a wrong turn,
 "wandered"), where the optimistic mapless planner (`scripts/mapless_planner.py`: it remembers the walls its scans
@@ -68,25 +68,67 @@ def task(sectors: int | None = None):
 
 class Student(nn.Module):
     """IPAPRec (the learners' input transform, goal angle as sine and cosine) -> ReLU layer -> a GRU cell or a
-    second ReLU layer -> tanh actions. ``step(obs [N, D], h)`` -> (actions [N, 2], h)."""
+    second ReLU layer -> an action head. ``step(obs [N, D], h)`` -> (actions [N, 2], h).
 
-    def __init__(self, layout: ObsLayout, kind: str, width: int = 256):
+    The head: ``bins=0``, tanh actions fitted by mean squared error (which averages two ways round a junction into
+    one between them); ``bins=K``, a categorical over K evenly spaced values in [-1, 1] per action dimension,
+    fitted by cross-entropy to two-hot labels (the label's weight split between the two nearest values), and
+    played at its mode (the most likely value, refined by the probability-weighted mean with its two neighbours):
+    a head that chooses one way round instead of averaging them."""
+
+    def __init__(self, layout: ObsLayout, kind: str, width: int = 256, bins: int = 0):
         super().__init__()
-        self.kind = kind
+        if bins == 1 or bins < 0:
+            raise ValueError(f"bins={bins}: 0 (a mean-squared head) or at least 2")
+        self.kind, self.bins = kind, bins
         self.inp = IPAPRec(layout)
         self.enc = nn.Sequential(nn.Linear(layout.feature_dim, width), nn.ReLU())
         self.core = nn.GRU(width, width, batch_first=True) if kind == "gru" else nn.Sequential(
             nn.Linear(width, width), nn.ReLU())
-        self.head = nn.Linear(width, 2)
+        self.head = nn.Linear(width, 2 * bins if bins else 2)
+        if bins:
+            self.register_buffer("centres", torch.linspace(-1.0, 1.0, bins))
 
-    def forward(self, obs: torch.Tensor, h: torch.Tensor | None = None):
-        """obs [B, T, D] -> actions [B, T, 2], last hidden state (None for the MLP)."""
+    def outputs(self, obs: torch.Tensor, h: torch.Tensor | None = None):
+        """obs [B, T, D] -> the head's outputs (tanh actions [B, T, 2], or logits [B, T, 2, K]), last hidden state
+        (None for the MLP)."""
         x = self.enc(self.inp(obs))
         if self.kind == "gru":
             x, h = self.core(x, h)
         else:
             x = self.core(x)
-        return torch.tanh(self.head(x)), h
+        y = self.head(x)
+        return (y.unflatten(-1, (2, self.bins)) if self.bins else torch.tanh(y)), h
+
+    def actions(self, out: torch.Tensor) -> torch.Tensor:
+        """The head's outputs -> actions [..., 2]: the tanh actions, or each categorical's refined mode."""
+        if not self.bins:
+            return out
+        prob = out.softmax(-1)
+        k = prob.argmax(-1, keepdim=True)
+        near = (k + torch.arange(-1, 2)).clamp(0, self.bins - 1)  # the mode and its neighbours (repeated at an end)
+        first = near == near.roll(1, -1)
+        first[..., 0] = False
+        w = prob.gather(-1, near) * ~first  # an end's mode counted once
+        return (w * self.centres[near]).sum(-1) / w.sum(-1)
+
+    def loss(self, out: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+        """Per step [B, T]: the squared action error, or the two action dimensions' cross-entropies to two-hot
+        labels."""
+        if not self.bins:
+            return ((out - labels) ** 2).sum(-1)
+        pos = (labels.clamp(-1, 1) + 1) / 2 * (self.bins - 1)
+        lo = pos.floor().clamp(max=self.bins - 2)
+        up = pos - lo
+        logp = out.log_softmax(-1)
+        lo = lo.long()[..., None]
+        ce = -((1 - up) * logp.gather(-1, lo)[..., 0] + up * logp.gather(-1, lo + 1)[..., 0])
+        return ce.sum(-1)
+
+    def forward(self, obs: torch.Tensor, h: torch.Tensor | None = None):
+        """obs [B, T, D] -> actions [B, T, 2], last hidden state (None for the MLP)."""
+        out, h = self.outputs(obs, h)
+        return self.actions(out), h
 
     @torch.no_grad()
     def step(self, obs: torch.Tensor, h):
@@ -141,7 +183,8 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
 
 def train(student: Student, data: list[tuple[torch.Tensor, torch.Tensor]], epochs: int, batch: int,
           lr: float, rng: np.random.Generator) -> float:
-    """Supervised epochs over episode sequences (padded; a mask drops the padding): mean squared action error."""
+    """Supervised epochs over episode sequences (padded; a mask drops the padding): the student's loss (mean
+    squared action error, or the categorical head's cross-entropy)."""
     opt = torch.optim.Adam(student.parameters(), lr=lr)
     order = np.arange(len(data))
     last = float("nan")
@@ -154,8 +197,8 @@ def train(student: Student, data: list[tuple[torch.Tensor, torch.Tensor]], epoch
             obs = torch.stack([torch.cat([o, o[-1:].expand(t_max - len(o), -1)]) for o, _ in part])
             lab = torch.stack([torch.cat([a, a[-1:].expand(t_max - len(a), -1)]) for _, a in part])
             mask = torch.stack([torch.arange(t_max) < len(o) for o, _ in part]).float()
-            pred, _ = student(obs)
-            loss = (((pred - lab) ** 2).sum(-1) * mask).sum() / mask.sum()
+            out, _ = student.outputs(obs)
+            loss = (student.loss(out, lab) * mask).sum() / mask.sum()
             opt.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(student.parameters(), 1.0)
@@ -180,6 +223,9 @@ def main() -> None:
     p.add_argument("--width", type=int, default=256)
     p.add_argument("--eval-episodes", type=int, default=64, help="fixed episodes per evaluation maze")
     p.add_argument("--models", default="mlp,gru", help="comma-separated: mlp, gru")
+    p.add_argument("--bins", type=int, default=0,
+                   help="the students' head: 0, tanh actions by mean squared error; K >= 2, a categorical over K "
+                        "values per action dimension (cross-entropy to two-hot labels, played at its mode)")
     p.add_argument("--sectors", type=int, default=None,
                    help="the students' pooled LiDAR sectors (default: the preset's 30; 1,080 beams must divide by it)")
     p.add_argument("--seed", type=int, default=0, help="seeds the networks, the shuffles and the mixing")
@@ -194,6 +240,8 @@ def main() -> None:
     for m in a.eval_maps:
         if not Path(m).is_file():
             p.error(f"evaluation map {m}: no such file")
+    if a.bins == 1 or a.bins < 0:
+        p.error(f"--bins {a.bins}: 0 (a mean-squared head) or at least 2")
     if a.rounds == 0 and a.no_teacher_eval:
         p.error("--rounds 0 with --no-teacher-eval: nothing to do")
     last_seed = a.train_seed + a.rounds * a.train_maps - 1
@@ -214,7 +262,7 @@ def main() -> None:
     torch.manual_seed(a.seed)
     rng = np.random.default_rng(a.seed)
     preset, layout = task(a.sectors)
-    students = {k: Student(layout, k, a.width) for k in kinds}
+    students = {k: Student(layout, k, a.width, a.bins) for k in kinds}
     data: dict[str, list] = {k: [] for k in kinds}
     log: dict = {"args": vars(a), "rounds": []}
     t0 = time.perf_counter()

@@ -42,12 +42,12 @@ def test_the_teacher_alone_plays_the_planner_scripts_episodes(maze):
         assert obs.shape[1] == 30 + 2 + 2 and labels.shape[1] == 2 and labels.abs().max() <= 1
 
 
-@pytest.mark.parametrize("kind", ["mlp", "gru"])
-def test_a_student_steps_as_it_reads_sequences_and_learns_its_labels(kind):
+@pytest.mark.parametrize("kind,bins", [("mlp", 0), ("gru", 0), ("mlp", 11), ("gru", 11)])
+def test_a_student_steps_as_it_reads_sequences_and_learns_its_labels(kind, bins):
     """Step by step with its hidden state is the same network as over a whole sequence (what training sees), and a
     few epochs on one sequence bring the loss down."""
     torch.manual_seed(0)
-    student = bc_memory_probe.Student(LAYOUT, kind, width=32)
+    student = bc_memory_probe.Student(LAYOUT, kind, width=32, bins=bins)
     obs = torch.rand(3, 12, LAYOUT.obs_dim) * 4 + 0.5
     whole, _ = student(obs)
     h, steps = None, []
@@ -63,10 +63,38 @@ def test_a_student_steps_as_it_reads_sequences_and_learns_its_labels(kind):
     assert last < 0.5 * first
 
 
+def test_the_categorical_head_chooses_a_way_round_where_squared_error_averages():
+    """Half the labels turn left (-0.8), half right (+0.8) on the same input: the mean-squared head learns the
+    average (straight on, into the wall); the categorical head plays one of the two; two-hot labels between two
+    values decode back to the label."""
+    torch.manual_seed(0)
+    obs = torch.ones(2, 1, LAYOUT.obs_dim)
+    labels = torch.tensor([[[0.5, -0.8]], [[0.5, 0.8]]])
+    data = [(obs[i], labels[i]) for i in range(2)]
+    played = {}
+    for bins in (0, 21):
+        student = bc_memory_probe.Student(LAYOUT, "mlp", width=32, bins=bins)
+        bc_memory_probe.train(student, data, 300, 2, 3e-3, np.random.default_rng(0))
+        played[bins] = student.step(obs[:1, 0], None)[0][0]
+    assert abs(played[0][1]) < 0.2 and abs(played[21][1]) > 0.6
+    assert abs(played[0][0] - 0.5) < 0.05 and abs(played[21][0] - 0.5) < 0.05
+    student = bc_memory_probe.Student(LAYOUT, "mlp", width=8, bins=5)
+    for y in (-1.0, -0.7, 0.0, 0.3, 1.0):  # logits of the two-hot label itself: its mode decodes to y
+        target = torch.tensor([y, y])
+        pos = (target + 1) / 2 * 4
+        lo = pos.floor().clamp(max=3).long()
+        prob = torch.zeros(2, 5)
+        prob[torch.arange(2), lo] = 1 - (pos - lo)
+        prob[torch.arange(2), lo + 1] += pos - lo
+        torch.testing.assert_close(student.actions(prob.clamp_min(1e-9).log()), target, atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="bins=1"):
+        bc_memory_probe.Student(LAYOUT, "mlp", bins=1)
+
+
 def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, capsys):
     out = tmp_path / "probe.json"
     monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), "--train-maps", "1", "--episodes", "4",
-                                      "--rounds", "2", "--epochs", "1", "--eval-episodes", "4", "--width", "16",
+                                      "--rounds", "2", "--epochs", "1", "--eval-episodes", "4", "--width", "16", "--bins", "5",
                                       "--json", str(out)])
     bc_memory_probe.main()
     doc = json.loads(out.read_text())
