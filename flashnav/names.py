@@ -111,6 +111,13 @@ def check_name(kind: str, value: str, allowed: tuple[str, ...]) -> str:
 def check_robot(value: str) -> str:
     """``value`` if it names a bundled robot preset or a preset YAML path, else a ValueError."""
     if value not in ROBOTS and not str(value).endswith((".yaml", ".yml")):
+        from pathlib import Path
+
+        if Path(value).is_dir():
+            inside = sorted(str(q) for q in Path(value).glob("*.y*ml"))[:5]
+            raise ValueError(f"{value!r} is a folder: give a robot preset YAML file"
+                             + (f" (here: {', '.join(inside)})" if inside else " (it holds no .yaml file)")
+                             + f", or one of {', '.join(ROBOTS)}")
         raise ValueError(f"unknown robot {value!r}; allowed: {', '.join(ROBOTS)} or a preset YAML path")
     return value
 

@@ -181,8 +181,26 @@ def connect(address: str | None) -> bool:
     if address and address.startswith(("http://", "https://")):
         raise SweepError(f"{address} is a dashboard/jobs address: use `flashnav sweep submit --address {address}`; "
                          "`sweep run --address` takes the cluster address (HOST:6379 or auto)")
+    if address:
+        check_reachable(address)
     ray.init(address=address or "local", include_dashboard=False if not address else None)
     return True
+
+
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """A SweepError naming ``address`` when nothing answers there within ``timeout`` seconds (Ray itself would
+    retry for minutes before it gives up). ``auto``/``local`` and addresses without a port are left to Ray."""
+    import socket
+
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise SweepError(f"--address {address}: no Ray cluster answers there ({exc.strerror or exc}); start one "
+                         "(`flashnav services up`, or `ray start --head` on that machine) or drop --address to run "
+                         "in-process here") from None
 
 
 def _trainable(plan: Plan, train_fn: Callable | None):

@@ -6,7 +6,7 @@ import itertools
 
 import pytest
 
-from flashnav.names import check_name, parse_names
+from flashnav.names import check_name, check_robot, parse_names
 
 ALLOWED = ("rooms", "offices", "halls")
 
@@ -41,3 +41,14 @@ def test_check_name():
     assert check_name("robot", "go2", ("turtlebot2", "go2")) == "go2"
     with pytest.raises(ValueError, match=r"unknown robot 'go3' \(did you mean 'go2'\?\)"):
         check_name("robot", "go3", ("turtlebot2", "go2"))
+
+
+def test_check_robot_says_a_folder_is_a_folder(tmp_path):
+    assert check_robot("go2") == "go2" and check_robot("my/robot.yaml") == "my/robot.yaml"
+    with pytest.raises(ValueError, match="it holds no .yaml file"):
+        check_robot(str(tmp_path))
+    (tmp_path / "wheelie.yaml").write_text("name: wheelie\n")
+    with pytest.raises(ValueError, match=r"is a folder: give a robot preset YAML file \(here: .*wheelie\.yaml\)"):
+        check_robot(str(tmp_path))
+    with pytest.raises(ValueError, match="unknown robot 'wheelie'"):
+        check_robot("wheelie")

@@ -272,3 +272,29 @@ def test_quickstart_with_real_train(runs, ray_session):
         assert client.get_metric_history(child.info.run_id, "success_rate")
         artifacts = {a.path for a in client.list_artifacts(child.info.run_id)}
         assert {"config.yaml", "curve.csv", "policy.pt"} <= artifacts
+
+
+def test_an_address_where_nothing_answers_is_named_before_ray_waits(monkeypatch):
+    """`sweep run --address` to a dashboard URL or to a port where no Ray listens: a SweepError naming the address
+    within seconds, not Ray's minutes of retries."""
+    import socket
+
+    import ray
+    from services.sweep import check_reachable, connect
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)  # as in a fresh process, whatever ran before
+    with pytest.raises(SweepError, match="dashboard/jobs address"):
+        connect("http://127.0.0.1:8265")
+    with socket.socket() as s:  # a free port: bound, then closed, so nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.perf_counter()
+    with pytest.raises(SweepError, match=rf"--address 127\.0\.0\.1:{port}: no Ray cluster answers there"):
+        connect(f"127.0.0.1:{port}")
+    assert time.perf_counter() - t0 < 30
+    with socket.socket() as server:  # something listening: no error (Ray's own handshake comes after)
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        check_reachable(f"ray://127.0.0.1:{server.getsockname()[1]}")
+    check_reachable("auto")  # left to Ray
