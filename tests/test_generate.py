@@ -129,9 +129,15 @@ def test_command_line_writes_a_ros_map(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, said", [
-    (["--width", "-8", "--height", "6", "--out", "neg.yaml"], "width_m must be a positive number of metres, got -8.0"),
+    (["--width", "-8", "--height", "6", "--out", "neg.yaml"], "--width -8: must be a positive number of metres"),
+    (["--width", "8", "--height", "6", "--resolution", "nan", "--out", "n.yaml"], "--resolution nan: must be a positive"),
+    (["--family", "mazes", "--resolution", "3", "--out", "fam"], "--resolution 3: a cell coarser than the robot's"),
+    (["--family", "mazes", "--robot-radius", "0", "--out", "fam"], "--robot-radius 0: must be a positive number"),
+    (["--family", "mazes", "--margin", "-1", "--out", "fam"], "--margin -1: must be >= 0 metres"),
+    (["--family", "mazes", "--density", "0.2", "--out", "fam"], "--density applies to the single cluttered map"),
+    (["--width", "8", "--height", "6", "--density", "0.7", "--out", "d.yaml"], "--density 0.7: the occupied fraction"),
     (["--width", "8", "--height", "6", "--out", "c"], "--out c: the map's YAML file (NAME.yaml"),
-    (["--family", "rooms", "--width", "-3", "--height", "5", "--out", "fam"], "width must be a positive number"),
+    (["--family", "rooms", "--width", "-3", "--height", "5", "--out", "fam"], "--width -3: must be a positive number"),
 ])
 def test_command_line_errors_are_one_line(argv, said, tmp_path, monkeypatch, capsys):
     """Generator errors once ended in a traceback (exit 1), and an --out without .yaml wrote a map file that

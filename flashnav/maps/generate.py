@@ -42,7 +42,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     p.add_argument("--robot-radius", type=float, default=0.3,
                    help="radius of the disc every passage must fit, metres: circumscribed radius + clearance")
-    p.add_argument("--density", type=float, default=0.16, help="target occupied fraction of the interior")
+    p.add_argument("--density", type=float,
+                   help="without --family: target occupied fraction of the interior, in [0, 0.5) (default 0.16); "
+                        "the families draw their own")
     p.add_argument("--margin", type=float, default=0.1, help="extra passage width on each side of the disc, metres")
     p.add_argument("--format", choices=("pgm", "png"), default="pgm", help="image format (default pgm)")
     p.add_argument("--out", type=Path, required=True,
@@ -54,8 +56,34 @@ def main(argv: list[str] | None = None) -> None:
         p.error(str(exc))
 
 
+def _check_numbers(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
+    """The numeric flags, each named by its flag (the generators' own errors name their parameters)."""
+    import math
+
+    def bad(v: float | None, ok) -> bool:
+        return v is not None and not (math.isfinite(v) and ok(v))
+
+    for flag, v in (("--width", a.width), ("--height", a.height), ("--resolution", a.resolution)):
+        if bad(v, lambda x: x > 0):
+            p.error(f"{flag} {v:g}: must be a positive number of metres")
+    if bad(a.robot_radius, lambda x: x > 0):
+        p.error(f"--robot-radius {a.robot_radius:g}: must be a positive number of metres")
+    if bad(a.margin, lambda x: x >= 0):
+        p.error(f"--margin {a.margin:g}: must be >= 0 metres")
+    if a.resolution is not None and a.resolution > a.robot_radius:
+        p.error(f"--resolution {a.resolution:g}: a cell coarser than the robot's radius ({a.robot_radius:g} m, "
+                "--robot-radius) cannot draw the passages it must fit; the families use 0.025-0.1 m")
+    if a.density is not None:
+        if a.family:
+            p.error("--density applies to the single cluttered map (without --family); each family draws its own")
+        if bad(a.density, lambda x: 0 <= x < 0.5):
+            p.error(f"--density {a.density:g}: the occupied fraction must be in [0, 0.5)")
+
+
 def _generate(p: argparse.ArgumentParser, a: argparse.Namespace, families: tuple[str, ...]) -> None:
     from flashnav.outputs import check_figure_file, check_output_dir, check_output_file
+
+    _check_numbers(p, a)
 
     # the paths first (ValueErrors naming the flag): a folder under a file, or a sheet matplotlib cannot write,
     # must not cost the maps
@@ -75,6 +103,7 @@ def _generate(p: argparse.ArgumentParser, a: argparse.Namespace, families: tuple
     if a.out.suffix not in (".yaml", ".yml"):
         p.error(f"--out {a.out}: the map's YAML file (NAME.yaml; the image is written beside it)")
     a.resolution = 0.05 if a.resolution is None else a.resolution
+    a.density = 0.16 if a.density is None else a.density
     grid = generate_map(a.width, a.height, a.resolution, a.seed, robot_radius=a.robot_radius,
                         density=a.density, margin=a.margin, name=a.out.stem)
     # Write the full command (defaults included) so the file can be regenerated bit for bit.
