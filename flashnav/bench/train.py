@@ -15,7 +15,7 @@ from rich.table import Table
 from flashnav.learn.hparams import paper_budget
 from flashnav.learn.progress import TrainProgress
 from flashnav.metrics import THRESHOLDS, over_seeds, within_budget
-from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, METRICS_FILE, RECIPE_CHOICES, ROBOTS
+from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, METRICS_FILE, RECIPE_CHOICES, RECIPE_HELP, ROBOTS
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -47,8 +47,8 @@ def add_run_choices(p: argparse.ArgumentParser) -> None:
     """The flags that choose what a training bench runs: --robots, --algos, --recipe, --device."""
     p.add_argument("--robots", default=DEFAULT_ROBOT, help=f"comma-separated presets ({', '.join(ROBOTS)} or YAML paths)")
     p.add_argument("--algos", default="fastdsac", help=f"comma-separated learners ({', '.join(ALGORITHMS)})")
-    p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES)
-    p.add_argument("--device", default="auto")
+    p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
+    p.add_argument("--device", default="auto", help="auto (default), cpu, cuda, cuda:N")
 
 
 def summarise(runs: list[dict], budget: int | None = None) -> dict:
