@@ -73,14 +73,16 @@ class Student(nn.Module):
     The head: ``bins=0``, tanh actions fitted by mean squared error (which averages two ways round a junction into
     one between them); ``bins=K``, a categorical over K evenly spaced values in [-1, 1] per action dimension,
     fitted by cross-entropy to two-hot labels (the label's weight split between the two nearest values), and
-    played at its mode (the most likely value, refined by the probability-weighted mean with its two neighbours):
-    a head that chooses one way round instead of averaging them."""
+    played (``decode``) at its mode (the most likely value, refined by the probability-weighted mean with its two
+    neighbours: a head that chooses one way round instead of averaging them) or at its mean (the average again,
+    but learnt by classification, which often trains better than regression: Farebrother et al., 2024)."""
 
     def __init__(self, layout: ObsLayout, kind: str, width: int = 256, bins: int = 0):
         super().__init__()
         if bins == 1 or bins < 0:
             raise ValueError(f"bins={bins}: 0 (a mean-squared head) or at least 2")
         self.kind, self.bins = kind, bins
+        self.decode = "mode"  # or "mean" (bins only)
         self.inp = IPAPRec(layout)
         self.enc = nn.Sequential(nn.Linear(layout.feature_dim, width), nn.ReLU())
         self.core = nn.GRU(width, width, batch_first=True) if kind == "gru" else nn.Sequential(
@@ -101,10 +103,12 @@ class Student(nn.Module):
         return (y.unflatten(-1, (2, self.bins)) if self.bins else torch.tanh(y)), h
 
     def actions(self, out: torch.Tensor) -> torch.Tensor:
-        """The head's outputs -> actions [..., 2]: the tanh actions, or each categorical's refined mode."""
+        """The head's outputs -> actions [..., 2]: the tanh actions, or each categorical's refined mode or mean."""
         if not self.bins:
             return out
         prob = out.softmax(-1)
+        if self.decode == "mean":
+            return (prob * self.centres).sum(-1)
         k = prob.argmax(-1, keepdim=True)
         near = (k + torch.arange(-1, 2)).clamp(0, self.bins - 1)  # the mode and its neighbours (repeated at an end)
         first = near == near.roll(1, -1)
@@ -302,9 +306,14 @@ def main() -> None:
             ev = evaluate(students[k])
             row[k] = {"collected_success": drove, "episodes": len(data[k]),
                       "steps": int(sum(len(o) for o, _ in data[k])), "loss": loss, "eval": ev}
+            said = f"evaluation mazes mean {ev['mean']:.1%}, worst {ev['worst']:.1%}"
+            if a.bins:  # the same network played at its mean too ("eval" is the mode)
+                students[k].decode = "mean"
+                ev = row[k]["eval_mean"] = evaluate(students[k])
+                students[k].decode = "mode"
+                said = f"{said} at the mode; at the mean {ev['mean']:.1%}, worst {ev['worst']:.1%}"
             print(f"[{time.perf_counter() - t0:.0f} s] round {rnd} {k}: driving {drove:.1%} while collecting, "
-                  f"{len(data[k])} episodes, loss {loss:.4f}; evaluation mazes mean {ev['mean']:.1%}, worst "
-                  f"{ev['worst']:.1%}", flush=True)
+                  f"{len(data[k])} episodes, loss {loss:.4f}; {said}", flush=True)
         log["rounds"].append(row)
         save()
     if a.json:

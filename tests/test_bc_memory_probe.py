@@ -78,6 +78,8 @@ def test_the_categorical_head_chooses_a_way_round_where_squared_error_averages()
         played[bins] = student.step(obs[:1, 0], None)[0][0]
     assert abs(played[0][1]) < 0.2 and abs(played[21][1]) > 0.6
     assert abs(played[0][0] - 0.5) < 0.05 and abs(played[21][0] - 0.5) < 0.05
+    student.decode = "mean"  # the categorical's mean: the average again
+    assert abs(student.step(obs[:1, 0], None)[0][0, 1]) < 0.2
     student = bc_memory_probe.Student(LAYOUT, "mlp", width=8, bins=5)
     for y in (-1.0, -0.7, 0.0, 0.3, 1.0):  # logits of the two-hot label itself: its mode decodes to y
         target = torch.tensor([y, y])
@@ -102,7 +104,7 @@ def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, ca
     assert set(doc["teacher"]["per_map"]) == {"maze"} and 0 <= doc["teacher"]["mean"] <= 1
     for k in ("mlp", "gru"):
         assert doc["rounds"][0][k]["episodes"] == 4 and doc["rounds"][1][k]["episodes"] == 8
-        assert set(doc["rounds"][1][k]["eval"]["per_map"]) == {"maze"}
+        assert set(doc["rounds"][1][k]["eval"]["per_map"]) == set(doc["rounds"][1][k]["eval_mean"]["per_map"]) == {"maze"}
     monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), "--train-seed", "799999"])
     with pytest.raises(SystemExit):
         bc_memory_probe.main()
