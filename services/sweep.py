@@ -177,19 +177,21 @@ def connect(address: str | None) -> bool:
 
     if ray.is_initialized():
         return False
+    source = "--address" if address else "RAY_ADDRESS"
     address = address or os.environ.get("RAY_ADDRESS")
     if address and address.startswith(("http://", "https://")):
         raise SweepError(f"{address} is a dashboard/jobs address: use `flashnav sweep submit --address {address}`; "
                          "`sweep run --address` takes the cluster address (HOST:6379 or auto)")
     if address:
-        check_reachable(address)
+        check_reachable(address, source)
     ray.init(address=address or "local", include_dashboard=False if not address else None)
     return True
 
 
-def check_reachable(address: str, timeout: float = 5.0) -> None:
-    """A SweepError naming ``address`` when nothing answers there within ``timeout`` seconds (Ray itself would
-    retry for minutes before it gives up). ``auto``/``local`` and addresses without a port are left to Ray."""
+def check_reachable(address: str, source: str = "--address", timeout: float = 5.0) -> None:
+    """A SweepError naming ``address`` (and where it came from, ``source``) when nothing answers there within
+    ``timeout`` seconds (Ray itself would retry for minutes before it gives up). ``auto``/``local`` and addresses
+    without a port are left to Ray."""
     import socket
 
     host, sep, port = address.removeprefix("ray://").rpartition(":")
@@ -198,8 +200,8 @@ def check_reachable(address: str, timeout: float = 5.0) -> None:
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
     except OSError as exc:
-        raise SweepError(f"--address {address}: no Ray cluster answers there ({exc.strerror or exc}); start one "
-                         "(`flashnav services up`, or `ray start --head` on that machine) or drop --address to run "
+        raise SweepError(f"{source} {address}: no Ray cluster answers there ({exc.strerror or exc}); start one "
+                         f"(`flashnav services up`, or `ray start --head` on that machine) or drop {source} to run "
                          "in-process here") from None
 
 

@@ -298,3 +298,6 @@ def test_an_address_where_nothing_answers_is_named_before_ray_waits(monkeypatch)
         server.listen()
         check_reachable(f"ray://127.0.0.1:{server.getsockname()[1]}")
     check_reachable("auto")  # left to Ray
+    monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{port}")  # from the environment: named as such
+    with pytest.raises(SweepError, match=rf"RAY_ADDRESS 127\.0\.0\.1:{port}: no Ray .* or drop RAY_ADDRESS to run"):
+        connect(None)
