@@ -7,12 +7,12 @@ import time
 
 import numpy as np
 
-from flashnav.names import DEFAULT_ROBOT, ROBOTS, seed_arg
+from flashnav.names import DEFAULT_ROBOT, ROBOT_HELP, seed_arg
 
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the simulator with the map-aware oracle controller and draw trajectories")
-    p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"{', '.join(ROBOTS)} or a preset YAML (default {DEFAULT_ROBOT})")
+    p.add_argument("--robot", default=DEFAULT_ROBOT, help=ROBOT_HELP)
     p.add_argument("--map", default=None, help="ROS map YAML (default: the preset's bundled map)")
     p.add_argument("--envs", type=int, default=16, help="parallel environments (one episode each)")
     p.add_argument("--seed", type=seed_arg, default=0)

@@ -26,6 +26,10 @@ ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "Fa
 RECIPES = ("paper", "cpu", "paper-mirror", "generalist", "crowd")
 #: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
 RECIPE_CHOICES = ("auto", *RECIPES)
+#: What ``--robot`` takes, for help texts.
+ROBOT_HELP = f"{', '.join(ROBOTS)} or a preset YAML (default {DEFAULT_ROBOT})"
+#: What a ``--device`` that defaults to ``auto`` takes, for help texts.
+DEVICE_HELP = "auto (default), cpu, cuda, cuda:N"
 #: The choices in one line, for help texts (``--recipe``, ``TrainConfig.recipe``).
 RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC, and FastSAC and "
                "FastTD3 on TurtleBot2: paper + 5-step returns, gamma 0.99, mirrored replay; TurtleBot2: goal angle as sin/cos), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also "

@@ -15,7 +15,7 @@ from rich.table import Table
 from flashnav.learn.hparams import paper_budget
 from flashnav.learn.progress import TrainProgress
 from flashnav.metrics import THRESHOLDS, over_seeds, within_budget
-from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, METRICS_FILE, RECIPE_CHOICES, RECIPE_HELP, ROBOTS
+from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, DEVICE_HELP, METRICS_FILE, RECIPE_CHOICES, RECIPE_HELP, ROBOTS
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -48,7 +48,7 @@ def add_run_choices(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robots", default=DEFAULT_ROBOT, help=f"comma-separated presets ({', '.join(ROBOTS)} or YAML paths)")
     p.add_argument("--algos", default="fastdsac", help=f"comma-separated learners ({', '.join(ALGORITHMS)})")
     p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
-    p.add_argument("--device", default="auto", help="auto (default), cpu, cuda, cuda:N")
+    p.add_argument("--device", default="auto", help=DEVICE_HELP)
 
 
 def summarise(runs: list[dict], budget: int | None = None) -> dict:

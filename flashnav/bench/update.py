@@ -27,7 +27,7 @@ from typing import Any, Callable
 from rich.console import Console
 from rich.table import Table
 
-from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, RECIPE_CHOICES, RECIPE_HELP, ROBOTS
+from flashnav.names import ALGORITHMS, DEFAULT_ROBOT, DEVICE_HELP, RECIPE_CHOICES, RECIPE_HELP, ROBOT_HELP
 
 #: ``--ways`` values: eager, or a torch.compile mode ("default" is torch's default mode).
 WAYS = ("eager", "bf16-autocast", "cuda-graph", "default", "reduce-overhead", "max-autotune",
@@ -43,10 +43,10 @@ GRAPH_WAYS = ("cuda-graph",)
 def register_cli(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("update", help="ms per learner update: eager vs torch.compile modes, bf16, CUDA graph")
     p.add_argument("--robot", default=DEFAULT_ROBOT,
-                   help=f"{', '.join(ROBOTS)} or a preset YAML (default {DEFAULT_ROBOT}): sets the networks' input size")
+                   help=ROBOT_HELP + ": sets the networks' input size")
     p.add_argument("--algo", default="fastdsac", choices=ALGORITHMS, help="learner (default fastdsac)")
     p.add_argument("--recipe", default="auto", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
-    p.add_argument("--device", default="auto", help="auto (default), cpu, cuda, cuda:N")
+    p.add_argument("--device", default="auto", help=DEVICE_HELP)
     p.add_argument("--ways", default="eager,default", help=f"comma-separated, from {', '.join(WAYS)}")
     p.add_argument("--seconds", type=float, default=10.0, help="timed seconds per way (after warm-up)")
     p.add_argument("--warmup", type=int, default=24, help="untimed updates per way (compilation happens here)")

@@ -8,7 +8,7 @@ import math
 import sys
 
 from flashnav.deploy.scan import Mount
-from flashnav.names import DEFAULT_ROBOT, EVAL_SEED, GOAL_SAMPLINGS, ROBOTS, seed_arg
+from flashnav.names import DEFAULT_ROBOT, EVAL_SEED, GOAL_SAMPLINGS, ROBOT_HELP, seed_arg
 
 
 def _floats(n: int, name: str):
@@ -67,7 +67,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     q.set_defaults(func=run_ros)
 
     q = dsub.add_parser("sim-robot", help="the simulator as a robot behind ROS 1 topics (closed-loop harness)")
-    q.add_argument("--robot", default=DEFAULT_ROBOT, help=f"{', '.join(ROBOTS)} or a preset YAML (default {DEFAULT_ROBOT})")
+    q.add_argument("--robot", default=DEFAULT_ROBOT, help=ROBOT_HELP)
     q.add_argument("--map", default=None, help="ROS map YAML or bundled map name (default: the robot's map)")
     q.add_argument("--episodes", type=int, default=0,
                    help="play the start/goal pairs of `flashnav eval --episodes N --seed S` (default 0: free running)")

@@ -15,7 +15,7 @@ from rich.table import Table
 
 from flashnav.learn.artefacts import RUN_FILES, save_run
 from flashnav.learn.progress import TrainProgress
-from flashnav.names import (ALGORITHMS, DEFAULT_ROBOT, RECIPE_CHOICES, RECIPE_HELP, ROBOTS, SNAPSHOT_STOP_REASON,
+from flashnav.names import (ALGORITHMS, DEVICE_HELP, RECIPE_CHOICES, RECIPE_HELP, ROBOT_HELP, SNAPSHOT_STOP_REASON,
                             THRESHOLDS, seed_arg)
 from flashnav.spec import TrainConfig, config_from_cli, resolve, run_request
 
@@ -25,10 +25,10 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                        description="Train a policy; writes config.yaml, metrics.json, checkpoint.pt, "
                                    "policy.pt (TorchScript), policy.onnx and policy.json (a readable copy of the "
                                    "metadata both policy files embed: robot, sensor layout, observation) to --out.")
-    p.add_argument("--robot", help=f"{', '.join(ROBOTS)} or a preset YAML (default {DEFAULT_ROBOT})")
+    p.add_argument("--robot", help=ROBOT_HELP)
     p.add_argument("--algo", dest="algorithm", choices=ALGORITHMS, help="learner (default fastdsac)")
     p.add_argument("--recipe", choices=RECIPE_CHOICES, help="hyperparameters: " + RECIPE_HELP)
-    p.add_argument("--device", help="auto (default), cpu, cuda, cuda:N")
+    p.add_argument("--device", help=DEVICE_HELP)
     p.add_argument("--map", help="ROS map YAML (default: the preset's bundled map)")
     p.add_argument("--maps", metavar="DIR_OR_GLOB",
                    help="train over many maps: a directory or glob pattern of ROS map YAML files (quote the "
