@@ -12,16 +12,20 @@ from rich.table import Table
 
 from flashnav.names import DEFAULT_ROBOT, RAYCASTERS, ROBOTS, parse_names
 
+#: `bench sim`'s defaults for the flags that --quick replaces (None on the parser: given or not is told apart).
+SIM_DEFAULTS = {"robots": ",".join(ROBOTS), "num_envs": "1,64,1024", "seconds": 2.0}
+
 
 def register_cli(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmarks (simulator, evaluation, training)")
     bsub = bench.add_subparsers(dest="bench_command", metavar="BENCH")
     p = bsub.add_parser("sim", help="simulator env-steps/s per raycaster x num_envs x robot, vs the paper's march and ir-sim")
-    p.add_argument("--robots", default=None, help=f"comma-separated presets (default {','.join(ROBOTS)})")
+    p.add_argument("--robots", default=None, help=f"comma-separated presets (default {SIM_DEFAULTS['robots']})")
     p.add_argument("--raycasters", default="exact,exact-torch,march", help="comma-separated raycasters")
-    p.add_argument("--num-envs", default=None, help="comma-separated batch sizes (default 1,64,1024)")
+    p.add_argument("--num-envs", default=None, help=f"comma-separated batch sizes (default {SIM_DEFAULTS['num_envs']})")
     p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N")
-    p.add_argument("--seconds", type=float, default=None, help="minimum timed seconds per row (default 2)")
+    p.add_argument("--seconds", type=float, default=None,
+                   help=f"minimum timed seconds per row (default {SIM_DEFAULTS['seconds']:g})")
     p.add_argument("--max-steps", type=int, default=2000, help="maximum timed steps per row")
     p.add_argument("--no-irsim", action="store_true", help="skip the ir-sim peer")
     p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
@@ -81,9 +85,9 @@ def run_sim(args) -> int:
             raise ValueError(f"--quick runs {DEFAULT_ROBOT}, 64 envs and 0.5-s rows: drop {' and '.join(given)} "
                              "(or --quick)")
         args.robots, args.num_envs, args.seconds = DEFAULT_ROBOT, "64", 0.5
-    args.robots = ",".join(ROBOTS) if args.robots is None else args.robots
-    args.num_envs = "1,64,1024" if args.num_envs is None else args.num_envs
-    args.seconds = 2.0 if args.seconds is None else args.seconds
+    for key, default in SIM_DEFAULTS.items():
+        if getattr(args, key) is None:
+            setattr(args, key, default)
     robots = _csv(args.robots)
     try:
         sizes = _csv(args.num_envs, int)
