@@ -109,12 +109,9 @@ class Student(nn.Module):
         prob = out.softmax(-1)
         if self.decode == "mean":
             return (prob * self.centres).sum(-1)
-        k = prob.argmax(-1, keepdim=True)
-        near = (k + torch.arange(-1, 2)).clamp(0, self.bins - 1)  # the mode and its neighbours (repeated at an end)
-        first = near == near.roll(1, -1)
-        first[..., 0] = False
-        w = prob.gather(-1, near) * ~first  # an end's mode counted once
-        return (w * self.centres[near]).sum(-1) / w.sum(-1)
+        near = prob.argmax(-1, keepdim=True) + torch.arange(3)  # the mode and its neighbours, in the padded bins
+        w = nn.functional.pad(prob, (1, 1)).gather(-1, near)  # no weight beyond an end
+        return (w * nn.functional.pad(self.centres, (1, 1))[near]).sum(-1) / w.sum(-1)
 
     def loss(self, out: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
         """Per step [B, T]: the squared action error, or the two action dimensions' cross-entropies to two-hot
@@ -229,7 +226,8 @@ def main() -> None:
     p.add_argument("--models", default="mlp,gru", help="comma-separated: mlp, gru")
     p.add_argument("--bins", type=int, default=0,
                    help="the students' head: 0, tanh actions by mean squared error; K >= 2, a categorical over K "
-                        "values per action dimension (cross-entropy to two-hot labels, played at its mode)")
+                        "values per action dimension (cross-entropy to two-hot labels, played at its mode and at "
+                        "its mean)")
     p.add_argument("--sectors", type=int, default=None,
                    help="the students' pooled LiDAR sectors (default: the preset's 30; 1,080 beams must divide by it)")
     p.add_argument("--seed", type=int, default=0, help="seeds the networks, the shuffles and the mixing")
@@ -244,8 +242,6 @@ def main() -> None:
     for m in a.eval_maps:
         if not Path(m).is_file():
             p.error(f"evaluation map {m}: no such file")
-    if a.bins == 1 or a.bins < 0:
-        p.error(f"--bins {a.bins}: 0 (a mean-squared head) or at least 2")
     if a.rounds == 0 and a.no_teacher_eval:
         p.error("--rounds 0 with --no-teacher-eval: nothing to do")
     last_seed = a.train_seed + a.rounds * a.train_maps - 1
@@ -266,7 +262,10 @@ def main() -> None:
     torch.manual_seed(a.seed)
     rng = np.random.default_rng(a.seed)
     preset, layout = task(a.sectors)
-    students = {k: Student(layout, k, a.width, a.bins) for k in kinds}
+    try:  # Student checks --bins
+        students = {k: Student(layout, k, a.width, a.bins) for k in kinds}
+    except ValueError as exc:
+        p.error(f"--bins: {exc}")
     data: dict[str, list] = {k: [] for k in kinds}
     log: dict = {"args": vars(a), "rounds": []}
     t0 = time.perf_counter()
