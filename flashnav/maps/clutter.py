@@ -29,6 +29,7 @@ from scipy import ndimage
 from flashnav.maps.grid import OccupancyMap
 
 BORDER_M = 0.15  # border wall thickness, metres (3 cells at 0.05 m; at least 2 cells: border_cells)
+MAX_DENSITY = 0.5  # the occupied fraction a generated map stays below (``density`` in [0, MAX_DENSITY))
 MAX_ATTEMPTS = 4000  # candidate obstacles tried before giving up on reaching ``density``
 # Shape mix and sizes, metres, for a passage half-width (robot_radius + margin) of REFERENCE_HALF_GAP;
 # sizes grow with the square root of the half-width so that wider passages still leave clutter. They
@@ -76,8 +77,8 @@ def generate_map(
             raise ValueError(f"{label} must be a positive number of metres, got {v!r}")
     if not (robot_radius >= 0 and margin >= 0):
         raise ValueError(f"robot_radius and margin must be >= 0 metres, got {robot_radius}, {margin}")
-    if not 0 <= density < 0.5:
-        raise ValueError(f"density must be in [0, 0.5), got {density}")
+    if not 0 <= density < MAX_DENSITY:
+        raise ValueError(f"density must be in [0, {MAX_DENSITY:g}), got {density}")
     rows, cols = round(height_m / resolution), round(width_m / resolution)
     border = border_cells(resolution)
     # Centre-to-centre cell distance between two obstacles: the free gap between the cell squares

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from flashnav.maps.clutter import BORDER_M, connect_free_space, generate_map  # noqa: F401 (the API of old)
-from flashnav.maps.clutter import border_cells
+from flashnav.maps.clutter import MAX_DENSITY, border_cells
 from flashnav.maps.grid import OccupancyMap
 from flashnav.names import seed_arg
 
@@ -43,8 +43,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--robot-radius", type=float, default=0.3,
                    help="radius of the disc every passage must fit, metres: circumscribed radius + clearance")
     p.add_argument("--density", type=float,
-                   help="without --family: target occupied fraction of the interior, in [0, 0.5) (default 0.16); "
-                        "the families draw their own")
+                   help=f"without --family: target occupied fraction of the interior, in [0, {MAX_DENSITY:g}) "
+                        "(default 0.16); the families draw their own")
     p.add_argument("--margin", type=float, default=0.1, help="extra passage width on each side of the disc, metres")
     p.add_argument("--format", choices=("pgm", "png"), default="pgm", help="image format (default pgm)")
     p.add_argument("--out", type=Path, required=True,
@@ -76,8 +76,8 @@ def _check_numbers(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
     if a.density is not None:
         if a.family:
             p.error("--density applies to the single cluttered map (without --family); each family draws its own")
-        if bad(a.density, lambda x: 0 <= x < 0.5):
-            p.error(f"--density {a.density:g}: the occupied fraction must be in [0, 0.5)")
+        if bad(a.density, lambda x: 0 <= x < MAX_DENSITY):
+            p.error(f"--density {a.density:g}: the occupied fraction must be in [0, {MAX_DENSITY:g})")
 
 
 def _generate(p: argparse.ArgumentParser, a: argparse.Namespace, families: tuple[str, ...]) -> None:
