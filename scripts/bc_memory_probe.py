@@ -1,7 +1,8 @@
 """Can a recurrent policy on the policy's own observation solve fresh mazes? A behaviour-cloning probe (issue 15).
 
     .venv/bin/python scripts/bc_memory_probe.py EVAL_MAZE_YAML [...] [--train-maps 48] [--episodes 32]
-        [--rounds 3] [--epochs 6] [--eval-episodes 64] [--models mlp,gru] [--bins K] [--json OUT]
+        [--rounds 3] [--epochs 6] [--eval-episodes 64] [--models mlp,gru] [--bins K]
+        [--wall-map CELLS [--wall-cell M] [--map-encoder cnn|flat]] [--json OUT]
 
 Every reactive generalist fails issue 15's held-out mazes the same way (82-87 %, every failure a wrong turn,
 "wandered"), where the optimistic mapless planner (`scripts/mapless_planner.py`: it remembers the walls its scans
@@ -25,6 +26,13 @@ If the GRU reaches the planner and the MLP stays where the reactive RL policies 
 worth the recurrent learner; if both stay there, the observation (pooled sectors) or the imitation is the limit and
 the recurrent learner alone would not close the gap. Supervised learning is the easier problem: a recurrent RL
 learner can do no better than its architecture's imitation ceiling suggests, and may do worse.
+
+``--wall-map CELLS`` asks the next question, whether a richer input closes the gap where recurrence did not: the
+students also see an egocentric map of the walls the robot's scans have hit (:class:`WallMap`: the teacher's own
+memory, CELLS x CELLS squares around the robot, turned with it, and the goal's square), read by a small
+convolutional (or one dense) encoder. If a student with the map imitates the teacher closely, a wall-map
+observation is worth building into the simulator and the learners; if not, the map alone does not carry what the
+teacher's planning does.
 """
 
 from __future__ import annotations
@@ -46,6 +54,7 @@ from mapless_planner import MaplessPlanner  # noqa: E402  (the teacher)
 
 from flashnav.eval_maps import fixed_episodes  # noqa: E402
 from flashnav.learn.features import IPAPRec, ObsLayout  # noqa: E402
+from flashnav.guidance import EnvScans  # noqa: E402
 from flashnav.maps.families import generate_family  # noqa: E402
 from flashnav.maps.ros import load_ros_map  # noqa: E402
 from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
@@ -54,6 +63,50 @@ from flashnav.sim.env import make_env  # noqa: E402
 from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
 
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
+ENCODERS = ("flat", "cnn")  # how a student reads the wall map (--map-encoder)
+
+
+@dataclasses.dataclass(frozen=True)
+class WallMap:
+    """An egocentric map of the walls the robot's scans have hit (the teacher's own memory,
+    :class:`flashnav.mapless.SeenWalls`), as a student's extra input: ``cells`` x ``cells`` squares of ``cell``
+    metres, centred on the robot and turned with its heading (row = left, column = forward), two channels:
+    1 where a remembered wall cell's centre falls in the square (else 0), and 1 in the goal's square (clipped onto
+    the map's edge when farther). Unknown reads as free, as the teacher plans it (optimistic)."""
+
+    cells: int
+    cell: float
+
+    def __post_init__(self) -> None:
+        if self.cells < 2 or not (math.isfinite(self.cell) and self.cell > 0):
+            raise ValueError(f"wall map: at least 2 cells a side of > 0 metres, got {self.cells} x {self.cell}")
+
+    @property
+    def size(self) -> int:
+        return 2 * self.cells * self.cells
+
+    def _squares(self, xy: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, column) of points ``xy`` [k, 2] seen from poses [k, 3]; outside the map: < 0 or >= cells."""
+        d = xy - pose[:, :2]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        fwd, left = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+        half = self.cells * self.cell / 2
+        return (np.floor((left + half) / self.cell).astype(np.int64),
+                np.floor((fwd + half) / self.cell).astype(np.int64))
+
+    def features(self, known: np.ndarray, grid, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """[N, 2 cells^2] float32 for N slots' remembered walls ``known`` [N, H, W] on ``grid``'s cells, poses
+        [N, 3] and goals [N, 2] (the grid's frame)."""
+        n, k = len(pose), self.cells
+        out = np.zeros((n, 2, k, k), dtype=np.float32)
+        slot, i, j = np.nonzero(known)
+        x, y = grid.cell_centres(i, j)
+        r, c = self._squares(np.stack([x, y], axis=1), pose[slot])
+        inside = (r >= 0) & (r < k) & (c >= 0) & (c < k)
+        out[slot[inside], 0, r[inside], c[inside]] = 1.0
+        r, c = self._squares(goal, pose)
+        out[np.arange(n), 1, np.clip(r, 0, k - 1), np.clip(c, 0, k - 1)] = 1.0
+        return out.reshape(n, -1)
 
 
 def task(sectors: int | None = None):
@@ -77,14 +130,30 @@ class Student(nn.Module):
     neighbours: a head that chooses one way round instead of averaging them) or at its mean (the average again,
     but learnt by classification, which often trains better than regression: Farebrother et al., 2024)."""
 
-    def __init__(self, layout: ObsLayout, kind: str, width: int = 256, bins: int = 0):
+    def __init__(self, layout: ObsLayout, kind: str, width: int = 256, bins: int = 0, wall_map: WallMap | None = None,
+                 encoder: str = "flat"):
         super().__init__()
         if bins == 1 or bins < 0:
             raise ValueError(f"bins={bins}: 0 (a mean-squared head) or at least 2")
-        self.kind, self.bins = kind, bins
+        if encoder not in ENCODERS:
+            raise ValueError(f"map encoder {encoder!r}: one of {', '.join(ENCODERS)}")
+        self.kind, self.bins, self.wall_map = kind, bins, wall_map
         self.decode = "mode"  # or "mean" (bins only)
         self.inp = IPAPRec(layout)
-        self.enc = nn.Sequential(nn.Linear(layout.feature_dim, width), nn.ReLU())
+        extra = 0
+        if wall_map is not None:  # the wall map's own encoder, its features joined to IPAPRec's
+            k = wall_map.cells
+            if encoder == "flat":
+                self.map_enc = nn.Sequential(nn.Flatten(), nn.Linear(wall_map.size, width), nn.ReLU())
+            else:  # two stride-2 convolutions: each output sees 7 x 7 squares
+                side = (k + 1) // 2
+                side = (side + 1) // 2
+                self.map_enc = nn.Sequential(
+                    nn.Conv2d(2, 16, 3, padding=1), nn.ReLU(), nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU(),
+                    nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten(),
+                    nn.Linear(32 * side * side, width), nn.ReLU())
+            extra = width
+        self.enc = nn.Sequential(nn.Linear(layout.feature_dim + extra, width), nn.ReLU())
         self.core = nn.GRU(width, width, batch_first=True) if kind == "gru" else nn.Sequential(
             nn.Linear(width, width), nn.ReLU())
         self.head = nn.Linear(width, 2 * bins if bins else 2)
@@ -92,9 +161,14 @@ class Student(nn.Module):
             self.register_buffer("centres", torch.linspace(-1.0, 1.0, bins))
 
     def outputs(self, obs: torch.Tensor, h: torch.Tensor | None = None):
-        """obs [B, T, D] -> the head's outputs (tanh actions [B, T, 2], or logits [B, T, 2, K]), last hidden state
-        (None for the MLP)."""
-        x = self.enc(self.inp(obs))
+        """obs [B, T, D (+ the wall map's columns)] -> the head's outputs (tanh actions [B, T, 2], or logits
+        [B, T, 2, K]), last hidden state (None for the MLP)."""
+        if self.wall_map is None:
+            x = self.enc(self.inp(obs))
+        else:
+            k, m = self.wall_map.cells, self.wall_map.size
+            maps = obs[..., -m:].reshape(-1, 2, k, k)
+            x = self.enc(torch.cat([self.inp(obs[..., :-m]), self.map_enc(maps).reshape(*obs.shape[:-1], -1)], -1))
         if self.kind == "gru":
             x, h = self.core(x, h)
         else:
@@ -138,7 +212,7 @@ class Student(nn.Module):
 
 
 def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: float, rng: np.random.Generator,
-         fixed: bool, teach: bool = True) -> dict:
+         fixed: bool, teach: bool = True, wall_map: WallMap | None = None) -> dict:
     """``episodes`` episodes on ``grid`` (one per slot): the teacher labels every step of every slot until its
     episode ends; who drives: the teacher with probability ``mix`` per step, else the student (None: always the
     teacher). ``fixed``: `flashnav eval --maps`'s fixed episodes (seed ``seed``), else the env's draws with
@@ -152,6 +226,19 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
     teacher = MaplessPlanner(env) if teach else None
     if teacher is not None:
         teacher.plan_all()
+    source, walls = None, None
+    if wall_map is not None:  # the teacher's memory, or (no teacher) the same memory kept without planning
+        source = teacher.source if teacher is not None else EnvScans(env)
+        walls = teacher.walls if teacher is not None else source.walls()
+        if teacher is None:
+            walls.mark(np.arange(episodes), *source.scans(np.arange(episodes)))
+
+    def observed(obs: torch.Tensor) -> torch.Tensor:
+        if wall_map is None:
+            return obs
+        every = np.arange(episodes)
+        feats = wall_map.features(walls.known, walls.grid, env.pose.cpu().numpy().astype(np.float64), source.goals(every))
+        return torch.cat([obs, torch.from_numpy(feats)], 1)
     h = None
     done = np.zeros(episodes, dtype=bool)
     success, collision = np.zeros(episodes, dtype=bool), np.zeros(episodes, dtype=bool)
@@ -159,6 +246,7 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
     lengths = np.full(episodes, preset.episode.horizon)
     for t in range(preset.episode.horizon):
         label = teacher.act() if teacher is not None else torch.zeros(episodes, 2)
+        obs = observed(obs)
         obs_seq.append(obs.clone())
         lab_seq.append(label.clone())
         if student is None:
@@ -177,27 +265,45 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
             break
         if teacher is not None:
             teacher.update(np.nonzero(~done)[0])
+        elif walls is not None:
+            running = np.nonzero(~done)[0]
+            walls.mark(running, *source.scans(running))
     obs_t, lab_t = torch.stack(obs_seq, 1), torch.stack(lab_seq, 1)  # [N, T, D], [N, T, 2]
     seqs = [(obs_t[i, : lengths[i]], lab_t[i, : lengths[i]]) for i in range(episodes)]
     return {"seqs": seqs, "success": success, "collision": collision}
 
 
 def train(student: Student, data: list[tuple[torch.Tensor, torch.Tensor]], epochs: int, batch: int,
-          lr: float, rng: np.random.Generator) -> float:
+          lr: float, rng: np.random.Generator, tell=None, steps: bool = False) -> float:
     """Supervised epochs over episode sequences (padded; a mask drops the padding): the student's loss (mean
-    squared action error, or the categorical head's cross-entropy)."""
+    squared action error, or the categorical head's cross-entropy). ``steps`` (feed-forward students only):
+    minibatches of shuffled steps instead, as many steps each as ``batch`` episodes hold on the mean (the same
+    loss, without the padding's cost). ``tell(epoch, loss)``, if given, after each epoch."""
+    if steps and student.kind != "mlp":
+        raise ValueError(f"training on shuffled steps needs a feed-forward student, got {student.kind!r}")
     opt = torch.optim.Adam(student.parameters(), lr=lr)
-    order = np.arange(len(data))
+    if steps:
+        all_obs, all_lab = torch.cat([o for o, _ in data]), torch.cat([a for _, a in data])
+        size = max(1, round(batch * len(all_obs) / len(data)))
+        order = np.arange(len(all_obs))
+    else:
+        order = np.arange(len(data))
+        size = batch
     last = float("nan")
-    for _ in range(epochs):
+    for epoch in range(epochs):
         rng.shuffle(order)
         losses = []
-        for k in range(0, len(order), batch):
-            part = [data[i] for i in order[k:k + batch]]
-            t_max = max(len(o) for o, _ in part)
-            obs = torch.stack([torch.cat([o, o[-1:].expand(t_max - len(o), -1)]) for o, _ in part])
-            lab = torch.stack([torch.cat([a, a[-1:].expand(t_max - len(a), -1)]) for _, a in part])
-            mask = torch.stack([torch.arange(t_max) < len(o) for o, _ in part]).float()
+        for k in range(0, len(order), size):
+            if steps:
+                take = torch.as_tensor(order[k:k + size])
+                obs, lab = all_obs[take][None], all_lab[take][None]
+                mask = torch.ones(lab.shape[:2])
+            else:
+                part = [data[i] for i in order[k:k + size]]
+                t_max = max(len(o) for o, _ in part)
+                obs = torch.stack([torch.cat([o, o[-1:].expand(t_max - len(o), -1)]) for o, _ in part])
+                lab = torch.stack([torch.cat([a, a[-1:].expand(t_max - len(a), -1)]) for _, a in part])
+                mask = torch.stack([torch.arange(t_max) < len(o) for o, _ in part]).float()
             out, _ = student.outputs(obs)
             loss = (student.loss(out, lab) * mask).sum() / mask.sum()
             opt.zero_grad()
@@ -206,6 +312,8 @@ def train(student: Student, data: list[tuple[torch.Tensor, torch.Tensor]], epoch
             opt.step()
             losses.append(loss.item())
         last = float(np.mean(losses))
+        if tell is not None:
+            tell(epoch + 1, last)
     return last
 
 
@@ -230,6 +338,17 @@ def main() -> None:
                         "its mean)")
     p.add_argument("--sectors", type=int, default=None,
                    help="the students' pooled LiDAR sectors (default: the preset's 30; 1,080 beams must divide by it)")
+    p.add_argument("--wall-map", type=int, default=0, metavar="CELLS",
+                   help="give the students an egocentric map of the walls their scans have hit (the teacher's own "
+                        "memory), CELLS x CELLS squares of --wall-cell metres, and the goal's square (default 0: none)")
+    p.add_argument("--wall-cell", type=float, default=0.5, metavar="M", help="the wall map's square, metres (default 0.5)")
+    p.add_argument("--map-encoder", default="cnn", choices=ENCODERS,
+                   help="how the students read the wall map: a ReLU layer over its squares, or two stride-2 "
+                        "convolutions first (default cnn)")
+    p.add_argument("--step-batches", action="store_true",
+                   help="train the MLP on minibatches of shuffled steps (as many as --batch episodes hold on the "
+                        "mean) instead of padded episodes: the same loss, faster (default: padded episodes, as the "
+                        "GRU needs)")
     p.add_argument("--seed", type=int, default=0, help="seeds the networks, the shuffles and the mixing")
     p.add_argument("--no-teacher-eval", action="store_true",
                    help="skip the teacher's own evaluation on the evaluation mazes (the students' ceiling)")
@@ -262,8 +381,12 @@ def main() -> None:
     torch.manual_seed(a.seed)
     rng = np.random.default_rng(a.seed)
     preset, layout = task(a.sectors)
+    try:
+        wall_map = WallMap(a.wall_map, a.wall_cell) if a.wall_map else None
+    except ValueError as exc:
+        p.error(f"--wall-map / --wall-cell: {exc}")
     try:  # Student checks --bins
-        students = {k: Student(layout, k, a.width, a.bins) for k in kinds}
+        students = {k: Student(layout, k, a.width, a.bins, wall_map, a.map_encoder) for k in kinds}
     except ValueError as exc:
         p.error(f"--bins: {exc}")
     data: dict[str, list] = {k: [] for k in kinds}
@@ -279,7 +402,7 @@ def main() -> None:
         per_map = {}
         for m, grid in zip(a.eval_maps, eval_grids):
             r = play(preset, grid, a.eval_episodes, EVAL_SEED, student, 0.0 if student else 1.0, rng, fixed=True,
-                     teach=student is None)
+                     teach=student is None, wall_map=wall_map if student else None)
             per_map[Path(m).stem] = float(r["success"].mean())
         return {"mean": float(np.mean(list(per_map.values()))), "worst": min(per_map.values()), "per_map": per_map}
 
@@ -295,13 +418,19 @@ def main() -> None:
         row: dict = {"round": rnd, "mix": mix if rnd else 1.0}
         grids = [(s, generate_family("mazes", s, robot_radius=0.3)) for s in seeds]  # the round's mazes, once
         if rnd == 0:  # the teacher drives: the same data for every student
-            shared = [play(preset, grid, a.episodes, s, None, 1.0, rng, fixed=False) for s, grid in grids]
+            shared = [play(preset, grid, a.episodes, s, None, 1.0, rng, fixed=False, wall_map=wall_map)
+                      for s, grid in grids]
         for k in kinds:
-            runs = shared if rnd == 0 else [play(preset, grid, a.episodes, s, students[k], mix, rng, fixed=False)
-                                            for s, grid in grids]
+            runs = shared if rnd == 0 else [play(preset, grid, a.episodes, s, students[k], mix, rng, fixed=False,
+                                                 wall_map=wall_map) for s, grid in grids]
             data[k] += [q for r in runs for q in r["seqs"]]
             drove = float(np.mean([r["success"].mean() for r in runs]))
-            loss = train(students[k], data[k], a.epochs, a.batch, a.lr, rng)
+            def tell(epoch: int, loss: float, k: str = k) -> None:  # progress on the long part
+                if epoch % 10 == 0 and epoch < a.epochs:
+                    print(f"[{time.perf_counter() - t0:.0f} s] round {rnd} {k}: epoch {epoch}/{a.epochs}, loss {loss:.4f}",
+                          flush=True)
+
+            loss = train(students[k], data[k], a.epochs, a.batch, a.lr, rng, tell, a.step_batches and k == "mlp")
             ev = evaluate(students[k])
             row[k] = {"collected_success": drove, "episodes": len(data[k]),
                       "steps": int(sum(len(o) for o, _ in data[k])), "loss": loss, "eval": ev}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -61,6 +62,30 @@ def test_a_student_steps_as_it_reads_sequences_and_learns_its_labels(kind, bins)
     first = bc_memory_probe.train(student, data, 1, 3, 1e-3, rng)
     last = bc_memory_probe.train(student, data, 150, 3, 3e-3, rng)
     assert last < 0.5 * first
+    if kind == "gru":
+        with pytest.raises(ValueError, match="feed-forward student"):
+            bc_memory_probe.train(student, data, 1, 3, 1e-3, rng, steps=True)
+
+
+def test_step_batches_train_the_loss_over_real_steps_only():
+    """Shuffled-step minibatches fit the same loss as padded episodes: on one full batch (every step at once) the
+    first gradient step is the same whichever way the steps are laid out; episodes of different lengths keep
+    their padding out of the loss."""
+    torch.manual_seed(0)
+    obs = torch.rand(3, 12, LAYOUT.obs_dim) * 4 + 0.5
+    labels = torch.tanh(obs[..., :2] - 2)
+    data = [(obs[0], labels[0]), (obs[1, :5], labels[1, :5]), (obs[2, :9], labels[2, :9])]
+    nets = []
+    for steps in (False, True):
+        torch.manual_seed(1)
+        student = bc_memory_probe.Student(LAYOUT, "mlp", width=16)
+        seen = []
+        bc_memory_probe.train(student, data, 1, 3, 1e-2, np.random.default_rng(0), lambda e, loss: seen.append(loss),
+                              steps=steps)
+        nets.append((student, seen[0]))
+    assert nets[0][1] == pytest.approx(nets[1][1], rel=1e-5)  # the loss before the step: the mean over 26 steps
+    for a, b in zip(nets[0][0].parameters(), nets[1][0].parameters()):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
 
 
 def test_the_categorical_head_chooses_a_way_round_where_squared_error_averages():
@@ -91,6 +116,72 @@ def test_the_categorical_head_chooses_a_way_round_where_squared_error_averages()
         torch.testing.assert_close(student.actions(prob.clamp_min(1e-9).log()), target, atol=1e-6, rtol=0)
     with pytest.raises(ValueError, match="bins=1"):
         bc_memory_probe.Student(LAYOUT, "mlp", bins=1)
+
+
+def test_the_wall_map_against_a_cell_by_cell_reference():
+    """Every remembered wall cell's centre, turned into the robot frame one at a time, lands in the square the
+    vectorised map marks (and nothing else is marked); the goal's square is marked, clipped onto the edge when
+    farther; a pose turned by 90 degrees turns the map with it."""
+    from flashnav.maps.grid import OccupancyMap
+
+    rng = np.random.default_rng(3)
+    grid = OccupancyMap(occupied=np.zeros((40, 60), dtype=bool), resolution=0.1, origin=(-1.0, 0.5))
+    known = rng.random((3, 40, 60)) < 0.05
+    pose = np.array([[1.0, 2.0, 0.3], [2.5, 1.5, -2.0], [0.0, 4.0, math.pi / 2]])
+    goal = np.array([[1.5, 2.5], [2.5 + 30 * math.cos(-2.0), 1.5 + 30 * math.sin(-2.0)], [0.1, 4.6]])
+    wm = bc_memory_probe.WallMap(8, 0.35)
+    got = wm.features(known, grid, pose, goal).reshape(3, 2, 8, 8)
+    want = np.zeros_like(got)
+    half = 8 * 0.35 / 2
+    for n in range(3):
+        c, s = math.cos(pose[n, 2]), math.sin(pose[n, 2])
+        for i, j in zip(*np.nonzero(known[n])):
+            x, y = -1.0 + (j + 0.5) * 0.1 - pose[n, 0], 0.5 + (i + 0.5) * 0.1 - pose[n, 1]
+            fwd, left = c * x + s * y, -s * x + c * y
+            r, q = math.floor((left + half) / 0.35), math.floor((fwd + half) / 0.35)
+            if 0 <= r < 8 and 0 <= q < 8:
+                want[n, 0, r, q] = 1.0
+        x, y = goal[n] - pose[n, :2]
+        fwd, left = c * x + s * y, -s * x + c * y
+        want[n, 1, min(max(math.floor((left + half) / 0.35), 0), 7), min(max(math.floor((fwd + half) / 0.35), 0), 7)] = 1
+    np.testing.assert_array_equal(got, want)
+    assert want[:, 0].sum() > 10 and want[1, 1, 4, 7] == 1  # walls in view; the far goal clipped straight ahead
+    assert want[2, 1, 3, 5] == 1  # 0.6 m ahead and 0.1 m right of a robot facing +y
+    one = np.zeros((1, 40, 60), dtype=bool)
+    one[0, 25, 30] = True  # a wall cell centred 0.5 m east, 0.05 m south of the robot: ahead facing east, right facing north
+    east = wm.features(one, grid, np.array([[1.55, 3.1, 0.0]]), np.array([[1.55, 3.1]])).reshape(2, 8, 8)
+    north = wm.features(one, grid, np.array([[1.55, 3.1, math.pi / 2]]), np.array([[1.55, 3.1]])).reshape(2, 8, 8)
+    assert np.argwhere(east[0]).tolist() == [[3, 5]] and np.argwhere(north[0]).tolist() == [[2, 3]]
+    with pytest.raises(ValueError, match="at least 2 cells"):
+        bc_memory_probe.WallMap(1, 0.5)
+
+
+def test_a_student_with_a_wall_map_reads_it_and_the_teacher_fills_it(maze):
+    """The wall map's columns follow the observation's; a student of either encoder steps as it reads sequences;
+    the teacher's episodes carry maps whose walls grow as the robot sees more (the memory)."""
+    from flashnav.maps.ros import load_ros_map
+
+    wm = bc_memory_probe.WallMap(6, 0.5)
+    run = bc_memory_probe.play(PRESET, load_ros_map(maze), 4, EVAL_SEED, None, 1.0, np.random.default_rng(0),
+                               fixed=True, wall_map=wm)
+    obs, _ = run["seqs"][0]
+    assert obs.shape[1] == LAYOUT.obs_dim + wm.size
+    maps = obs[:, LAYOUT.obs_dim:].reshape(-1, 2, 6, 6)
+    assert maps[:, 1].sum((1, 2)).eq(1).all() and maps[0, 0].sum() > 0  # one goal square; walls from the first scan
+    for encoder in ("flat", "cnn"):
+        torch.manual_seed(0)
+        student = bc_memory_probe.Student(LAYOUT, "gru", width=16, wall_map=wm, encoder=encoder)
+        whole, _ = student(obs[None])
+        h, steps = None, []
+        for t in range(len(obs)):
+            a, h = student.step(obs[None, t], h)
+            steps.append(a)
+        torch.testing.assert_close(torch.stack(steps, 1), whole.detach())
+        moved = obs.clone()
+        moved[:, LAYOUT.obs_dim:] = 0
+        assert not torch.allclose(student(moved[None])[0], whole)  # the map is read
+    with pytest.raises(ValueError, match="map encoder"):
+        bc_memory_probe.Student(LAYOUT, "mlp", wall_map=wm, encoder="rnn")
 
 
 def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, capsys):
