@@ -72,10 +72,12 @@ class WallMap:
     :class:`flashnav.mapless.SeenWalls`), as a student's extra input: ``cells`` x ``cells`` squares of ``cell``
     metres, centred on the robot and turned with its heading (row = left, column = forward), two channels:
     1 where a remembered wall cell's centre falls in the square (else 0), and 1 in the goal's square (clipped onto
-    the map's edge when farther). Unknown reads as free, as the teacher plans it (optimistic)."""
+    the map's edge when farther). Unknown reads as free, as the teacher plans it (optimistic). ``memory=False``:
+    the walls of the current scan only (a control: an image of the scan, no memory)."""
 
     cells: int
     cell: float
+    memory: bool = True
 
     def __post_init__(self) -> None:
         if self.cells < 2 or not (math.isfinite(self.cell) and self.cell > 0):
@@ -227,10 +229,11 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
     if teacher is not None:
         teacher.plan_all()
     source, walls = None, None
-    if wall_map is not None:  # the teacher's memory, or (no teacher) the same memory kept without planning
+    own = wall_map is not None and (teacher is None or not wall_map.memory)
+    if wall_map is not None:  # the teacher's memory, or the same kept without planning (or the current scan's)
         source = teacher.source if teacher is not None else EnvScans(env)
-        walls = teacher.walls if teacher is not None else source.walls()
-        if teacher is None:
+        walls = source.walls(memory=wall_map.memory) if own else teacher.walls
+        if own:
             walls.mark(np.arange(episodes), *source.scans(np.arange(episodes)))
 
     def observed(obs: torch.Tensor) -> torch.Tensor:
@@ -263,10 +266,10 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
         done |= end
         if done.all():
             break
+        running = np.nonzero(~done)[0]
         if teacher is not None:
-            teacher.update(np.nonzero(~done)[0])
-        elif walls is not None:
-            running = np.nonzero(~done)[0]
+            teacher.update(running)
+        if own:
             walls.mark(running, *source.scans(running))
     obs_t, lab_t = torch.stack(obs_seq, 1), torch.stack(lab_seq, 1)  # [N, T, D], [N, T, 2]
     seqs = [(obs_t[i, : lengths[i]], lab_t[i, : lengths[i]]) for i in range(episodes)]
@@ -342,6 +345,8 @@ def main() -> None:
                    help="give the students an egocentric map of the walls their scans have hit (the teacher's own "
                         "memory), CELLS x CELLS squares of --wall-cell metres, and the goal's square (default 0: none)")
     p.add_argument("--wall-cell", type=float, default=0.5, metavar="M", help="the wall map's square, metres (default 0.5)")
+    p.add_argument("--wall-map-now", action="store_true",
+                   help="a control: the wall map shows only the current scan's walls (no memory)")
     p.add_argument("--map-encoder", default="cnn", choices=ENCODERS,
                    help="how the students read the wall map: a ReLU layer over its squares, or two stride-2 "
                         "convolutions first (default cnn)")
@@ -382,7 +387,7 @@ def main() -> None:
     rng = np.random.default_rng(a.seed)
     preset, layout = task(a.sectors)
     try:
-        wall_map = WallMap(a.wall_map, a.wall_cell) if a.wall_map else None
+        wall_map = WallMap(a.wall_map, a.wall_cell, not a.wall_map_now) if a.wall_map else None
     except ValueError as exc:
         p.error(f"--wall-map / --wall-cell: {exc}")
     try:  # Student checks --bins

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -168,6 +169,14 @@ def test_a_student_with_a_wall_map_reads_it_and_the_teacher_fills_it(maze):
     assert obs.shape[1] == LAYOUT.obs_dim + wm.size
     maps = obs[:, LAYOUT.obs_dim:].reshape(-1, 2, 6, 6)
     assert maps[:, 1].sum((1, 2)).eq(1).all() and maps[0, 0].sum() > 0  # one goal square; walls from the first scan
+    now = bc_memory_probe.play(PRESET, load_ros_map(maze), 4, EVAL_SEED, None, 1.0, np.random.default_rng(0),
+                               fixed=True, wall_map=dataclasses.replace(wm, memory=False))
+    for (o_mem, _), (o_now, _) in zip(run["seqs"], now["seqs"]):  # the teacher drives both the same way
+        torch.testing.assert_close(o_now[:, :LAYOUT.obs_dim], o_mem[:, :LAYOUT.obs_dim])
+        walls_mem, walls_now = (o[:, LAYOUT.obs_dim:].reshape(-1, 2, 6, 6)[:, 0] for o in (o_mem, o_now))
+        assert torch.equal(walls_now[0], walls_mem[0]) and (walls_now <= walls_mem).all()  # the scan's walls remembered
+    forgot = [int((o[:, LAYOUT.obs_dim:] < m[:, LAYOUT.obs_dim:]).sum()) for (m, _), (o, _) in zip(run["seqs"], now["seqs"])]
+    assert sum(forgot) > 0  # the memory keeps walls the current scan no longer shows
     for encoder in ("flat", "cnn"):
         torch.manual_seed(0)
         student = bc_memory_probe.Student(LAYOUT, "gru", width=16, wall_map=wm, encoder=encoder)
