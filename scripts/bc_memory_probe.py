@@ -53,8 +53,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mapless_planner import MaplessPlanner  # noqa: E402  (the teacher)
 
 from flashnav.eval_maps import fixed_episodes  # noqa: E402
-from flashnav.learn.features import IPAPRec, ObsLayout  # noqa: E402
 from flashnav.guidance import EnvScans  # noqa: E402
+from flashnav.learn.features import IPAPRec, ObsLayout  # noqa: E402
 from flashnav.maps.families import generate_family  # noqa: E402
 from flashnav.maps.ros import load_ros_map  # noqa: E402
 from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
@@ -133,7 +133,7 @@ class Student(nn.Module):
     but learnt by classification, which often trains better than regression: Farebrother et al., 2024)."""
 
     def __init__(self, layout: ObsLayout, kind: str, width: int = 256, bins: int = 0, wall_map: WallMap | None = None,
-                 encoder: str = "flat"):
+                 encoder: str = "cnn"):
         super().__init__()
         if bins == 1 or bins < 0:
             raise ValueError(f"bins={bins}: 0 (a mean-squared head) or at least 2")
@@ -147,7 +147,7 @@ class Student(nn.Module):
             k = wall_map.cells
             if encoder == "flat":
                 self.map_enc = nn.Sequential(nn.Flatten(), nn.Linear(wall_map.size, width), nn.ReLU())
-            else:  # two stride-2 convolutions: each output sees 7 x 7 squares
+            else:  # three 3 x 3 convolutions, the last two with stride 2: each output sees 9 x 9 squares
                 side = (k + 1) // 2
                 side = (side + 1) // 2
                 self.map_enc = nn.Sequential(
@@ -348,8 +348,8 @@ def main() -> None:
     p.add_argument("--wall-map-now", action="store_true",
                    help="a control: the wall map shows only the current scan's walls (no memory)")
     p.add_argument("--map-encoder", default="cnn", choices=ENCODERS,
-                   help="how the students read the wall map: a ReLU layer over its squares, or two stride-2 "
-                        "convolutions first (default cnn)")
+                   help="how the students read the wall map: flat, one ReLU layer over its squares; cnn, three "
+                        "3 x 3 convolutions first, the last two with stride 2 (default cnn)")
     p.add_argument("--step-batches", action="store_true",
                    help="train the MLP on minibatches of shuffled steps (as many as --batch episodes hold on the "
                         "mean) instead of padded episodes: the same loss, faster (default: padded episodes, as the "
