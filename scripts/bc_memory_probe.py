@@ -344,10 +344,10 @@ def main() -> None:
     p.add_argument("--wall-map", type=int, default=0, metavar="CELLS",
                    help="give the students an egocentric map of the walls their scans have hit (the teacher's own "
                         "memory), CELLS x CELLS squares of --wall-cell metres, and the goal's square (default 0: none)")
-    p.add_argument("--wall-cell", type=float, default=0.5, metavar="M", help="the wall map's square, metres (default 0.5)")
+    p.add_argument("--wall-cell", type=float, default=None, metavar="M", help="the wall map's square, metres (default 0.5)")
     p.add_argument("--wall-map-now", action="store_true",
                    help="a control: the wall map shows only the current scan's walls (no memory)")
-    p.add_argument("--map-encoder", default="cnn", choices=ENCODERS,
+    p.add_argument("--map-encoder", default=None, choices=ENCODERS,
                    help="how the students read the wall map: flat, one ReLU layer over its squares; cnn, three "
                         "3 x 3 convolutions first, the last two with stride 2 (default cnn)")
     p.add_argument("--step-batches", action="store_true",
@@ -366,6 +366,12 @@ def main() -> None:
     for m in a.eval_maps:
         if not Path(m).is_file():
             p.error(f"evaluation map {m}: no such file")
+    given = [f for f, v in (("--wall-cell", a.wall_cell), ("--map-encoder", a.map_encoder),
+                            ("--wall-map-now", a.wall_map_now or None)) if v is not None]
+    if given and not a.wall_map:
+        p.error(f"{', '.join(given)} without --wall-map CELLS: there is no wall map to shape")
+    if a.step_batches and "mlp" not in kinds:
+        p.error("--step-batches trains the MLP student only, and --models has none")
     if a.rounds == 0 and a.no_teacher_eval:
         p.error("--rounds 0 with --no-teacher-eval: nothing to do")
     last_seed = a.train_seed + a.rounds * a.train_maps - 1
@@ -387,11 +393,11 @@ def main() -> None:
     rng = np.random.default_rng(a.seed)
     preset, layout = task(a.sectors)
     try:
-        wall_map = WallMap(a.wall_map, a.wall_cell, not a.wall_map_now) if a.wall_map else None
+        wall_map = WallMap(a.wall_map, 0.5 if a.wall_cell is None else a.wall_cell, not a.wall_map_now) if a.wall_map else None
     except ValueError as exc:
         p.error(f"--wall-map / --wall-cell: {exc}")
     try:  # Student checks --bins
-        students = {k: Student(layout, k, a.width, a.bins, wall_map, a.map_encoder) for k in kinds}
+        students = {k: Student(layout, k, a.width, a.bins, wall_map, a.map_encoder or "cnn") for k in kinds}
     except ValueError as exc:
         p.error(f"--bins: {exc}")
     data: dict[str, list] = {k: [] for k in kinds}

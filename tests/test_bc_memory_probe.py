@@ -209,6 +209,14 @@ def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, ca
     with pytest.raises(SystemExit):
         bc_memory_probe.main()
     assert "reserved for validation and held-out suites" in capsys.readouterr().err
+    for argv, said in ((["--wall-cell", "0.25"], "--wall-cell without --wall-map"),
+                       (["--map-encoder", "flat", "--wall-map-now"], "--map-encoder, --wall-map-now without --wall-map"),
+                       (["--wall-map", "12", "--wall-cell", "-1"], "at least 2 cells a side of > 0 metres"),
+                       (["--step-batches", "--models", "gru"], "--step-batches trains the MLP student only")):
+        monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), *argv])
+        with pytest.raises(SystemExit):
+            bc_memory_probe.main()
+        assert said in capsys.readouterr().err
     from flashnav.maps.validation import benchmark_dir
 
     heldout = sorted((benchmark_dir() / "heldout").glob("mazes_*.yaml"))[0]
