@@ -61,6 +61,7 @@ from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
 from flashnav.presets import load_robot  # noqa: E402
 from flashnav.sim.env import make_env  # noqa: E402
 from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
+from flashnav.sim.trail import to_robot_frame  # noqa: E402
 
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
 ENCODERS = ("flat", "cnn")  # how a student reads the wall map (--map-encoder)
@@ -89,9 +90,7 @@ class WallMap:
 
     def _squares(self, xy: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(row, column) of points ``xy`` [k, 2] seen from poses [k, 3]; outside the map: < 0 or >= cells."""
-        d = xy - pose[:, :2]
-        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-        fwd, left = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+        fwd, left = to_robot_frame(torch.from_numpy(xy)[:, None], torch.from_numpy(pose))[:, 0].numpy().T
         half = self.cells * self.cell / 2
         return (np.floor((left + half) / self.cell).astype(np.int64),
                 np.floor((fwd + half) / self.cell).astype(np.int64))
