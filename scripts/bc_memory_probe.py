@@ -65,6 +65,8 @@ from flashnav.sim.trail import to_robot_frame  # noqa: E402
 
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
 ENCODERS = ("flat", "cnn")  # how a student reads the wall map (--map-encoder)
+MAP_ENCODER = "cnn"  # --map-encoder's default
+WALL_CELL_M = 0.5  # --wall-cell's default, metres
 
 
 @dataclasses.dataclass(frozen=True)
@@ -132,7 +134,7 @@ class Student(nn.Module):
     but learnt by classification, which often trains better than regression: Farebrother et al., 2024)."""
 
     def __init__(self, layout: ObsLayout, kind: str, width: int = 256, bins: int = 0, wall_map: WallMap | None = None,
-                 encoder: str = "cnn"):
+                 encoder: str = MAP_ENCODER):
         super().__init__()
         if bins == 1 or bins < 0:
             raise ValueError(f"bins={bins}: 0 (a mean-squared head) or at least 2")
@@ -343,12 +345,12 @@ def main() -> None:
     p.add_argument("--wall-map", type=int, default=0, metavar="CELLS",
                    help="give the students an egocentric map of the walls their scans have hit (the teacher's own "
                         "memory), CELLS x CELLS squares of --wall-cell metres, and the goal's square (default 0: none)")
-    p.add_argument("--wall-cell", type=float, default=None, metavar="M", help="the wall map's square, metres (default 0.5)")
+    p.add_argument("--wall-cell", type=float, default=None, metavar="M", help=f"the wall map's square, metres (default {WALL_CELL_M:g})")
     p.add_argument("--wall-map-now", action="store_true",
                    help="a control: the wall map shows only the current scan's walls (no memory)")
     p.add_argument("--map-encoder", default=None, choices=ENCODERS,
                    help="how the students read the wall map: flat, one ReLU layer over its squares; cnn, three "
-                        "3 x 3 convolutions first, the last two with stride 2 (default cnn)")
+                        f"3 x 3 convolutions first, the last two with stride 2 (default {MAP_ENCODER})")
     p.add_argument("--step-batches", action="store_true",
                    help="train the MLP on minibatches of shuffled steps (as many as --batch episodes hold on the "
                         "mean) instead of padded episodes: the same loss, faster (default: padded episodes, as the "
@@ -392,11 +394,11 @@ def main() -> None:
     rng = np.random.default_rng(a.seed)
     preset, layout = task(a.sectors)
     try:
-        wall_map = WallMap(a.wall_map, 0.5 if a.wall_cell is None else a.wall_cell, not a.wall_map_now) if a.wall_map else None
+        wall_map = WallMap(a.wall_map, WALL_CELL_M if a.wall_cell is None else a.wall_cell, not a.wall_map_now) if a.wall_map else None
     except ValueError as exc:
         p.error(f"--wall-map / --wall-cell: {exc}")
     try:  # Student checks --bins
-        students = {k: Student(layout, k, a.width, a.bins, wall_map, a.map_encoder or "cnn") for k in kinds}
+        students = {k: Student(layout, k, a.width, a.bins, wall_map, a.map_encoder or MAP_ENCODER) for k in kinds}
     except ValueError as exc:
         p.error(f"--bins: {exc}")
     data: dict[str, list] = {k: [] for k in kinds}
