@@ -149,12 +149,11 @@ class Student(nn.Module):
             if encoder == "flat":
                 self.map_enc = nn.Sequential(nn.Flatten(), nn.Linear(wall_map.size, width), nn.ReLU())
             else:  # three 3 x 3 convolutions, the last two with stride 2: each output sees 9 x 9 squares
-                side = (k + 1) // 2
-                side = (side + 1) // 2
-                self.map_enc = nn.Sequential(
+                convs = nn.Sequential(
                     nn.Conv2d(2, 16, 3, padding=1), nn.ReLU(), nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU(),
-                    nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten(),
-                    nn.Linear(32 * side * side, width), nn.ReLU())
+                    nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten())
+                flat = convs(torch.zeros(1, 2, k, k)).shape[1]  # the features the convolutions leave
+                self.map_enc = nn.Sequential(*convs, nn.Linear(flat, width), nn.ReLU())
             extra = width
         self.enc = nn.Sequential(nn.Linear(layout.feature_dim + extra, width), nn.ReLU())
         self.core = nn.GRU(width, width, batch_first=True) if kind == "gru" else nn.Sequential(
