@@ -228,19 +228,20 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
     teacher = MaplessPlanner(env) if teach else None
     if teacher is not None:
         teacher.plan_all()
-    source, walls = None, None
+    walls, goals = None, None
     own = wall_map is not None and (teacher is None or not wall_map.memory)
     if wall_map is not None:  # the teacher's memory, or the same kept without planning (or the current scan's)
         source = teacher.source if teacher is not None else EnvScans(env)
         walls = source.walls(memory=wall_map.memory) if own else teacher.walls
+        every = np.arange(episodes)
+        goals = source.goals(every)  # one episode per slot: its goal holds until it ends
         if own:
-            walls.mark(np.arange(episodes), *source.scans(np.arange(episodes)))
+            walls.mark(every, *source.scans(every))
 
     def observed(obs: torch.Tensor) -> torch.Tensor:
         if wall_map is None:
             return obs
-        every = np.arange(episodes)
-        feats = wall_map.features(walls.known, walls.grid, env.pose.cpu().numpy().astype(np.float64), source.goals(every))
+        feats = wall_map.features(walls.known, walls.grid, env.pose.cpu().numpy().astype(np.float64), goals)
         return torch.cat([obs, torch.from_numpy(feats)], 1)
     h = None
     done = np.zeros(episodes, dtype=bool)
