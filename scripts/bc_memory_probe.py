@@ -52,6 +52,7 @@ import torch.nn as nn
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mapless_planner import MaplessPlanner  # noqa: E402  (the teacher)
 
+from flashnav.config import Observation  # noqa: E402
 from flashnav.eval_maps import fixed_episodes  # noqa: E402
 from flashnav.guidance import EnvScans  # noqa: E402
 from flashnav.learn.features import IPAPRec, ObsLayout  # noqa: E402
@@ -61,30 +62,43 @@ from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
 from flashnav.presets import load_robot  # noqa: E402
 from flashnav.sim.env import make_env  # noqa: E402
 from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
+from flashnav.sim.memory import WallMemory, points_per_frame  # noqa: E402
 from flashnav.sim.trail import to_robot_frame  # noqa: E402
 
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
 ENCODERS = ("flat", "cnn")  # how a student reads the wall map (--map-encoder)
 MAP_ENCODER = "cnn"  # --map-encoder's default
 WALL_CELL_M = 0.5  # --wall-cell's default, metres
+MEMORY_EVERY = Observation().memory_every  # --wall-map-every's default: the simulator's memory scan's
 
 
 @dataclasses.dataclass(frozen=True)
 class WallMap:
-    """An egocentric map of the walls the robot's scans have hit (the teacher's own memory,
-    :class:`flashnav.mapless.SeenWalls`), as a student's extra input: ``cells`` x ``cells`` squares of ``cell``
-    metres, centred on the robot and turned with its heading (row = left, column = forward), two channels:
-    1 where a remembered wall cell's centre falls in the square (else 0), and 1 in the goal's square (clipped onto
-    the map's edge when farther). Unknown reads as free, as the teacher plans it (optimistic). ``memory=False``:
-    the walls of the current scan only (a control: an image of the scan, no memory)."""
+    """An egocentric map of the walls the robot's scans have hit, as a student's extra input: ``cells`` x
+    ``cells`` squares of ``cell`` metres, centred on the robot and turned with its heading (row = left, column =
+    forward), two channels: 1 where a remembered wall falls in the square (else 0), and 1 in the goal's square
+    (clipped onto the map's edge when farther). Unknown reads as free, as the teacher plans it (optimistic).
+
+    Which walls: ``frames=0`` the teacher's own dense memory (:class:`flashnav.mapless.SeenWalls`: every grid cell
+    any beam has hit), ``memory=False`` the walls of the current scan only (a control: an image of the scan, no
+    memory); ``frames=F > 0`` the simulator's sparse memory points (:class:`flashnav.sim.memory.WallMemory`: the
+    nearest hit of each group of beams, 60 points a scan, one scan stored every ``every`` steps, the last F kept),
+    the form a simulator slot and a robot can keep cheaply."""
 
     cells: int
     cell: float
     memory: bool = True
+    frames: int = 0
+    every: int = MEMORY_EVERY
 
     def __post_init__(self) -> None:
         if self.cells < 2 or not (math.isfinite(self.cell) and self.cell > 0):
             raise ValueError(f"wall map: at least 2 cells a side of > 0 metres, got {self.cells} x {self.cell}")
+        if self.frames < 0 or self.every < 1:
+            raise ValueError(f"wall map: frames >= 0 and every >= 1, got {self.frames} and {self.every}")
+        if self.frames and not self.memory:
+            raise ValueError("wall map: the current scan's walls (no memory) and stored frames of points exclude "
+                             "each other")
 
     @property
     def size(self) -> int:
@@ -97,19 +111,30 @@ class WallMap:
         return (np.floor((left + half) / self.cell).astype(np.int64),
                 np.floor((fwd + half) / self.cell).astype(np.int64))
 
-    def features(self, known: np.ndarray, grid, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """[N, 2 cells^2] float32 for N slots' remembered walls ``known`` [N, H, W] on ``grid``'s cells, poses
-        [N, 3] and goals [N, 2] (the grid's frame)."""
+    def _render(self, slot: np.ndarray, xy: np.ndarray, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """[N, 2 cells^2]: wall points ``xy`` [k, 2] of slots ``slot`` [k], N slots' poses [N, 3] and goals [N, 2]."""
         n, k = len(pose), self.cells
         out = np.zeros((n, 2, k, k), dtype=np.float32)
-        slot, i, j = np.nonzero(known)
-        x, y = grid.cell_centres(i, j)
-        r, c = self._squares(np.stack([x, y], axis=1), pose[slot])
+        r, c = self._squares(xy, pose[slot])
         inside = (r >= 0) & (r < k) & (c >= 0) & (c < k)
         out[slot[inside], 0, r[inside], c[inside]] = 1.0
         r, c = self._squares(goal, pose)
         out[np.arange(n), 1, np.clip(r, 0, k - 1), np.clip(c, 0, k - 1)] = 1.0
         return out.reshape(n, -1)
+
+    def features(self, known: np.ndarray, grid, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """[N, 2 cells^2] float32 for N slots' remembered walls ``known`` [N, H, W] on ``grid``'s cells (each
+        wall cell's centre), poses [N, 3] and goals [N, 2] (the grid's frame)."""
+        slot, i, j = np.nonzero(known)
+        x, y = grid.cell_centres(i, j)
+        return self._render(slot, np.stack([x, y], axis=1), pose, goal)
+
+    def point_features(self, points: np.ndarray, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """[N, 2 cells^2] float32 for N slots' stored wall points ``points`` [N, F, 2, P] (x and y rows, ``inf``
+        where a group of beams hit nothing: :attr:`flashnav.sim.memory.WallMemory.points`), poses and goals."""
+        xy = np.moveaxis(points, 2, -1).reshape(len(points), -1, 2)  # [N, F P, 2]
+        slot, q = np.nonzero(np.isfinite(xy[..., 0]))
+        return self._render(slot, xy[slot, q].astype(np.float64), pose, goal)
 
 
 def task(sectors: int | None = None):
@@ -228,20 +253,29 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
     teacher = MaplessPlanner(env) if teach else None
     if teacher is not None:
         teacher.plan_all()
-    walls, goals = None, None
-    own = wall_map is not None and (teacher is None or not wall_map.memory)
+    walls, goals, points = None, None, None
+    sparse = wall_map is not None and wall_map.frames > 0
+    own = wall_map is not None and not sparse and (teacher is None or not wall_map.memory)
     if wall_map is not None:  # the teacher's memory, or the same kept without planning (or the current scan's)
         source = teacher.source if teacher is not None else EnvScans(env)
-        walls = source.walls(memory=wall_map.memory) if own else teacher.walls
+        walls = source.walls(memory=wall_map.memory) if own else None if sparse else teacher.walls
         every = np.arange(episodes)
         goals = source.goals(every)  # one episode per slot: its goal holds until it ends
         if own:
             walls.mark(every, *source.scans(every))
+        if sparse:  # the simulator's memory points, kept as an env slot keeps them
+            points = WallMemory(episodes, wall_map.frames, wall_map.every, preset.lidar.sectors,
+                                preset.lidar.max_range, env.beam_angles.cpu(), points_per_frame(preset),
+                                torch.device("cpu"))
+            sel = torch.arange(episodes)
+            points.start(sel, env.pose.cpu(), env.scan(sel.to(env.device)).cpu())
 
     def observed(obs: torch.Tensor) -> torch.Tensor:
         if wall_map is None:
             return obs
-        feats = wall_map.features(walls.known, walls.grid, env.pose.cpu().numpy().astype(np.float64), goals)
+        pose = env.pose.cpu().numpy().astype(np.float64)
+        feats = (wall_map.point_features(points.points.numpy(), pose, goals) if sparse
+                 else wall_map.features(walls.known, walls.grid, pose, goals))
         return torch.cat([obs, torch.from_numpy(feats)], 1)
     h = None
     done = np.zeros(episodes, dtype=bool)
@@ -272,6 +306,10 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
             teacher.update(running)
         if own:
             walls.mark(running, *source.scans(running))
+        if sparse:  # t + 1 steps into every running slot's episode (one episode per slot, all started at 0)
+            sel = torch.as_tensor(running)
+            points.push(sel, env.pose[sel.to(env.device)].cpu(), env.scan(sel.to(env.device)).cpu(),
+                        torch.full((len(running),), t + 1))
     obs_t, lab_t = torch.stack(obs_seq, 1), torch.stack(lab_seq, 1)  # [N, T, D], [N, T, 2]
     seqs = [(obs_t[i, : lengths[i]], lab_t[i, : lengths[i]]) for i in range(episodes)]
     return {"seqs": seqs, "success": success, "collision": collision}
@@ -348,6 +386,11 @@ def main() -> None:
     p.add_argument("--wall-cell", type=float, default=None, metavar="M", help=f"the wall map's square, metres (default {WALL_CELL_M:g})")
     p.add_argument("--wall-map-now", action="store_true",
                    help="a control: the wall map shows only the current scan's walls (no memory)")
+    p.add_argument("--wall-map-frames", type=int, default=None, metavar="F",
+                   help="draw the wall map from the simulator's sparse memory points (flashnav.sim.memory: 60 points "
+                        "a scan) of the last F stored scans instead of the teacher's dense memory (default: dense)")
+    p.add_argument("--wall-map-every", type=int, default=None, metavar="E",
+                   help=f"with --wall-map-frames: control steps between two stored scans (default {MEMORY_EVERY})")
     p.add_argument("--map-encoder", default=None, choices=ENCODERS,
                    help="how the students read the wall map: flat, one ReLU layer over its squares; cnn, three "
                         f"3 x 3 convolutions first, the last two with stride 2 (default {MAP_ENCODER})")
@@ -368,9 +411,12 @@ def main() -> None:
         if not Path(m).is_file():
             p.error(f"evaluation map {m}: no such file")
     given = [f for f, v in (("--wall-cell", a.wall_cell), ("--map-encoder", a.map_encoder),
-                            ("--wall-map-now", a.wall_map_now or None)) if v is not None]
+                            ("--wall-map-now", a.wall_map_now or None), ("--wall-map-frames", a.wall_map_frames),
+                            ("--wall-map-every", a.wall_map_every)) if v is not None]
     if given and not a.wall_map:
         p.error(f"{', '.join(given)} without --wall-map CELLS: there is no wall map to shape")
+    if a.wall_map_every is not None and a.wall_map_frames is None:
+        p.error("--wall-map-every without --wall-map-frames: the dense memory keeps every scan")
     if a.step_batches and "mlp" not in kinds:
         p.error("--step-batches trains the MLP student only, and --models has none")
     if a.rounds == 0 and a.no_teacher_eval:
@@ -394,9 +440,13 @@ def main() -> None:
     rng = np.random.default_rng(a.seed)
     preset, layout = task(a.sectors)
     try:
-        wall_map = WallMap(a.wall_map, WALL_CELL_M if a.wall_cell is None else a.wall_cell, not a.wall_map_now) if a.wall_map else None
+        wall_map = WallMap(a.wall_map, WALL_CELL_M if a.wall_cell is None else a.wall_cell, not a.wall_map_now,
+                           a.wall_map_frames or 0, MEMORY_EVERY if a.wall_map_every is None else a.wall_map_every
+                           ) if a.wall_map else None
+        if a.wall_map_frames is not None and a.wall_map_frames < 1:
+            raise ValueError(f"--wall-map-frames {a.wall_map_frames}: at least 1 stored scan")
     except ValueError as exc:
-        p.error(f"--wall-map / --wall-cell: {exc}")
+        p.error(f"--wall-map / --wall-cell / --wall-map-frames / --wall-map-every: {exc}")
     try:  # Student checks --bins
         students = {k: Student(layout, k, a.width, a.bins, wall_map, a.map_encoder or MAP_ENCODER) for k in kinds}
     except ValueError as exc:

@@ -193,6 +193,62 @@ def test_a_student_with_a_wall_map_reads_it_and_the_teacher_fills_it(maze):
         bc_memory_probe.Student(LAYOUT, "mlp", wall_map=wm, encoder="rnn")
 
 
+def test_the_sparse_wall_map_draws_the_points_as_the_dense_one_draws_cell_centres():
+    """Stored points at wall-cell centres (``inf`` where a group hit nothing) give the dense map of those cells."""
+    from flashnav.maps.grid import OccupancyMap
+
+    rng = np.random.default_rng(5)
+    grid = OccupancyMap(occupied=np.zeros((30, 50), dtype=bool), resolution=0.1, origin=(-0.5, 0.2))
+    known = rng.random((2, 30, 50)) < 0.04
+    pose = np.array([[1.2, 1.6, 0.7], [3.0, 2.2, -2.6]])
+    goal = np.array([[2.0, 2.0], [0.0, 0.5]])
+    frames, per = 3, 40
+    points = np.full((2, frames, 2, per), np.inf, dtype=np.float32)
+    for n in range(2):
+        i, j = np.nonzero(known[n])
+        x, y = grid.cell_centres(i, j)
+        slots = rng.permutation(frames * per)[: len(i)]  # scattered over frames and groups, the rest unhit
+        points[n, slots // per, 0, slots % per], points[n, slots // per, 1, slots % per] = x, y
+    wm = bc_memory_probe.WallMap(10, 0.3, frames=frames)
+    got = wm.point_features(points, pose, goal)
+    np.testing.assert_array_equal(got, wm.features(known, grid, pose, goal))
+    assert got.reshape(2, 2, 10, 10)[:, 0].sum() > 10
+    for bad, said in ((dict(frames=-1), "frames >= 0"), (dict(every=0), "every >= 1"),
+                      (dict(frames=2, memory=False), "exclude each other")):
+        with pytest.raises(ValueError, match=said):
+            bc_memory_probe.WallMap(10, 0.3, **bad)
+
+
+def test_the_sparse_wall_map_keeps_the_simulators_own_memory_points(maze, monkeypatch):
+    """Played with ``frames``/``every`` (the teacher driving), the probe keeps exactly the points that an env slot
+    with ``observation.memory_frames``/``memory_every`` keeps in its first episode, step by step."""
+    from flashnav.maps.ros import load_ros_map
+
+    frames, every = 4, 3
+    preset = PRESET.model_copy(update={"observation": PRESET.observation.model_copy(
+        update={"memory_frames": frames, "memory_every": every})})
+    envs, compared = [], []
+    make = bc_memory_probe.make_env
+    monkeypatch.setattr(bc_memory_probe, "make_env", lambda *a, **k: envs.append(make(*a, **k)) or envs[-1])
+    draw = bc_memory_probe.WallMap.point_features
+
+    def check(self, points, pose, goal):
+        env = envs[-1]
+        t = len(compared)
+        first = (env.steps == t).numpy()  # slots still in their first episode (the env restarts the others)
+        np.testing.assert_array_equal(points[first], env.extras.memory.points.numpy()[first])
+        compared.append(int(first.sum()))
+        return draw(self, points, pose, goal)
+
+    monkeypatch.setattr(bc_memory_probe.WallMap, "point_features", check)
+    wm = bc_memory_probe.WallMap(6, 0.5, frames=frames, every=every)
+    run = bc_memory_probe.play(preset, load_ros_map(maze), 4, EVAL_SEED, None, 1.0, np.random.default_rng(0),
+                               fixed=True, wall_map=wm)
+    assert len(compared) > 2 * frames * every and sum(compared) > 4 * frames * every  # the ring went round
+    maps = run["seqs"][0][0][:, -wm.size:].reshape(-1, 2, 6, 6)
+    assert maps[0, 0].sum() > 0 and maps[:, 1].sum((1, 2)).eq(1).all()
+
+
 def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, capsys):
     out = tmp_path / "probe.json"
     monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), "--train-maps", "1", "--episodes", "4",
@@ -212,7 +268,11 @@ def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, ca
     for argv, said in ((["--wall-cell", "0.25"], "--wall-cell without --wall-map"),
                        (["--map-encoder", "flat", "--wall-map-now"], "--map-encoder, --wall-map-now without --wall-map"),
                        (["--wall-map", "12", "--wall-cell", "-1"], "at least 2 cells a side of > 0 metres"),
-                       (["--step-batches", "--models", "gru"], "--step-batches trains the MLP student only")):
+                       (["--step-batches", "--models", "gru"], "--step-batches trains the MLP student only"),
+                       (["--wall-map-frames", "4"], "--wall-map-frames without --wall-map"),
+                       (["--wall-map", "12", "--wall-map-every", "5"], "--wall-map-every without --wall-map-frames"),
+                       (["--wall-map", "12", "--wall-map-frames", "0"], "at least 1 stored scan"),
+                       (["--wall-map", "12", "--wall-map-frames", "3", "--wall-map-now"], "exclude each other")):
         monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), *argv])
         with pytest.raises(SystemExit):
             bc_memory_probe.main()
