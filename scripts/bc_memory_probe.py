@@ -62,8 +62,7 @@ from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
 from flashnav.presets import load_robot  # noqa: E402
 from flashnav.sim.env import make_env  # noqa: E402
 from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
-from flashnav.sim.memory import WallMemory, points_per_frame  # noqa: E402
-from flashnav.sim.trail import to_robot_frame  # noqa: E402
+from flashnav.sim.memory import WallMemory, check_wall_image, points_per_frame, wall_image  # noqa: E402
 
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
 ENCODERS = ("flat", "cnn")  # how a student reads the wall map (--map-encoder)
@@ -92,8 +91,7 @@ class WallMap:
     every: int = MEMORY_EVERY
 
     def __post_init__(self) -> None:
-        if self.cells < 2 or not (math.isfinite(self.cell) and self.cell > 0):
-            raise ValueError(f"wall map: at least 2 cells a side of > 0 metres, got {self.cells} x {self.cell}")
+        check_wall_image(self.cells, self.cell)
         if self.frames < 0 or self.every < 1:
             raise ValueError(f"wall map: frames >= 0 and every >= 1, got {self.frames} and {self.every}")
         if self.frames and not self.memory:
@@ -104,37 +102,27 @@ class WallMap:
     def size(self) -> int:
         return 2 * self.cells * self.cells
 
-    def _squares(self, xy: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(row, column) of points ``xy`` [k, 2] seen from poses [k, 3]; outside the map: < 0 or >= cells."""
-        fwd, left = to_robot_frame(torch.from_numpy(xy)[:, None], torch.from_numpy(pose))[:, 0].numpy().T
-        half = self.cells * self.cell / 2
-        return (np.floor((left + half) / self.cell).astype(np.int64),
-                np.floor((fwd + half) / self.cell).astype(np.int64))
-
-    def _render(self, slot: np.ndarray, xy: np.ndarray, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """[N, 2 cells^2]: wall points ``xy`` [k, 2] of slots ``slot`` [k], N slots' poses [N, 3] and goals [N, 2]."""
-        n, k = len(pose), self.cells
-        out = np.zeros((n, 2, k, k), dtype=np.float32)
-        r, c = self._squares(xy, pose[slot])
-        inside = (r >= 0) & (r < k) & (c >= 0) & (c < k)
-        out[slot[inside], 0, r[inside], c[inside]] = 1.0
-        r, c = self._squares(goal, pose)
-        out[np.arange(n), 1, np.clip(r, 0, k - 1), np.clip(c, 0, k - 1)] = 1.0
-        return out.reshape(n, -1)
+    def _draw(self, xy: np.ndarray, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """[N, 2 cells^2] float32: :func:`flashnav.sim.memory.wall_image` of N slots' wall points ``xy``
+        [N, Q, 2] (``inf`` = none), poses [N, 3] and goals [N, 2], in float64 (then stored as float32)."""
+        img = wall_image(torch.from_numpy(np.asarray(xy, dtype=np.float64)), torch.from_numpy(pose),
+                         torch.from_numpy(goal), self.cells, self.cell)
+        return img.reshape(len(pose), -1).numpy().astype(np.float32)
 
     def features(self, known: np.ndarray, grid, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """[N, 2 cells^2] float32 for N slots' remembered walls ``known`` [N, H, W] on ``grid``'s cells (each
         wall cell's centre), poses [N, 3] and goals [N, 2] (the grid's frame)."""
         slot, i, j = np.nonzero(known)
         x, y = grid.cell_centres(i, j)
-        return self._render(slot, np.stack([x, y], axis=1), pose, goal)
+        count = np.bincount(slot, minlength=len(pose))
+        xy = np.full((len(pose), max(1, count.max(initial=0)), 2), np.inf)
+        xy[slot, np.arange(len(slot)) - np.repeat(np.cumsum(count) - count, count)] = np.stack([x, y], axis=1)
+        return self._draw(xy, pose, goal)
 
     def point_features(self, points: np.ndarray, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """[N, 2 cells^2] float32 for N slots' stored wall points ``points`` [N, F, 2, P] (x and y rows, ``inf``
         where a group of beams hit nothing: :attr:`flashnav.sim.memory.WallMemory.points`), poses and goals."""
-        xy = np.moveaxis(points, 2, -1).reshape(len(points), -1, 2)  # [N, F P, 2]
-        slot, q = np.nonzero(np.isfinite(xy[..., 0]))
-        return self._render(slot, xy[slot, q].astype(np.float64), pose, goal)
+        return self._draw(np.moveaxis(points, 2, -1).reshape(len(points), -1, 2), pose, goal)
 
 
 def task(sectors: int | None = None):

@@ -338,3 +338,82 @@ def test_the_metadata_reader_falls_back_and_names_a_bad_memory_record():
         memory_scan_shape({"observation": {"memory_scan": {"frames": 3, "every": 0}}}, "p.onnx")
     with pytest.raises(ValueError, match=r"memory_frames '2'; expected an integer >= 0"):
         memory_scan_shape({"observation": {"memory_scan": {"frames": "2", "every": 1}}})
+
+
+def reference_image(points, pose, goal, cells: int, cell: float) -> np.ndarray:
+    """[2, cells, cells] of one slot, point by point in float64: a finite point's square in the robot frame
+    (row from the left offset, column from the forward one), the goal's square clipped onto the edge."""
+    x, y, yaw = (float(v) for v in pose)
+    c, s, half = math.cos(yaw), math.sin(yaw), cells * cell / 2
+    out = np.zeros((2, cells, cells))
+
+    def square(px: float, py: float) -> tuple[int, int]:
+        fwd, left = c * (px - x) + s * (py - y), -s * (px - x) + c * (py - y)
+        return math.floor((left + half) / cell), math.floor((fwd + half) / cell)
+
+    for px, py in points:
+        if math.isfinite(px) and math.isfinite(py):
+            r, q = square(px, py)
+            if 0 <= r < cells and 0 <= q < cells:
+                out[0, r, q] = 1
+    r, q = square(*goal)
+    out[1, min(max(r, 0), cells - 1), min(max(q, 0), cells - 1)] = 1
+    return out
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_the_wall_image_against_a_point_by_point_reference(dtype):
+    """Random points (some none: inf or NaN in either coordinate, a slot with none at all), poses and goals (some
+    far outside): every square the batched image marks is the reference's, and a quarter turn of the robot
+    turns the image a quarter (a point ahead lands to the right)."""
+    from flashnav.sim.memory import wall_image
+
+    rng = np.random.default_rng(11)
+    k, q, cells, cell = 5, 300, 9, 0.4
+    pts = rng.uniform(-3, 3, (k, q, 2))
+    pts[rng.random((k, q)) < 0.2, 0] = np.inf
+    pts[rng.random((k, q)) < 0.1, 1] = np.nan
+    pts[4] = np.inf
+    pose = np.column_stack([rng.uniform(-1, 1, (k, 2)), rng.uniform(-math.pi, math.pi, k)])
+    goal = rng.uniform(-2, 2, (k, 2))
+    goal[1] = [40.0, -25.0]
+    got = wall_image(*(torch.as_tensor(v, dtype=dtype) for v in (pts, pose, goal)), cells, cell)
+    assert got.dtype == dtype and got.shape == (k, 2, cells, cells)
+    walls = 0
+    for n in range(k):
+        want = reference_image(pts[n], pose[n], goal[n], cells, cell)
+        if dtype == torch.float32:  # a point within 1e-5 m of a square's edge may fall on either side
+            fwd_left = np.asarray([[math.cos(pose[n, 2]) * (px - pose[n, 0]) + math.sin(pose[n, 2]) * (py - pose[n, 1]),
+                                    -math.sin(pose[n, 2]) * (px - pose[n, 0]) + math.cos(pose[n, 2]) * (py - pose[n, 1])]
+                                   for px, py in pts[n] if math.isfinite(px) and math.isfinite(py)])
+            frac = (fwd_left + cells * cell / 2) / cell % 1.0 if len(fwd_left) else np.zeros((0, 2))
+            assert not len(frac) or np.minimum(frac, 1 - frac).min() > 1e-4, "a point on an edge: pick another seed"
+        np.testing.assert_array_equal(got[n].numpy(), want)
+        walls += int(want[0].sum())
+    assert walls > 50 and got[4, 0].sum() == 0 and got[:, 1].sum((1, 2)).eq(1).all()
+    one = torch.tensor([[[1.1, 0.0]]], dtype=dtype)  # 1.1 m east of a robot at the origin
+    east = wall_image(one, torch.zeros(1, 3, dtype=dtype), torch.zeros(1, 2, dtype=dtype), cells, cell)
+    north = wall_image(one, torch.tensor([[0.0, 0.0, math.pi / 2]], dtype=dtype), torch.zeros(1, 2, dtype=dtype),
+                       cells, cell)
+    assert torch.nonzero(east[0, 0]).tolist() == [[4, 7]] and torch.nonzero(north[0, 0]).tolist() == [[1, 4]]
+    with pytest.raises(ValueError, match="at least 2 cells a side"):
+        wall_image(one, torch.zeros(1, 3), torch.zeros(1, 2), 1, 0.5)
+
+
+def test_a_slots_wall_image_draws_its_stored_points():
+    """:meth:`WallMemory.image` of some slots is :func:`wall_image` of those slots' stored points, from the
+    env's own memory after some steps."""
+    from flashnav.sim.memory import wall_image
+
+    preset = load_robot("turtlebot2", **{"observation.memory_frames": 3, "observation.memory_every": 2})
+    env = make_env(preset, 6, map=generate_map(8.0, 8.0, 0.05, seed=2, robot_radius=0.3), seed=0)
+    env.reset(seed=0)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(7):
+        env.step(forward_actions(gen, 6))
+    mem, idx = env.extras.memory, torch.tensor([4, 1, 3])
+    pts = mem.points[idx].transpose(2, 3).reshape(3, -1, 2)
+    assert torch.isfinite(pts).all(-1).sum() > 20
+    got = mem.image(idx, env.pose[idx], env.goal[idx], 16, 0.5)
+    torch.testing.assert_close(got, wall_image(pts, env.pose[idx], env.goal[idx], 16, 0.5), rtol=0, atol=0)
+    assert got[:, 0].sum() > 10

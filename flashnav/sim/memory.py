@@ -24,6 +24,10 @@ remembered point in a direction hides the ones behind it anyway. The points are 
 frame and turned into the robot frame when observed; a robot keeps them in its odometry frame
 (:class:`flashnav.deploy.controller.Controller`). With moving agents the memory also holds where they
 were: it is a memory of hits, as a robot's own would be.
+
+The same points can also be drawn as an egocentric image (:func:`wall_image`, :meth:`WallMemory.image`):
+squares around the robot, 1 where a stored point lies, and the goal's square. No observation uses it yet;
+issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py --wall-map-frames``) reads it through a CNN.
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ from __future__ import annotations
 import math
 
 import torch
+
+from flashnav.sim.trail import to_robot_frame
 
 #: Stored points per pooled sector of the live scan: a frame keeps ``sectors * POINTS_PER_SECTOR`` points
 #: (60 for both robots' 30 sectors; the groups' width is the nearest divisor of the sector's beams).
@@ -44,6 +50,42 @@ def points_per_frame(preset) -> int:
     cap = max(1, bps // POINTS_PER_SECTOR)
     group = max(d for d in range(1, cap + 1) if bps % d == 0)
     return preset.lidar.beams // group
+
+
+def check_wall_image(cells: int, cell: float) -> None:
+    """Raise ValueError unless a :func:`wall_image` of ``cells`` x ``cells`` squares of ``cell`` metres can be drawn."""
+    if cells < 2 or not (math.isfinite(cell) and cell > 0):
+        raise ValueError(f"a wall image needs at least 2 cells a side of > 0 metres, got {cells} x {cell}")
+
+
+def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
+    """An egocentric image [k, 2, cells, cells] of wall ``points [k, Q, 2]`` (simulator frame, metres; a point
+    with a non-finite coordinate is none) seen from ``pose [k, 3]``, with the goal ``goal [k, 2]``: squares of
+    ``cell`` metres centred on the robot and turned with its heading, row = left (row 0 rightmost), column =
+    forward (column 0 behind); channel 0 is 1 where a point falls in the square, channel 1 is 1 in the goal's
+    square (clipped onto the image's edge when farther). Unknown reads as free. Computed in the inputs' dtype,
+    on their device, with no host sync (the same ops whatever the points).
+
+    The input of issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py --wall-map``): drawn from a
+    slot's stored points (:meth:`WallMemory.image`) or from any other set of wall points."""
+    check_wall_image(cells, cell)
+    k = points.shape[0]
+    half = cells * cell / 2
+
+    def squares(xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # (row, column), unclipped, float
+        fwd, left = to_robot_frame(xy, pose).unbind(-1)
+        return torch.floor((left + half) / cell), torch.floor((fwd + half) / cell)
+
+    r, c = squares(points)
+    inside = torch.isfinite(points).all(-1) & (r >= 0) & (r < cells) & (c >= 0) & (c < cells)  # NaN compares False
+    at = (torch.arange(k, device=pose.device)[:, None] * cells + torch.where(inside, r, 0).long()) * cells
+    at = torch.where(inside, at + torch.where(inside, c, 0).long(), k * cells * cells)  # outside: one spare square
+    walls = torch.zeros(k * cells * cells + 1, device=pose.device, dtype=points.dtype)
+    walls = walls.index_fill_(0, at.reshape(-1), 1.0)[:-1].view(k, cells, cells)
+    r, c = (v[:, 0].clamp(0, cells - 1).long() for v in squares(goal[:, None]))
+    target = torch.zeros(k, cells, cells, device=pose.device, dtype=points.dtype)
+    target[torch.arange(k, device=pose.device), r, c] = 1.0
+    return torch.stack([walls, target], dim=1)
 
 
 class WallMemory:
@@ -82,6 +124,12 @@ class WallMemory:
     def valid(self) -> torch.Tensor:
         """[N, frames, P] bool: the stored points that are hits."""
         return torch.isfinite(self.points[:, :, 0])
+
+    def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
+        """:func:`wall_image` [k, 2, cells, cells] of slots ``idx``'s stored points, seen from ``pose [k, 3]``
+        with goals ``goal [k, 2]``."""
+        pts = self.points[idx]  # [k, F, 2, P]
+        return wall_image(pts.transpose(2, 3).reshape(pts.shape[0], -1, 2), pose, goal, cells, cell)
 
     def frame(self, pose: torch.Tensor, ranges: torch.Tensor) -> torch.Tensor:
         """One frame of ``k`` scans: points [k, 2, P] (x and y planes) in the frame of ``pose [k, 3]``, the
