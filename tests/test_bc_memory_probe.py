@@ -177,7 +177,7 @@ def test_a_student_with_a_wall_map_reads_it_and_the_teacher_fills_it(maze):
         assert torch.equal(walls_now[0], walls_mem[0]) and (walls_now <= walls_mem).all()  # the scan's walls remembered
     forgot = [int((o[:, LAYOUT.obs_dim:] < m[:, LAYOUT.obs_dim:]).sum()) for (m, _), (o, _) in zip(run["seqs"], now["seqs"])]
     assert sum(forgot) > 0  # the memory keeps walls the current scan no longer shows
-    for encoder in ("flat", "cnn"):
+    for encoder in ("flat", "cnn", "small"):
         torch.manual_seed(0)
         student = bc_memory_probe.Student(LAYOUT, "gru", width=16, wall_map=wm, encoder=encoder)
         whole, _ = student(obs[None])
