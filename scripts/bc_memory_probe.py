@@ -166,8 +166,8 @@ class Student(nn.Module):
                     layers = [nn.Conv2d(2, 16, 3, padding=1), nn.ReLU(), nn.Conv2d(16, 32, 3, stride=2, padding=1),
                               nn.ReLU(), nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU()]
                 else:  # small: two 3 x 3 convolutions of 8 and 16 channels, both with stride 2 (each output sees
-                    # 7 x 7 squares): for reinforcement learning on a CPU (a rough timing beside two probes, one thread:
-                    # ~20 against ~150 ms for a forward and backward pass over 512 maps of 24 x 24)
+                    # 7 x 7 squares): a quarter of the positions of the cnn's first layer and half its channels, the
+                    # kind of encoder reinforcement learning, several passes per update, could afford on a CPU
                     layers = [nn.Conv2d(2, 8, 3, stride=2, padding=1), nn.ReLU(),
                               nn.Conv2d(8, 16, 3, stride=2, padding=1), nn.ReLU()]
                 convs = nn.Sequential(*layers, nn.Flatten())
