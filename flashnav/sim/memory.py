@@ -78,8 +78,9 @@ def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cel
 
     r, c = squares(points)
     inside = torch.isfinite(points).all(-1) & (r >= 0) & (r < cells) & (c >= 0) & (c < cells)  # NaN compares False
-    at = (torch.arange(k, device=pose.device)[:, None] * cells + torch.where(inside, r, 0).long()) * cells
-    at = torch.where(inside, at + torch.where(inside, c, 0).long(), k * cells * cells)  # outside: one spare square
+    r, c = torch.where(inside, r, 0).long(), torch.where(inside, c, 0).long()  # NaN and inf cannot become integers
+    at = (torch.arange(k, device=pose.device)[:, None] * cells + r) * cells + c
+    at = torch.where(inside, at, k * cells * cells)  # outside: one spare square, dropped
     walls = torch.zeros(k * cells * cells + 1, device=pose.device, dtype=points.dtype)
     walls = walls.index_fill_(0, at.reshape(-1), 1.0)[:-1].view(k, cells, cells)
     r, c = (v[:, 0].clamp(0, cells - 1).long() for v in squares(goal[:, None]))
