@@ -412,6 +412,8 @@ def main() -> None:
         p.error(f"{', '.join(given)} without --wall-map CELLS: there is no wall map to shape")
     if a.wall_map_every is not None and a.wall_map_frames is None:
         p.error("--wall-map-every without --wall-map-frames: the dense memory keeps every scan")
+    if a.wall_map_frames is not None and a.wall_map_frames < 1:
+        p.error(f"--wall-map-frames {a.wall_map_frames}: at least 1 stored scan")
     if a.step_batches and "mlp" not in kinds:
         p.error("--step-batches trains the MLP student only, and --models has none")
     if a.rounds == 0 and a.no_teacher_eval:
@@ -438,8 +440,6 @@ def main() -> None:
         wall_map = WallMap(a.wall_map, WALL_CELL_M if a.wall_cell is None else a.wall_cell, not a.wall_map_now,
                            a.wall_map_frames or 0, MEMORY_EVERY if a.wall_map_every is None else a.wall_map_every
                            ) if a.wall_map else None
-        if a.wall_map_frames is not None and a.wall_map_frames < 1:
-            raise ValueError(f"--wall-map-frames {a.wall_map_frames}: at least 1 stored scan")
     except ValueError as exc:
         p.error(f"--wall-map / --wall-cell / --wall-map-frames / --wall-map-every: {exc}")
     try:  # Student checks --bins
