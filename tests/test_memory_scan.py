@@ -340,15 +340,21 @@ def test_the_metadata_reader_falls_back_and_names_a_bad_memory_record():
         memory_scan_shape({"observation": {"memory_scan": {"frames": "2", "every": 1}}})
 
 
+def robot_frame(px: float, py: float, pose) -> tuple[float, float]:
+    """(forward, left) of the point (px, py) seen from ``pose`` (x, y, yaw), in float64."""
+    x, y, yaw = (float(v) for v in pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return c * (px - x) + s * (py - y), -s * (px - x) + c * (py - y)
+
+
 def reference_image(points, pose, goal, cells: int, cell: float) -> np.ndarray:
     """[2, cells, cells] of one slot, point by point in float64: a finite point's square in the robot frame
     (row from the left offset, column from the forward one), the goal's square clipped onto the edge."""
-    x, y, yaw = (float(v) for v in pose)
-    c, s, half = math.cos(yaw), math.sin(yaw), cells * cell / 2
+    half = cells * cell / 2
     out = np.zeros((2, cells, cells))
 
     def square(px: float, py: float) -> tuple[int, int]:
-        fwd, left = c * (px - x) + s * (py - y), -s * (px - x) + c * (py - y)
+        fwd, left = robot_frame(px, py, pose)
         return math.floor((left + half) / cell), math.floor((fwd + half) / cell)
 
     for px, py in points:
@@ -383,9 +389,8 @@ def test_the_wall_image_against_a_point_by_point_reference(dtype):
     for n in range(k):
         want = reference_image(pts[n], pose[n], goal[n], cells, cell)
         if dtype == torch.float32:  # a point within 1e-5 m of a square's edge may fall on either side
-            fwd_left = np.asarray([[math.cos(pose[n, 2]) * (px - pose[n, 0]) + math.sin(pose[n, 2]) * (py - pose[n, 1]),
-                                    -math.sin(pose[n, 2]) * (px - pose[n, 0]) + math.cos(pose[n, 2]) * (py - pose[n, 1])]
-                                   for px, py in pts[n] if math.isfinite(px) and math.isfinite(py)])
+            fwd_left = np.asarray([robot_frame(px, py, pose[n]) for px, py in pts[n]
+                                   if math.isfinite(px) and math.isfinite(py)])
             frac = (fwd_left + cells * cell / 2) / cell % 1.0 if len(fwd_left) else np.zeros((0, 2))
             assert not len(frac) or np.minimum(frac, 1 - frac).min() > 1e-4, "a point on an edge: pick another seed"
         np.testing.assert_array_equal(got[n].numpy(), want)
