@@ -2,7 +2,8 @@
 
     .venv/bin/python scripts/bc_memory_probe.py EVAL_MAZE_YAML [...] [--train-maps 48] [--episodes 32]
         [--rounds 3] [--epochs 6] [--eval-episodes 64] [--models mlp,gru] [--bins K]
-        [--wall-map CELLS [--wall-cell M] [--map-encoder cnn|flat]] [--json OUT]
+        [--wall-map CELLS [--wall-cell M] [--wall-map-frames F | --wall-map-grid G] [--map-encoder cnn|flat|small]]
+        [--json OUT]
 
 Every reactive generalist fails issue 15's held-out mazes the same way (82-87 %, every failure a wrong turn,
 "wandered"), where the optimistic mapless planner (`scripts/mapless_planner.py`: it remembers the walls its scans
@@ -62,7 +63,7 @@ from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
 from flashnav.presets import load_robot  # noqa: E402
 from flashnav.sim.env import make_env  # noqa: E402
 from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
-from flashnav.sim.memory import WallMemory, check_wall_image, points_per_frame, wall_image  # noqa: E402
+from flashnav.sim.memory import WallGrid, WallMemory, check_wall_image, points_per_frame, wall_image  # noqa: E402
 
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
 ENCODERS = ("flat", "cnn", "small")  # how a student reads the wall map (--map-encoder)
@@ -82,21 +83,26 @@ class WallMap:
     any beam has hit), ``memory=False`` the walls of the current scan only (a control: an image of the scan, no
     memory); ``frames=F > 0`` the simulator's sparse memory points (:class:`flashnav.sim.memory.WallMemory`: the
     nearest hit of each group of beams, 60 points a scan, one scan stored every ``every`` steps, the last F kept),
-    the form a simulator slot and a robot can keep cheaply."""
+    the form a simulator slot and a robot can keep cheaply; ``grid=G > 0`` the simulator's dense memory of hits
+    (:class:`flashnav.sim.memory.WallGrid`: every beam's hit of every scan, kept as the cells of a coarse grid of
+    G metres over the map, drawn at the marked cells' centres), the form a wall-map observation would keep."""
 
     cells: int
     cell: float
     memory: bool = True
     frames: int = 0
     every: int = MEMORY_EVERY
+    grid: float = 0.0
 
     def __post_init__(self) -> None:
         check_wall_image(self.cells, self.cell)
         if self.frames < 0 or self.every < 1:
             raise ValueError(f"wall map: frames >= 0 and every >= 1, got {self.frames} and {self.every}")
-        if self.frames and not self.memory:
-            raise ValueError("wall map: the current scan's walls (no memory) and stored frames of points exclude "
-                             "each other")
+        if not (math.isfinite(self.grid) and self.grid >= 0):
+            raise ValueError(f"wall map: a grid of >= 0 metres (0: none), got {self.grid}")
+        if sum((bool(self.frames), bool(self.grid), not self.memory)) > 1:
+            raise ValueError("wall map: the current scan's walls (no memory), stored frames of points and a grid "
+                             "of hits exclude each other")
 
     @property
     def size(self) -> int:
@@ -123,6 +129,11 @@ class WallMap:
         """[N, 2 cells^2] float32 for N slots' stored wall points ``points`` [N, F, 2, P] (x and y rows, ``inf``
         where a group of beams hit nothing: :attr:`flashnav.sim.memory.WallMemory.points`), poses and goals."""
         return self._draw(np.moveaxis(points, 2, -1).reshape(len(points), -1, 2), pose, goal)
+
+    def grid_features(self, hits: WallGrid, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """[N, 2 cells^2] float32 for N slots' grids of hits ``hits`` (every slot), poses and goals."""
+        img = hits.image(slice(None), torch.from_numpy(pose), torch.from_numpy(goal), self.cells, self.cell)
+        return img.reshape(len(pose), -1).numpy().astype(np.float32)
 
 
 def task(sectors: int | None = None):
@@ -247,12 +258,13 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
     teacher = MaplessPlanner(env) if teach else None
     if teacher is not None:
         teacher.plan_all()
-    walls, goals, points = None, None, None
+    walls, goals, points, hits = None, None, None, None
     sparse = wall_map is not None and wall_map.frames > 0
-    own = wall_map is not None and not sparse and (teacher is None or not wall_map.memory)
+    gridded = wall_map is not None and wall_map.grid > 0
+    own = wall_map is not None and not (sparse or gridded) and (teacher is None or not wall_map.memory)
     if wall_map is not None:  # the teacher's memory, or the same kept without planning (or the current scan's)
         source = teacher.source if teacher is not None else EnvScans(env)
-        walls = source.walls(memory=wall_map.memory) if own else None if sparse else teacher.walls
+        walls = source.walls(memory=wall_map.memory) if own else None if sparse or gridded else teacher.walls
         every = np.arange(episodes)
         goals = source.goals(every)  # one episode per slot: its goal holds until it ends
         if own:
@@ -263,12 +275,18 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
                                 torch.device("cpu"))
             sel = torch.arange(episodes)
             points.start(sel, env.pose.cpu(), env.scan(sel.to(env.device)).cpu())
+        if gridded:  # the simulator's dense memory of hits, over the map in the simulator's frame
+            hits = WallGrid.covering(env.frame_map, episodes, wall_map.grid, preset.lidar.max_range,
+                                     env.beam_angles.cpu(), torch.device("cpu"))
+            sel = torch.arange(episodes)
+            hits.push(sel, env.pose.cpu(), env.scan(sel.to(env.device)).cpu())
 
     def observed(obs: torch.Tensor) -> torch.Tensor:
         if wall_map is None:
             return obs
         pose = env.pose.cpu().numpy().astype(np.float64)
         feats = (wall_map.point_features(points.points.numpy(), pose, goals) if sparse
+                 else wall_map.grid_features(hits, pose, goals) if gridded
                  else wall_map.features(walls.known, walls.grid, pose, goals))
         return torch.cat([obs, torch.from_numpy(feats)], 1)
     h = None
@@ -304,6 +322,9 @@ def play(preset, grid, episodes: int, seed: int, student: Student | None, mix: f
             sel = torch.as_tensor(running)
             points.push(sel, env.pose[sel.to(env.device)].cpu(), env.scan(sel.to(env.device)).cpu(),
                         torch.full((len(running),), t + 1))
+        if gridded:
+            sel = torch.as_tensor(running)
+            hits.push(sel, env.pose[sel.to(env.device)].cpu(), env.scan(sel.to(env.device)).cpu())
     obs_t, lab_t = torch.stack(obs_seq, 1), torch.stack(lab_seq, 1)  # [N, T, D], [N, T, 2]
     seqs = [(obs_t[i, : lengths[i]], lab_t[i, : lengths[i]]) for i in range(episodes)]
     return {"seqs": seqs, "success": success, "collision": collision}
@@ -385,6 +406,10 @@ def main() -> None:
                         "a scan) of the last F stored scans instead of the teacher's dense memory (default: dense)")
     p.add_argument("--wall-map-every", type=int, default=None, metavar="E",
                    help=f"with --wall-map-frames: control steps between two stored scans (default {MEMORY_EVERY})")
+    p.add_argument("--wall-map-grid", type=float, default=None, metavar="G",
+                   help="draw the wall map from the simulator's dense memory of hits (flashnav.sim.memory.WallGrid: "
+                        "every beam's hit, kept as cells of G metres) instead of the teacher's memory (default: the "
+                        "teacher's)")
     p.add_argument("--map-encoder", default=None, choices=ENCODERS,
                    help="how the students read the wall map: flat, one ReLU layer over its squares; cnn, three "
                         "3 x 3 convolutions first (16, 32, 32 channels), the last two with stride 2; small, two 3 x 3 "
@@ -407,13 +432,16 @@ def main() -> None:
             p.error(f"evaluation map {m}: no such file")
     given = [f for f, v in (("--wall-cell", a.wall_cell), ("--map-encoder", a.map_encoder),
                             ("--wall-map-now", a.wall_map_now or None), ("--wall-map-frames", a.wall_map_frames),
-                            ("--wall-map-every", a.wall_map_every)) if v is not None]
+                            ("--wall-map-every", a.wall_map_every), ("--wall-map-grid", a.wall_map_grid))
+             if v is not None]
     if given and not a.wall_map:
         p.error(f"{', '.join(given)} without --wall-map CELLS: there is no wall map to shape")
     if a.wall_map_every is not None and a.wall_map_frames is None:
         p.error("--wall-map-every without --wall-map-frames: the dense memory keeps every scan")
     if a.wall_map_frames is not None and a.wall_map_frames < 1:
         p.error(f"--wall-map-frames {a.wall_map_frames}: at least 1 stored scan")
+    if a.wall_map_grid is not None and not (math.isfinite(a.wall_map_grid) and a.wall_map_grid > 0):
+        p.error(f"--wall-map-grid {a.wall_map_grid}: cells of > 0 metres")
     if a.step_batches and "mlp" not in kinds:
         p.error("--step-batches trains the MLP student only, and --models has none")
     if a.rounds == 0 and a.no_teacher_eval:
@@ -438,10 +466,10 @@ def main() -> None:
     preset, layout = task(a.sectors)
     try:
         wall_map = WallMap(a.wall_map, WALL_CELL_M if a.wall_cell is None else a.wall_cell, not a.wall_map_now,
-                           a.wall_map_frames or 0, MEMORY_EVERY if a.wall_map_every is None else a.wall_map_every
-                           ) if a.wall_map else None
+                           a.wall_map_frames or 0, MEMORY_EVERY if a.wall_map_every is None else a.wall_map_every,
+                           a.wall_map_grid or 0.0) if a.wall_map else None
     except ValueError as exc:
-        p.error(f"--wall-map / --wall-cell / --wall-map-frames / --wall-map-every: {exc}")
+        p.error(f"--wall-map / --wall-cell / --wall-map-frames / --wall-map-every / --wall-map-grid: {exc}")
     try:  # Student checks --bins
         students = {k: Student(layout, k, a.width, a.bins, wall_map, a.map_encoder or MAP_ENCODER) for k in kinds}
     except ValueError as exc:

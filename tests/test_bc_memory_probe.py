@@ -249,6 +249,46 @@ def test_the_sparse_wall_map_keeps_the_simulators_own_memory_points(maze, monkey
     assert maps[0, 0].sum() > 0 and maps[:, 1].sum((1, 2)).eq(1).all()
 
 
+def test_the_grid_wall_map_draws_the_hits_the_teachers_memory_draws(maze, monkeypatch):
+    """Played with ``grid`` at the map's resolution (the teacher driving: the same episodes), the simulator's dense
+    memory of hits draws the teacher's own map, up to hits on a cell's edge (float32 against float64), once both
+    mark a hit where the teacher does (half a map cell past it) and remember every wall (the teacher's carving
+    off for this check); a coarser grid draws a map of its own cells."""
+    from flashnav.guidance import EnvScans
+    from flashnav.maps.ros import load_ros_map
+    from flashnav.sim.memory import WallGrid
+
+    grid = load_ros_map(maze)
+    walls_of = EnvScans.walls
+    monkeypatch.setattr(EnvScans, "walls", lambda self, *a, **k: walls_of(self, *a, **{**k, "carve": False}))
+    covering = WallGrid.covering.__func__
+    beyond = {"m": grid.resolution / 2}
+    monkeypatch.setattr(bc_memory_probe.WallGrid, "covering",
+                        classmethod(lambda cls, *a: covering(cls, *a, beyond=beyond["m"])))
+    wm = bc_memory_probe.WallMap(8, 0.5)
+
+    def walls(**grid_of):
+        run = bc_memory_probe.play(PRESET, grid, 4, EVAL_SEED, None, 1.0, np.random.default_rng(0), fixed=True,
+                                   wall_map=dataclasses.replace(wm, **grid_of))
+        obs = torch.cat([o for o, _ in run["seqs"]])
+        return obs[:, :LAYOUT.obs_dim], obs[:, LAYOUT.obs_dim:].reshape(-1, 2, 8, 8)
+
+    base, dense = walls()
+    same, hits = walls(grid=grid.resolution)
+    torch.testing.assert_close(same, base)  # the same episodes
+    assert torch.equal(hits[:, 1], dense[:, 1])  # the same goal squares
+    wall = dense[:, 0].sum()
+    assert wall > 1000 and (hits[:, 0] != dense[:, 0]).sum() < 0.01 * wall
+    beyond["m"] = 0.0  # as the probe plays it: the hit itself, on cells of 0.25 m
+    same, coarse = walls(grid=0.25)
+    torch.testing.assert_close(same, base)
+    assert 0.5 * wall < coarse[:, 0].sum() < 1.5 * wall and not torch.equal(coarse[:, 0], dense[:, 0])
+    with pytest.raises(ValueError, match="exclude each other"):
+        bc_memory_probe.WallMap(8, 0.5, frames=2, grid=0.1)
+    with pytest.raises(ValueError, match="grid of >= 0 metres"):
+        bc_memory_probe.WallMap(8, 0.5, grid=-0.1)
+
+
 def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, capsys):
     out = tmp_path / "probe.json"
     monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), "--train-maps", "1", "--episodes", "4",
@@ -272,7 +312,10 @@ def test_the_probe_end_to_end_and_its_seed_check(maze, tmp_path, monkeypatch, ca
                        (["--wall-map-frames", "4"], "--wall-map-frames without --wall-map"),
                        (["--wall-map", "12", "--wall-map-every", "5"], "--wall-map-every without --wall-map-frames"),
                        (["--wall-map", "12", "--wall-map-frames", "0"], "at least 1 stored scan"),
-                       (["--wall-map", "12", "--wall-map-frames", "3", "--wall-map-now"], "exclude each other")):
+                       (["--wall-map", "12", "--wall-map-frames", "3", "--wall-map-now"], "exclude each other"),
+                       (["--wall-map-grid", "0.1"], "--wall-map-grid without --wall-map"),
+                       (["--wall-map", "12", "--wall-map-grid", "0"], "--wall-map-grid 0.0: cells of > 0 metres"),
+                       (["--wall-map", "12", "--wall-map-grid", "0.1", "--wall-map-frames", "2"], "exclude each other")):
         monkeypatch.setattr(sys, "argv", ["bc_memory_probe.py", str(maze), *argv])
         with pytest.raises(SystemExit):
             bc_memory_probe.main()

@@ -26,8 +26,10 @@ frame and turned into the robot frame when observed; a robot keeps them in its o
 were: it is a memory of hits, as a robot's own would be.
 
 The same points can also be drawn as an egocentric image (:func:`wall_image`, :meth:`WallMemory.image`):
-squares around the robot, 1 where a stored point lies, and the goal's square. No observation uses it yet;
-issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py --wall-map-frames``) reads it through a CNN.
+squares around the robot, 1 where a stored point lies, and the goal's square. :class:`WallGrid` is the dense
+form of the same memory: every beam's hit of every scan, kept as the cells of a coarse grid. No observation uses
+either yet; issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py --wall-map-frames`` and
+``--wall-map-grid``) reads them through a CNN.
 """
 
 from __future__ import annotations
@@ -174,3 +176,104 @@ class WallMemory:
         old = self.points[rows, ring]  # [k, 2, P]
         self.points[rows, ring] = torch.where(store, self.frame(pose, ranges), old)
         return self.scan(self.points[idx], pose)
+
+
+class WallGrid:
+    """The dense memory of hits: per slot, the cells of a coarse grid (``shape`` (H, W) cells of ``cell``
+    metres, simulator frame) in which a beam of any scan of the slot's episode has ended (a range below
+    ``max_range``), every beam counted, nothing forgotten until the slot's next episode; one bool (a byte) a cell
+    and slot. Each slot's grid has its own ``origin`` (the corner of cell (0, 0), metres: the slot's map's, in a
+    many-map batch), set when its episode starts; a hit off the grid is dropped. ``beyond``: metres past the hit
+    along its beam where it is marked (0: the hit itself; half a map cell puts a hit on a wall cell's edge into
+    the wall's cell, as :class:`flashnav.mapless.SeenWalls` marks it).
+
+    :meth:`image` draws the marked cells' centres as :func:`wall_image` draws points, reading only the window of
+    cells whose centres can fall in the image, so its cost is the image's, not the map's."""
+
+    def __init__(self, num_envs: int, shape: tuple[int, int], cell: float, max_range: float,
+                 beam_angles: torch.Tensor, device: torch.device, beyond: float = 0.0):
+        h, w = (int(v) for v in shape)
+        if num_envs < 1 or h < 1 or w < 1 or not (math.isfinite(cell) and cell > 0):
+            raise ValueError(f"WallGrid needs num_envs >= 1, a shape of >= 1 x 1 cells and cells of > 0 metres, "
+                             f"got {num_envs}, {h} x {w}, {cell}")
+        if not (math.isfinite(beyond) and beyond >= 0):
+            raise ValueError(f"WallGrid: beyond must be >= 0 metres, got {beyond}")
+        self.shape, self.cell, self.max_range, self.beyond = (h, w), float(cell), float(max_range), float(beyond)
+        self.angles = beam_angles.to(device=device, dtype=torch.float32)
+        # one spare cell a slot (the last column): every dropped hit goes there, so that marking is the same
+        # ops whatever the hits (no host sync); it is never read
+        self.known = torch.zeros(num_envs, h * w + 1, device=device, dtype=torch.bool)
+        self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
+        self.rows = torch.arange(num_envs, device=device)
+
+    @classmethod
+    def covering(cls, geometry, num_envs: int, cell: float, max_range: float, beam_angles: torch.Tensor,
+                 device: torch.device, beyond: float = 0.0) -> "WallGrid":
+        """A grid of ``cell`` metres over ``geometry``'s extent (an OccupancyMap: its shape times its
+        resolution), every slot's origin at the map's."""
+        h, w = geometry.shape
+        res = geometry.resolution
+        grid = cls(num_envs, (math.ceil(h * res / cell - 1e-9), math.ceil(w * res / cell - 1e-9)), cell,
+                   max_range, beam_angles, device, beyond)
+        grid.origin[:] = torch.tensor(geometry.origin, dtype=torch.float32)
+        return grid
+
+    def _flat(self, xy: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
+        """Flat cell index [k, Q] of points ``xy [k, Q, 2]`` on grids of origins ``origin [k, 2]``; a point off
+        the grid or not finite gets the spare cell."""
+        h, w = self.shape
+        c = torch.floor((xy[..., 0] - origin[:, 0:1]) / self.cell)
+        r = torch.floor((xy[..., 1] - origin[:, 1:2]) / self.cell)
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)  # NaN and inf compare False
+        return torch.where(inside, torch.where(inside, r, 0).long() * w + torch.where(inside, c, 0).long(), h * w)
+
+    def hits(self, pose: torch.Tensor, ranges: torch.Tensor) -> torch.Tensor:
+        """[k, beams, 2] where the hits of scans ``ranges [k, beams]`` from ``pose [k, 3]`` are marked (``beyond``
+        past them; ``inf`` where a beam met nothing within ``max_range``)."""
+        bearing = self.angles[None] + pose[:, 2:3]
+        r = torch.where(ranges < self.max_range, ranges + self.beyond, torch.full_like(ranges, math.inf))
+        return pose[:, None, :2] + r[..., None] * torch.stack([torch.cos(bearing), torch.sin(bearing)], dim=-1)
+
+    def push(self, idx, pose: torch.Tensor, ranges: torch.Tensor) -> None:
+        """Marks the cells where the beams of slots ``idx`` (at ``pose [k, 3]``, scans ``ranges [k, beams]``) end."""
+        rows = self.rows[idx]
+        at = rows[:, None] * self.known.shape[1] + self._flat(self.hits(pose, ranges), self.origin[rows])
+        self.known.view(-1).index_fill_(0, at.reshape(-1), True)
+
+    def start(self, idx, pose: torch.Tensor, ranges: torch.Tensor, origin: torch.Tensor | None = None) -> None:
+        """New episodes in slots ``idx``: their grids are cleared (and moved to ``origin [k, 2]`` when given), then
+        their first scans marked."""
+        rows = self.rows[idx]
+        self.known[rows] = False
+        if origin is not None:
+            self.origin[rows] = origin.to(self.origin)
+        self.push(rows, pose, ranges)
+
+    def centres(self, idx) -> torch.Tensor:
+        """[k, H W, 2] every cell's centre of slots ``idx``, ``inf`` where the cell is not marked (a reference
+        and a small-map form of :meth:`image`'s window)."""
+        h, w = self.shape
+        rows = self.rows[idx]
+        r, c = torch.meshgrid(torch.arange(h, device=rows.device), torch.arange(w, device=rows.device), indexing="ij")
+        xy = (torch.stack([c, r], -1).reshape(-1, 2).to(self.origin) + 0.5) * self.cell + self.origin[rows][:, None]
+        return torch.where(self.known[rows, :-1, None], xy, math.inf)
+
+    def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
+        """:func:`wall_image` [k, 2, cells, cells] of the marked cells' centres of slots ``idx``, seen from
+        ``pose [k, 3]`` with goals ``goal [k, 2]``: the same image as from every marked centre, drawn from the
+        square window of cells around the robot that holds every centre within the image's half-diagonal."""
+        check_wall_image(cells, cell)
+        h, w = self.shape
+        rows = self.rows[idx]
+        reach = cells * cell / 2 * math.sqrt(2.0)
+        n = math.ceil(2 * reach / self.cell) + 3
+        org = self.origin[rows].to(pose.dtype)
+        base = torch.floor((pose[:, :2] - reach - org) / self.cell).long() - 1  # [k, 2]: first column, first row
+        step = torch.arange(n, device=pose.device)
+        c = (base[:, 0:1] + step)[:, None, :].expand(-1, n, -1)  # [k, n, n]: column varies along the last axis
+        r = (base[:, 1:2] + step)[:, :, None].expand(-1, -1, n)
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        flat = torch.where(inside, r * w + c, h * w).reshape(len(rows), -1)  # off the grid: the spare cell
+        marked = torch.gather(self.known[rows], 1, flat) & inside.reshape(len(rows), -1)  # (which holds dropped hits)
+        xy = (torch.stack([c, r], -1).reshape(len(rows), -1, 2).to(pose.dtype) + 0.5) * self.cell + org[:, None]
+        return wall_image(torch.where(marked[..., None], xy, math.inf), pose, goal, cells, cell)
