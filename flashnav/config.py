@@ -272,6 +272,8 @@ TRACK_FEATURES = ("present", "x", "y", "vx", "vy", "radius")
 MAX_POSE_TRAIL = 32
 #: Largest ``observation.memory_frames``: the memory scan's cost per step grows with the frames kept.
 MAX_MEMORY_FRAMES = 64
+#: Largest ``observation.wall_map`` (squares a side): the map adds 2 x wall_map^2 columns.
+MAX_WALL_MAP = 48
 
 
 class Observation(Strict):
@@ -296,6 +298,20 @@ class Observation(Strict):
                                "walls; 0 = none, the paper's observation")
     memory_every: int = Field(10, ge=1, le=1000, description="control steps between two stored scans of the memory "
                               "scan (it remembers memory_frames * memory_every steps)")
+    wall_map: int = Field(0, ge=0, le=MAX_WALL_MAP, description="the wall map (flashnav.sim.memory.WallGrid): an "
+                          "egocentric image of wall_map x wall_map squares of wall_map_cell metres around the robot, "
+                          "turned with it, 1 where a wall its LiDAR hit this episode lies and, in a second channel, "
+                          "1 in the goal's square; 2 x wall_map^2 columns appended after everything else; 0 = none, "
+                          "the paper's observation")
+    wall_map_cell: float = Field(0.5, gt=0, le=2.0, description="the wall map's square, metres")
+    wall_map_grid: float = Field(0.25, gt=0, le=1.0, description="the cell, metres, of the per-slot grid in which "
+                                 "the wall map remembers hits (the map is drawn at the marked cells' centres)")
+
+    @model_validator(mode="after")
+    def _one_square_is_no_image(self):
+        if self.wall_map == 1:
+            raise ValueError("observation.wall_map must be 0 (none) or at least 2 squares a side, got 1")
+        return self
 
 
 class RobotPreset(Strict):
@@ -334,9 +350,15 @@ class RobotPreset(Strict):
         return self.tracks_end + 2 * self.observation.pose_trail
 
     @property
+    def memory_end(self) -> int:
+        """End column of the memory scan: where the wall map starts."""
+        return self.trail_end + (self.lidar.sectors if self.observation.memory_frames else 0)
+
+    @property
     def obs_dim(self) -> int:
         """The paper's observation, then ``observation.scan_history`` previous frames of ``sectors`` each,
         then ``observation.agent_tracks`` tracks of ``len(TRACK_FEATURES)`` columns each, then
         ``observation.pose_trail`` breadcrumbs of 2 columns each, then the memory scan's ``sectors`` columns
-        with ``observation.memory_frames`` > 0."""
-        return self.trail_end + (self.lidar.sectors if self.observation.memory_frames else 0)
+        with ``observation.memory_frames`` > 0, then the wall map's 2 x ``observation.wall_map``^2 columns
+        (the walls' squares row by row, then the goal's)."""
+        return self.memory_end + 2 * self.observation.wall_map ** 2

@@ -182,3 +182,85 @@ def test_fed_from_an_envs_scans_the_grid_marks_the_maps_walls():
     assert (known & occ).sum() > 0.3 * known.sum()  # not all in the free cell before the wall
     walls = inside.known[:, :-1].view(8, *grid.shape)
     assert walls.sum() > 500 and (walls & occ).sum() > 0.9 * walls.sum()  # (a grazing beam may end beside one)
+
+
+# ---- the wall map in the env's observation (observation.wall_map) ------------------------------------------------
+
+WALL_CASES = {
+    "tb2": ("turtlebot2", None, {}),
+    "go2": ("go2", None, {}),
+    "tb2-many-maps": ("turtlebot2", [(6.0, 6.0, 0.05, 1), (9.0, 5.0, 0.1, 2)], {}),
+    "tb2-with-everything": ("turtlebot2", None, {"observation.memory_frames": 2, "observation.pose_trail": 2,
+                                                 "observation.scan_history": 1, "agents.count": 2}),
+}
+
+
+@pytest.mark.parametrize("case", list(WALL_CASES))
+def test_the_envs_wall_map_columns_draw_every_hit_of_each_slots_episode(case):
+    """The wall map's columns are the image of a grid fed from outside with every scan of each slot's episode (the
+    new episode's first scan alone after a reset), on the grid of the slot's own map; every earlier column is the
+    env's without the map, bit for bit, and so are rewards and ends."""
+    robot, maps, overrides = WALL_CASES[case]
+    grids = [generate_map(w, h, r, seed=s, robot_radius=0.3, name=f"m{s}") for w, h, r, s in maps] if maps else None
+    if grids:
+        grids[1] = grids[1].shifted((-1.5, 0.7))  # its own origin: a slot's grid must be placed on its map
+    n, seed, cells, cell = 6, 5, 10, 0.4
+    plain_preset = load_robot(robot, **overrides)
+    preset = load_robot(robot, **overrides, **{"observation.wall_map": cells, "observation.wall_map_cell": cell,
+                                               "observation.wall_map_grid": 0.2})
+    plain, env = (make_env(p, n, maps=grids, seed=seed) if grids else make_env(p, n, seed=seed)
+                  for p in (plain_preset, preset))
+    base = plain.obs_dim
+    assert env.obs_dim == base + 2 * cells * cells == preset.obs_dim and preset.memory_end == base
+    assert plain.extras.walls is None
+    ref = WallGrid(n, env.extras.walls.shape, 0.2, preset.lidar.max_range, env.beam_angles, CPU)
+    every = torch.arange(n)
+
+    def origins() -> torch.Tensor:
+        return torch.tensor([env.frame_maps[int(m)].origin for m in env.map_index], dtype=torch.float32)
+
+    obs0, _ = plain.reset(seed=seed)
+    obs1, _ = env.reset(seed=seed)
+    ref.start(every, env.pose, env.scan(), origins())
+    gen = torch.Generator().manual_seed(seed)
+    resets = walls = 0
+    for _ in range(30):
+        assert torch.equal(obs1[:, :base], obs0)
+        want = ref.image(every, env.pose, env.goal, cells, cell).reshape(n, -1)
+        assert torch.equal(obs1[:, base:], want)
+        assert env.single_observation_space.contains(obs1[0].numpy())
+        walls += int(obs1[:, base: base + cells * cells].sum())
+        action = forward_actions(gen, n)
+        obs0, r0, term0, trunc0, info0 = plain.step(action)
+        obs1, r1, term1, trunc1, info1 = env.step(action)
+        assert torch.equal(r0, r1) and torch.equal(term0, term1) and torch.equal(trunc0, trunc1)
+        done = info1["_final_obs"]
+        ref.push(every[~done], env.pose[~done], env.scan(every[~done]))
+        if done.any():
+            ref.start(every[done], env.pose[done], env.scan(every[done]), origins()[done])
+            resets += int(done.sum())
+    assert resets >= 2 and walls > 200
+    if grids:
+        assert len(set(env.map_index.tolist())) == 2 and env.extras.walls.shape == (30, 45)  # the larger map's
+        assert env.frame_maps[1].origin == (1.5, -0.7)
+
+
+def test_a_partial_reset_keeps_the_other_slots_wall_grids_and_new_maps_rebuild_them():
+    preset = load_robot("turtlebot2", **{"observation.wall_map": 8})
+    env = make_env(preset, 4, seed=0)
+    env.reset(seed=0)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        env.step(forward_actions(gen, 4) * 0.2)
+    before = env.extras.walls.known.clone()
+    env.reset(options={"reset_mask": torch.tensor([False, True, False, False])})
+    keep = torch.tensor([0, 2, 3])
+    assert torch.equal(env.extras.walls.known[keep], before[keep])
+    assert not torch.equal(env.extras.walls.known[1], before[1])
+    big = generate_map(16.0, 12.0, 0.1, seed=4, robot_radius=0.3)
+    obs, _ = env.replace_maps([big])
+    assert env.extras.walls.shape == (48, 64) and obs[:, preset.memory_end:].reshape(4, 2, 8, 8)[:, 0].sum() > 0
+    with pytest.raises(ValueError, match="observation.wall_map must be 0 .none. or at least 2 squares a side, got 1"):
+        load_robot("turtlebot2", **{"observation.wall_map": 1})
+    with pytest.raises(ValueError, match="wall_map_grid"):
+        load_robot("turtlebot2", **{"observation.wall_map_grid": 0})

@@ -81,6 +81,7 @@ class NavVecEnv(VectorEnv):
         self.device = torch.device(device)
         self.raycaster_name = raycaster or DEFAULT_RAYCASTER
         self.beam_angles = beam_angles(preset.lidar.fov_deg, preset.lidar.beams).to(self.device)
+        self.extras = ObservationExtras(preset, num_envs, self.beam_angles, self.device)  # all off: the paper's step
         self._use_maps(grid, map_weights)
         self.obs_dim = preset.obs_dim
 
@@ -101,7 +102,6 @@ class NavVecEnv(VectorEnv):
         self.episode_return = torch.zeros(n, **f32)
         self.obs = torch.zeros(n, self.obs_dim, **f32)
         self.map_index = torch.zeros(n, dtype=torch.long, device=self.device)  # each slot's map
-        self.extras = ObservationExtras(preset, n, self.beam_angles, self.device)  # all off: the paper's step
         # latency and acceleration limits between command and motion (sim.motion.Actuation); None: the paper's
         self.actuation = None if preset.motion.instant else Actuation(preset.motion, n, preset.episode.dt, self.device)
         self.noise_std = None if preset.lidar.noise_std_max is None else torch.zeros(n, **f32)  # per episode
@@ -136,6 +136,7 @@ class NavVecEnv(VectorEnv):
         # they move on each slot's own map (rebuilt with the maps)
         self.agents = (AgentWorld(preset, self.frame_maps, self.num_envs, self.beam_angles, self.device)
                        if preset.agents.count else None)
+        self.extras.use_maps(self.frame_maps)  # the wall map's grids span the maps
 
     def replace_maps(self, grid: OccupancyMap | Sequence[OccupancyMap], map_weights: Sequence[float] | None = None):
         """Swap the map set between steps (fresh generated maps during training): every slot ends its
@@ -184,7 +185,7 @@ class NavVecEnv(VectorEnv):
         then the opt-in extras (:meth:`ObservationExtras.append`; ``start``: new episodes)."""
         noise = None if self.noise_std is None else self.noise_std[sel]
         obs = observe(self.preset, ranges, pose, goal, velocity, self._gen, noise)
-        return self.extras.append(obs, sel, self.agents, pose, ranges, start, steps)
+        return self.extras.append(obs, sel, self.agents, pose, ranges, start, steps, goal, self._maps_of(sel))
 
     # ---- episode control --------------------------------------------------------------------------
     def _reset_slots(self, idx: torch.Tensor) -> None:

@@ -20,6 +20,10 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     a new episode starts with its start position repeated); obs_dim += 2 P
     then, only with ``observation.memory_frames`` F > 0, the memory scan: a 360-deg pooled scan of the wall
     points hit in the last F stored scans (:mod:`flashnav.sim.memory`); obs_dim += S
+    then, only with ``observation.wall_map`` C > 0, the wall map: an egocentric image of C x C squares of
+    ``observation.wall_map_cell`` metres, 1 where a wall hit this episode lies (kept per slot in a grid of
+    ``observation.wall_map_grid`` metres: :class:`flashnav.sim.memory.WallGrid`), then 1 in the goal's square
+    (:func:`flashnav.sim.memory.wall_image`); obs_dim += 2 C^2
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
 def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) [obs_dim] float32 of the observation space; history frames repeat the LiDAR bounds,
     agent tracks :func:`flashnav.sim.tracks.track_bounds`, pose-trail breadcrumbs
-    +-:func:`flashnav.sim.trail.trail_bound`, the memory scan the LiDAR's."""
+    +-:func:`flashnav.sim.trail.trail_bound`, the memory scan the LiDAR's, the wall map's squares [0, 1]."""
     s = preset.lidar.sectors
     (v_lo, v_hi), (w_lo, w_hi) = preset.motion.v_bounds, preset.motion.w_bounds
     vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if preset.motion.velocity_state_dims == 2 else (
@@ -56,10 +60,11 @@ def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[n
     t_lo, t_hi = track_bounds(preset)
     trail = np.full(2 * preset.observation.pose_trail, trail_bound(preset), dtype=np.float32)
     mem = int(preset.observation.memory_frames > 0)  # the memory scan: LiDAR bounds, one frame
+    squares = 2 * preset.observation.wall_map ** 2
     return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m), -trail,
-                            np.tile(low[:s], mem)]),
+                            np.tile(low[:s], mem), np.zeros(squares, np.float32)]),
             np.concatenate([high, np.tile(high[:s], k), np.tile(np.array(t_hi, np.float32), m), trail,
-                            np.tile(high[:s], mem)]))
+                            np.tile(high[:s], mem), np.ones(squares, np.float32)]))
 
 
 def apply_sensor(ranges: torch.Tensor, preset: RobotPreset, gen: torch.Generator,
