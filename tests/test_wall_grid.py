@@ -15,7 +15,7 @@ from test_pose_trail import forward_actions  # seeded, forward-biased actions: e
 from flashnav.maps import generate_map
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
-from flashnav.sim.memory import WallGrid, wall_image
+from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, wall_image
 from flashnav.sim.observation import beam_angles
 
 #: metres: a hit this close to a cell's edge may fall in either cell in float32
@@ -213,7 +213,7 @@ def test_the_envs_wall_map_columns_draw_every_hit_of_each_slots_episode(case):
     base = plain.obs_dim
     assert env.obs_dim == base + 2 * cells * cells == preset.obs_dim and preset.memory_end == base
     assert plain.extras.walls is None
-    ref = WallGrid(n, env.extras.walls.shape, 0.2, preset.lidar.max_range, env.beam_angles, CPU)
+    ref = WallGrid(n, env.extras.walls.shape, 0.2, preset.lidar.max_range, env.beam_angles, CPU, HIT_BEYOND_M)
     every = torch.arange(n)
 
     def origins() -> torch.Tensor:

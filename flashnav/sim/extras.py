@@ -11,7 +11,7 @@ import torch
 
 from flashnav.config import RobotPreset
 from flashnav.sim.history import ScanHistory
-from flashnav.sim.memory import WallGrid, WallMemory
+from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, WallMemory
 from flashnav.sim.tracks import AgentTracks
 from flashnav.sim.trail import PoseTrail
 
@@ -38,7 +38,8 @@ class ObservationExtras:
         cell = o.wall_map_grid
         h = max(math.ceil(g.shape[0] * g.resolution / cell - 1e-9) for g in maps)
         w = max(math.ceil(g.shape[1] * g.resolution / cell - 1e-9) for g in maps)
-        self.walls = WallGrid(self.n, (h, w), cell, self.preset.lidar.max_range, self.beam_angles, self.device)
+        self.walls = WallGrid(self.n, (h, w), cell, self.preset.lidar.max_range, self.beam_angles, self.device,
+                              HIT_BEYOND_M)
         self._origins = torch.tensor([g.origin for g in maps], dtype=torch.float32, device=self.device)
 
     def append(self, obs: torch.Tensor, sel, agents, pose: torch.Tensor, ranges: torch.Tensor, start: bool,

@@ -178,6 +178,12 @@ class WallMemory:
         return self.scan(self.points[idx], pose)
 
 
+#: Metres past a hit where the env's wall map marks it (:class:`WallGrid`'s ``beyond``): a wall face that lies on a
+#: grid cell's edge then puts its hits in the wall's cell from whichever side the robot sees it, so the map of a
+#: mirrored world is the mirror of the map (tests/test_mirror.py); far below any cell.
+HIT_BEYOND_M = 1e-3
+
+
 class WallGrid:
     """The dense memory of hits: per slot, the cells of a coarse grid (``shape`` (H, W) cells of ``cell``
     metres, simulator frame) in which a beam of any scan of the slot's episode has ended (a range below
