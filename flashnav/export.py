@@ -142,7 +142,7 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
             # always written (0 = none): the memory scan of remembered wall hits (flashnav.sim.memory)
             "memory_scan": {"frames": preset.observation.memory_frames, "every": preset.observation.memory_every,
                             "points_per_frame": points_per_frame(preset),
-                            "columns": [preset.trail_end, preset.obs_dim], "units": "m",
+                            "columns": [preset.trail_end, preset.memory_end], "units": "m",
                             "order": "sector j covers bearings [-pi + j w, -pi + (j + 1) w), w = 2 pi / columns, in "
                                      "the robot frame (from straight behind, counter-clockwise); max_range where "
                                      "nothing is remembered",
@@ -150,6 +150,17 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                                        "a scan is stored after every 'every'-th control step of the episode, as "
                                        "'points_per_frame' points (the nearest hit of each group of consecutive beams)",
                             "reset": "a new episode (goal) stores its first scan and forgets the rest"},
+            # always written (0 = none): the egocentric wall map (flashnav.sim.memory.WallGrid, wall_image)
+            "wall_map": {"cells": preset.observation.wall_map, "cell_m": preset.observation.wall_map_cell,
+                         "grid_m": preset.observation.wall_map_grid,
+                         "columns": [preset.memory_end, preset.obs_dim], "channels": ["walls", "goal"],
+                         "order": "channel by channel, then row by row: square (row i, column j) spans "
+                                  "[(i - cells / 2) cell_m, (i + 1 - cells / 2) cell_m) to the left of the robot "
+                                  "(row 0 rightmost) and [(j - cells / 2) cell_m, (j + 1 - cells / 2) cell_m) ahead",
+                         "meaning": "walls: 1 where the centre of a grid_m cell that a LiDAR beam ended in during "
+                                    "this episode lies in the square, else 0 (unknown reads as free); goal: 1 in the "
+                                    "goal's square, clipped onto the edge when farther",
+                         "reset": "a new episode (goal) forgets every wall and marks its first scan"},
         },
         "command_bounds": {"v": list(m.v_bounds), "w": list(m.w_bounds),
                            "max_linear_velocity": m.max_linear_velocity,
@@ -241,7 +252,8 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
     LiDAR readings (the current frame, any history frames and the memory scan) are uniform in [inscribed radius, max
     range] with about a tenth exactly at each end (the IPAPRec pole side and the no-return reading); goal distance in [0, goal_distance_max]
     (default: the diagonal of the preset's map size), goal
-    angle in [-pi, pi), velocities inside the command bounds (vy = 0 for a 3-D velocity state).
+    angle in [-pi, pi), velocities inside the command bounds (vy = 0 for a 3-D velocity state); a wall map's
+    squares 0 / 1 (:func:`_wall_map`).
     """
     s, lidar, m = preset.lidar.sectors, preset.lidar, preset.motion
     r_in, r_max = preset.footprint.inscribed_radius, lidar.max_range
@@ -256,7 +268,20 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
     bound = trail_bound(preset)
     trail = bound * (2.0 * u(n, 2 * preset.observation.pose_trail) - 1.0)
     memory = [_readings(n, s, r_in, r_max, u)] if preset.observation.memory_frames else []
-    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u), trail, *memory], dim=1)
+    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u), trail, *memory,
+                      _wall_map(preset, n, u)], dim=1)
+
+
+def _wall_map(preset: RobotPreset, n: int, u) -> torch.Tensor:
+    """``[n, 2 C^2]`` wall maps for :func:`sample_observations`: each square a wall with probability 1/5, the
+    goal in one square."""
+    c = preset.observation.wall_map
+    if not c:  # no draws: the other columns stay what they were before the wall map existed
+        return torch.zeros(n, 0)
+    walls = (u(n, c * c) < 0.2).float()
+    goal = torch.zeros(n, c * c)
+    goal[torch.arange(n), (u(n) * c * c).long().clamp(max=c * c - 1)] = 1.0
+    return torch.cat([walls, goal], dim=1)
 
 
 def _tracks(preset: RobotPreset, n: int, u) -> torch.Tensor:

@@ -94,6 +94,10 @@ class PolicyRuntime:
         self.pose_trail, self.trail_every = pose_trail_shape(meta, path)  # P breadcrumbs
         # the memory scan, last: F stored scans, one every E control steps, P hits each
         self.memory_frames, self.memory_every, self.memory_points = memory_scan_shape(meta, path)
+        cells = ((meta.get("observation") or {}).get("wall_map") or {}).get("cells", 0)
+        if cells:  # not silently: its columns would be read as something else
+            raise ValueError(f"{path}: the policy reads a wall map (observation.wall_map {cells}), which the robot-side "
+                             "runtime does not build yet; evaluate it in the simulator (flashnav eval)")
         memory = self.layout.sectors if self.memory_frames else 0
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
                               - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory)

@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from flashnav.learn.wall_map import WALL_MAP_FEATURES
 from flashnav.sim.tracks import track_scales
 from flashnav.sim.trail import trail_bound
 
@@ -43,6 +44,8 @@ class ObsLayout:
     ``pose_trail``: breadcrumbs P after the tracks (2 P columns, x and y; 0 = none).
     ``trail_scale``: the divisor of every breadcrumb column, metres (:func:`flashnav.sim.trail.trail_bound`).
     ``memory_sectors``: the memory scan's columns after the trail (LiDAR-like, :mod:`flashnav.sim.memory`; 0 = none).
+    ``wall_map``: the wall map's squares a side C after the memory scan (2 C^2 columns of 0 / 1, an image read by
+    :class:`flashnav.learn.wall_map.WallMapEncoder`, not by IPAPRec; 0 = none).
     ``goal_sincos``: the networks see the goal angle as (sin, cos) instead of angle / pi (one feature more than
     the observation's columns: :attr:`feature_dim`); the observation itself is unchanged.
     """
@@ -59,6 +62,7 @@ class ObsLayout:
     trail_scale: float = 1.0
     memory_sectors: int = 0
     goal_sincos: bool = False
+    wall_map: int = 0
 
     def __post_init__(self) -> None:
         goal = self.goal_scale
@@ -84,6 +88,8 @@ class ObsLayout:
             raise ValueError(f"ObsLayout.pose_trail must be an integer >= 0, got {self.pose_trail!r}")
         if not isinstance(self.memory_sectors, int) or self.memory_sectors < 0:
             raise ValueError(f"ObsLayout.memory_sectors must be an integer >= 0, got {self.memory_sectors!r}")
+        if not isinstance(self.wall_map, int) or self.wall_map < 0 or self.wall_map == 1:
+            raise ValueError(f"ObsLayout.wall_map must be 0 or an integer >= 2, got {self.wall_map!r}")
 
     @property
     def base_dim(self) -> int:
@@ -101,14 +107,27 @@ class ObsLayout:
         return self.history_end + self.agent_tracks * len(self.track_scales) + 2 * self.pose_trail
 
     @property
-    def obs_dim(self) -> int:
-        """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail + memory_sectors."""
+    def memory_end(self) -> int:
+        """The end of the memory scan: the columns IPAPRec reads end here, where the wall map starts."""
         return self.trail_end + self.memory_sectors
 
     @property
+    def obs_dim(self) -> int:
+        """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail + memory_sectors
+        + 2 * wall_map^2."""
+        return self.memory_end + 2 * self.wall_map ** 2
+
+    @property
+    def vector_feature_dim(self) -> int:
+        """IPAPRec's output width: the columns before the wall map, + 1 with ``goal_sincos`` (the angle's sine and
+        cosine)."""
+        return self.memory_end + int(self.goal_sincos)
+
+    @property
     def feature_dim(self) -> int:
-        """The networks' input width: D, or D + 1 with ``goal_sincos`` (the angle's sine and cosine)."""
-        return self.obs_dim + int(self.goal_sincos)
+        """The networks' MLP input width: IPAPRec's features, then the wall-map encoder's
+        (:data:`flashnav.learn.wall_map.WALL_MAP_FEATURES`) with a wall map."""
+        return self.vector_feature_dim + (WALL_MAP_FEATURES if self.wall_map else 0)
 
     def feature_scales(self) -> torch.Tensor:
         """Divisors for the scaled columns: goal distance, angle, velocities, then the agent tracks' and
@@ -133,7 +152,8 @@ class ObsLayout:
                    velocity_scales=velocity, scan_history=preset.observation.scan_history,
                    agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset),
                    pose_trail=preset.observation.pose_trail, trail_scale=trail_bound(preset),
-                   memory_sectors=preset.lidar.sectors if preset.observation.memory_frames else 0)
+                   memory_sectors=preset.lidar.sectors if preset.observation.memory_frames else 0,
+                   wall_map=preset.observation.wall_map)
 
 
 class IPAPRec(nn.Module):
@@ -149,7 +169,8 @@ class IPAPRec(nn.Module):
     beta: one reading means the same distance whenever it was taken, and sharing keeps one parameter
     per transform; agent tracks (the last columns) are divided by their bounds like the goal and
     velocity columns, and so are the pose trail's breadcrumbs after them; the memory scan (last) is LiDAR-like:
-    ``1 / (l - beta)`` with the same beta. The output keeps the input's
+    ``1 / (l - beta)`` with the same beta; a wall map's columns (after it) are not read here
+    (:class:`flashnav.learn.wall_map.WallMapEncoder` reads them). The output keeps the input's
     column order; with ``layout.goal_sincos`` the goal angle's column holds sin(angle) and cos(angle) follows it
     (``layout.feature_dim`` columns: sin and cos are continuous where the angle jumps from pi to -pi, the goal
     straight behind; docs/learners.md S18).
@@ -165,7 +186,9 @@ class IPAPRec(nn.Module):
         # Python bools: tracing records one path
         self.history = layout.history_end > layout.base_dim
         self.tracks = layout.trail_end > layout.history_end  # agent tracks and / or the pose trail
-        self.memory = layout.obs_dim > layout.trail_end
+        self.memory = layout.memory_end > layout.trail_end
+        self.vector_end = layout.memory_end  # the wall map's columns after it are the encoder's, not IPAPRec's
+        self.wall_map = layout.wall_map > 0
         self.scaled_base = layout.base_dim - layout.sectors  # goal and velocity columns
         self.goal_sincos = bool(layout.goal_sincos)
         # softplus(rho0) = r_in - margin - BETA_INIT puts beta at BETA_INIT
@@ -175,7 +198,7 @@ class IPAPRec(nn.Module):
         self.register_buffer("inv_scale", 1.0 / layout.feature_scales())
         self.normalize = normalize
         if normalize:  # running statistics of the transformed features (identity until the first update)
-            shape = (copies, 1, layout.feature_dim) if copies else (layout.feature_dim,)
+            shape = (copies, 1, layout.vector_feature_dim) if copies else (layout.vector_feature_dim,)
             self.register_buffer("feat_mean", torch.zeros(shape))
             self.register_buffer("feat_var", torch.ones(shape))
             self.register_buffer("feat_count", torch.zeros((), dtype=torch.float64))
@@ -220,6 +243,8 @@ class IPAPRec(nn.Module):
                           x[..., self.sectors + 2:]], dim=-1)
 
     def _features(self, obs: torch.Tensor, detach_rho: bool) -> torch.Tensor:
+        if self.wall_map:
+            obs = obs[..., : self.vector_end]
         beta = self.beta(detach_rho)
         if self.copies > 0:
             beta = beta.view(-1, 1, 1)

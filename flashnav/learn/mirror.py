@@ -16,7 +16,9 @@ The observation columns (:attr:`flashnav.config.RobotPreset.obs_dim`) and what t
 - goal distance: kept; goal angle: negated;
 - velocity state (v, w) or (vx, vy, w): v and vx kept, vy and w negated;
 - agent tracks (present, x, y, vx, vy, radius): y and vy negated;
-- pose-trail breadcrumbs (x, y): y negated.
+- pose-trail breadcrumbs (x, y): y negated;
+- the memory scan (360 deg from straight behind): reversed in order;
+- the wall map's squares, both channels: rows (across the robot, row 0 rightmost) reversed, columns kept.
 
 Actions (v, w), normalised: w negated, which is the mirrored command because ``motion.w_bounds`` are
 symmetric about 0 (a preset whose bounds are not cannot be mirrored: :func:`mirror_for` says so).
@@ -101,6 +103,11 @@ def mirror_for(preset: RobotPreset, fraction: float, device: torch.device | str 
     if preset.observation.memory_frames:  # 360 deg from straight behind: a mirror image reverses the sectors
         index += list(range(preset.trail_end, preset.trail_end + s))[::-1]
         sign += [1.0] * s
+    cells = preset.observation.wall_map
+    for channel in range(2 if cells else 0):  # rows run across the robot (row 0 rightmost): a mirror reverses them
+        start = preset.memory_end + channel * cells * cells
+        index += [start + (cells - 1 - r) * cells + c for r in range(cells) for c in range(cells)]
+        sign += [1.0] * (cells * cells)
     if len(index) != preset.obs_dim:  # a column this module does not know: refuse rather than guess
         raise ValueError(f"algo.mirror: {preset.name}'s observation has {preset.obs_dim} columns, the mirror "
                          f"knows {len(index)}")

@@ -7,7 +7,9 @@ columns ``0..S-1`` pooled LiDAR sector minima (metres, ``(0, max_range]``), ``S`
 (``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5); with a scan history of k frames
 (:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans newest first;
 with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns follow (present, x, y, vx, vy, radius each);
-with a pose trail of P breadcrumbs (:mod:`flashnav.sim.trail`) 2 P columns end it (x, y each, metres).
+with a pose trail of P breadcrumbs (:mod:`flashnav.sim.trail`) 2 P columns follow (x, y each, metres); with a
+memory scan S more LiDAR-like columns; with a wall map of C x C squares (:mod:`flashnav.sim.memory`) 2 C^2 columns
+of 0 / 1 end it, read by a CNN (:class:`flashnav.learn.wall_map.WallMapEncoder`) whose features join IPAPRec's.
 Actions are ``[N, A]`` in ``[-1, 1]``.
 
 Every network owns its input transform: LiDAR readings become ``1 / (l - beta)`` with a trainable
@@ -26,6 +28,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from flashnav.learn.features import BETA_INIT, BETA_MARGIN, NORM_EPS, IPAPRec, ObsLayout  # noqa: F401 (re-exported)
+from flashnav.learn.wall_map import WallMapEncoder
 
 #: std of the actor's output-layer weights at init: actions start near 0, DEM weights near uniform.
 ACTOR_OUT_INIT_STD = 0.01
@@ -87,9 +90,15 @@ class Actor(nn.Module):
         self.transform = IPAPRec(layout, normalize=obs_norm)
         # out_init_std 0: the output layer keeps the uniform draw of every other layer (PyTorch's default)
         self.mlp = MLP(layout.feature_dim, hidden, heads * action_dim, generator, out_init_std or None, layer_norm)
+        # after the MLP's draws: without a wall map the same seed gives the same weights as before it existed
+        self.walls = WallMapEncoder(layout.wall_map, generator=generator) if layout.wall_map else None
+        self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.mlp(self.transform(obs))
+        x = self.transform(obs)
+        if self.walls is not None:
+            x = torch.cat([x, self.walls(obs[..., self.vector_end:])], dim=-1)
+        return self.mlp(x)
 
 
 class DeterministicActor(nn.Module):
@@ -151,9 +160,13 @@ class TwinCritic(nn.Module):
         if layer_norm:  # after the weight draws: the same seed gives the same Linear weights either way
             self.norm_gains = nn.ParameterList(nn.Parameter(torch.ones(copies, 1, n)) for n in hidden)
             self.norm_biases = nn.ParameterList(nn.Parameter(torch.zeros(copies, 1, n)) for n in hidden)
+        self.walls = WallMapEncoder(layout.wall_map, copies, generator) if layout.wall_map else None
+        self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor, detach_params: bool = False) -> torch.Tensor:
         x = self.transform(obs, detach_rho=detach_params)
+        if self.walls is not None:
+            x = torch.cat([x, self.walls(obs[..., self.vector_end:], detach_params)], dim=-1)
         x = torch.cat([x, action.unsqueeze(0).expand(self.copies, -1, -1)], dim=-1)
         last = len(self.weights) - 1
         for i, (w, b) in enumerate(zip(self.weights, self.biases)):

@@ -1,0 +1,106 @@
+"""The learners' reading of the wall map (observation.wall_map; flashnav/learn/wall_map.py): the batched critics'
+encoders are independent copies, IPAPRec leaves the map's columns to the encoder, the actor loss's detached critic
+writes no encoder gradient, and a run with the map trains, saves, exports what it reads and is refused by the
+robot-side runtime that cannot build the map yet."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from flashnav.export import sample_observations
+from flashnav.learn.networks import Actor, IPAPRec, ObsLayout, TwinCritic
+from flashnav.learn.wall_map import WALL_MAP_CONVS, WALL_MAP_FEATURES, WallMapEncoder, conv_side
+from flashnav.presets import load_robot
+
+CELLS = 10
+PRESET = load_robot("turtlebot2", **{"observation.wall_map": CELLS, "observation.memory_frames": 2})
+LAYOUT = ObsLayout.from_robot(PRESET, 14.0)
+
+
+def observations(n: int, seed: int = 0) -> torch.Tensor:
+    return sample_observations(PRESET, n, torch.Generator().manual_seed(seed), 14.0)
+
+
+def test_the_layout_places_the_map_after_every_other_column():
+    assert LAYOUT.obs_dim == PRESET.obs_dim == LAYOUT.memory_end + 2 * CELLS * CELLS
+    assert LAYOUT.memory_end == PRESET.memory_end == 34 + 30
+    assert LAYOUT.feature_dim == LAYOUT.vector_feature_dim + WALL_MAP_FEATURES
+    assert [conv_side(c) for c in (24, 12, 10, 5, 2)] == [6, 3, 3, 2, 1]
+    obs = observations(64)
+    squares = obs[:, LAYOUT.memory_end:]
+    assert obs.shape == (64, PRESET.obs_dim) and set(squares.unique().tolist()) == {0.0, 1.0}
+    assert squares[:, CELLS * CELLS:].sum(1).eq(1).all()  # one goal square each
+    with pytest.raises(ValueError, match="ObsLayout.wall_map must be 0 or an integer >= 2, got 1"):
+        ObsLayout(30, 0.2, 8.0, 10.0, (0.5, 1.0), wall_map=1)
+    with pytest.raises(ValueError, match="at least 2 x 2 squares, got 1"):
+        WallMapEncoder(1)
+
+
+def test_the_critics_encoders_are_independent_copies_of_one_encoder():
+    """A 2-copy encoder (one grouped convolution) gives what two 1-copy encoders holding each copy's weights give."""
+    gen = torch.Generator().manual_seed(3)
+    twin = WallMapEncoder(CELLS, copies=2, generator=gen)
+    image = observations(7)[:, LAYOUT.memory_end:]
+    got = twin(image)
+    assert got.shape == (2, 7, WALL_MAP_FEATURES)
+    for k in range(2):
+        one = WallMapEncoder(CELLS)
+        with torch.no_grad():
+            for (w1, b1), (w2, b2), (c_out, _) in zip(zip(one.conv_weights, one.conv_biases),
+                                                     zip(twin.conv_weights, twin.conv_biases), WALL_MAP_CONVS):
+                w1.copy_(w2[k * c_out:(k + 1) * c_out])
+                b1.copy_(b2[k * c_out:(k + 1) * c_out])
+            one.out_weight.copy_(twin.out_weight[k: k + 1])
+            one.out_bias.copy_(twin.out_bias[k: k + 1])
+        torch.testing.assert_close(one(image), got[k], rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(got[0], got[1])  # drawn independently
+    torch.testing.assert_close(WallMapEncoder(CELLS, 2, torch.Generator().manual_seed(3))(image), got)  # seeded
+
+
+def test_ipaprec_leaves_the_map_to_the_encoder_and_the_networks_read_it():
+    obs = observations(16, seed=1)
+    moved = obs.clone()
+    moved[:, LAYOUT.memory_end:] = 1.0 - moved[:, LAYOUT.memory_end:]
+    for transform in (IPAPRec(LAYOUT), IPAPRec(LAYOUT, copies=2, normalize=True)):
+        out = transform(obs)
+        assert out.shape[-1] == LAYOUT.vector_feature_dim
+        assert torch.equal(out, transform(moved))
+    gen = torch.Generator().manual_seed(0)
+    actor = Actor(LAYOUT, 2, [64, 64], 3, gen)
+    critic = TwinCritic(LAYOUT, 2, [64, 64], 2, gen)
+    action = torch.rand(16, 2) * 2 - 1
+    assert not torch.allclose(actor(obs), actor(moved))
+    q = critic(obs, action)
+    assert q.shape == (2, 16, 2) and not torch.allclose(q, critic(moved, action))
+
+
+def test_the_actor_loss_writes_no_gradient_into_the_critics_encoder():
+    critic = TwinCritic(LAYOUT, 2, [32], 2, torch.Generator().manual_seed(0))
+    obs, action = observations(8), (torch.rand(8, 2) * 2 - 1).requires_grad_()
+    critic(obs, action, detach_params=True).sum().backward()
+    assert action.grad is not None and action.grad.abs().sum() > 0
+    assert all(p.grad is None for p in critic.walls.parameters())
+    critic(obs, action).sum().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in critic.walls.parameters())
+
+
+def test_a_run_with_the_wall_map_trains_saves_exports_and_is_refused_on_the_robot(tmp_path):
+    from flashnav import train
+    from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.export import load_policy
+    from flashnav.learn.artefacts import save_run
+    from tests.test_train import TINY, tiny
+
+    result = train(tiny(overrides={**TINY, "robot.observation.wall_map": 6, "algo.mirror": 0.5}))
+    assert result.spec.robot.observation.wall_map == 6 and result.learner.state.actor.walls is not None
+    out = save_run(result, tmp_path / "run")
+    policy, meta = load_policy(out / "policy.onnx")
+    wm = meta["observation"]["wall_map"]
+    assert wm["cells"] == 6 and wm["columns"] == [34, 34 + 72] and meta["obs_dim"] == 34 + 72
+    assert meta["observation"]["memory_scan"]["columns"] == [34, 34]
+    torch_policy, _ = load_policy(out / "policy.pt")
+    obs = sample_observations(result.spec.robot, 5, torch.Generator().manual_seed(0), 14.0)
+    torch.testing.assert_close(torch.as_tensor(policy(obs)), torch_policy(obs), atol=1e-5, rtol=0)
+    with pytest.raises(ValueError, match="reads a wall map .observation.wall_map 6., which the robot-side runtime"):
+        PolicyRuntime.load(out / "policy.onnx")
