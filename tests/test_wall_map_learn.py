@@ -104,3 +104,35 @@ def test_a_run_with_the_wall_map_trains_saves_exports_and_is_refused_on_the_robo
     torch.testing.assert_close(torch.as_tensor(policy(obs)), torch_policy(obs), atol=1e-5, rtol=0)
     with pytest.raises(ValueError, match="reads a wall map .observation.wall_map 6., which the robot-side runtime"):
         PolicyRuntime.load(out / "policy.onnx")
+
+
+def test_bench_sim_times_the_wall_map_beside_the_static_step(tmp_path, capsys):
+    import json
+
+    from flashnav.cli import main
+
+    out = tmp_path / "sim.json"
+    assert main(["bench", "sim", "--quick", "--raycasters", "exact", "--wall-map", "8", "--no-irsim",
+                 "--max-steps", "4", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["raycaster"], r["wall_map"]) for r in rows] == [("exact", 0), ("exact", 8)]
+    assert all(r["steps"] >= 2 and r["env_steps_per_s"] > 0 for r in rows)
+    assert "wall map" in capsys.readouterr().out
+    assert main(["bench", "sim", "--quick", "--wall-map", "1", "--no-irsim"]) == 2
+    assert "--wall-map must be 0 (none) or at least 2 squares a side, got 1" in " ".join(capsys.readouterr().err.split())
+
+
+def test_bench_update_times_the_wall_map_beside_each_way(tmp_path, capsys):
+    import json
+
+    from flashnav.cli import main
+
+    out = tmp_path / "update.json"
+    assert main(["bench", "update", "--ways", "eager", "--seconds", "0.05", "--warmup", "1", "--device", "cpu",
+                 "--wall-map", "6", "--json", str(out), "batch_size=16"]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["way"], r["wall_map"]) for r in rows] == [("eager", 0), ("eager", 6)]
+    assert all(r["updates"] >= 1 and r["ms_per_update"] > 0 for r in rows)
+    assert "x no map" in capsys.readouterr().out
+    assert main(["bench", "update", "--device", "cpu", "--wall-map", "1"]) == 2
+    assert "--wall-map must be 0 (none) or at least 2 squares a side, got 1" in " ".join(capsys.readouterr().err.split())

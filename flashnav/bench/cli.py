@@ -42,6 +42,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--memory", type=int, default=0, metavar="F",
                    help="also time every row with the memory scan of F stored scans (observation.memory_frames, "
                         "one stored every step), interleaved with the static rows ('x static')")
+    p.add_argument("--wall-map", type=int, default=0, metavar="C",
+                   help="also time every row with the wall map of C x C squares (observation.wall_map, the other "
+                        "wall-map keys at their defaults), interleaved with the static rows ('x static')")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -110,6 +113,8 @@ def run_sim(args) -> int:
     if args.agents < 0 or args.tracks < 0 or args.memory < 0:
         raise ValueError(f"--agents, --tracks and --memory must be >= 0, got {args.agents}, {args.tracks} and "
                          f"{args.memory}")
+    if args.wall_map < 0 or args.wall_map == 1:
+        raise ValueError(f"--wall-map must be 0 (none) or at least 2 squares a side, got {args.wall_map}")
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
     from flashnav.machine import learner_threads, machine_name
@@ -128,10 +133,11 @@ def run_sim(args) -> int:
                 # march is orders of magnitude slower: a couple of steps give its rate
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
                 for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many,
-                                          agents=args.agents, tracks=args.tracks, memory=args.memory):
+                                          agents=args.agents, tracks=args.tracks, memory=args.memory,
+                                          wall_map=args.wall_map):
                     rows.append(row.to_dict(1080))
                     console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d} "
-                                  f"tracks={row.tracks:2d} memory={row.memory:2d}: "
+                                  f"tracks={row.tracks:2d} memory={row.memory:2d} wall_map={row.wall_map:2d}: "
                                   f"{row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
@@ -164,19 +170,22 @@ def _many_maps(robot: str, spec: str | None):
 
 
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
-    key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"], r.get("tracks", 0), r.get("memory", 0))  # noqa: E731
+    key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"], r.get("tracks", 0), r.get("memory", 0),  # noqa: E731
+                     r.get("wall_map", 0))
     base = {key(r): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
     # the static single-map row of the same robot, size and raycaster: the reference of both ratios
     one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows
-           if r["maps"] == 1 and r["agents"] == 0 and r.get("memory", 0) == 0}
+           if r["maps"] == 1 and r["agents"] == 0 and r.get("memory", 0) == 0 and r.get("wall_map", 0) == 0}
     many = any(r["maps"] > 1 for r in rows)
     moving = any(r["agents"] > 0 for r in rows)
     remembers = any(r.get("memory", 0) > 0 for r in rows)
-    vs_static = moving or remembers  # the 'x static' column: rows with agents or the memory scan
+    walls = any(r.get("wall_map", 0) > 0 for r in rows)
+    vs_static = moving or remembers or walls  # the 'x static' column: rows with agents, the memory scan or the wall map
     tracked = any(r.get("tracks", 0) > 0 for r in rows)
     t = Table(title="whole env step, random actions (full 1,080-beam scans)")
     for col in ("robot", "raycaster", "envs", *(("maps",) if many else ()), *(("agents",) if moving else ()),
-                *(("tracks",) if tracked else ()), *(("memory",) if remembers else ()), "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if vs_static else ())):
+                *(("tracks",) if tracked else ()), *(("memory",) if remembers else ()),
+                *(("wall map",) if walls else ()), "env-steps/s", "rays/s", "x march", *(("x 1 map",) if many else ()), *(("x static",) if vs_static else ())):
         t.add_column(col, justify="right")
     for r in rows:
         ref = base.get(key(r))
@@ -185,17 +194,18 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         cells += [str(r["agents"])] if moving else []
         cells += [str(r.get("tracks", 0))] if tracked else []
         cells += [str(r.get("memory", 0))] if remembers else []
+        cells += [str(r.get("wall_map", 0))] if walls else []
         cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
         single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:
             cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and r["maps"] > 1 else "-")
         if vs_static:
-            extra = r["agents"] > 0 or r.get("memory", 0) > 0
+            extra = r["agents"] > 0 or r.get("memory", 0) > 0 or r.get("wall_map", 0) > 0
             cells.append(f"{r['env_steps_per_s'] / single:.2f}x" if single and extra else "-")
         t.add_row(*cells)
     for p in peer:
         t.add_row(p["robot"], "ir-sim (peer)", "1", *(("1",) if many else ()), *(("0",) if moving else ()),
-                  *(("0",) if tracked else ()), *(("0",) if remembers else ()),
+                  *(("0",) if tracked else ()), *(("0",) if remembers else ()), *(("0",) if walls else ()),
                   f"{p['env_steps_per_s']:,.1f}", f"{p['env_steps_per_s'] * p['beams']:,.3g}", "-",
                   *(("-",) if many else ()), *(("-",) if vs_static else ()))
     console.print(t)

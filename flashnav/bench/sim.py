@@ -37,6 +37,7 @@ class StepRow:
     agents: int = 0  # moving agents per environment (issue 13)
     tracks: int = 0  # agent tracks in the observation (observation.agent_tracks)
     memory: int = 0  # stored scans of the memory scan (observation.memory_frames)
+    wall_map: int = 0  # squares a side of the wall map (observation.wall_map)
 
     @property
     def env_steps_per_s(self) -> float:
@@ -69,7 +70,7 @@ def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
 
 def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
                max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None,
-               agents: int = 0, tracks: int = 0, memory: int = 0) -> list[StepRow]:
+               agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0) -> list[StepRow]:
     """Step ``num_envs`` environments with random actions for at least ``min_seconds`` (at least 2
     steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches), on the robot's
     bundled map. With ``maps``, a second env of the same size on those maps (each slot drawing its
@@ -78,8 +79,10 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
     map with that many moving agents per slot (the preset's behaviour mix) joins the rotation, and with
     ``tracks`` > 0 too, one more with those agents and ``observation.agent_tracks = tracks``; with ``memory``
     > 0, one more on the bundled map, static, with the memory scan of that many stored scans
-    (``observation.memory_frames``, one stored every step). Returns the bundled-map row first, then the
-    many-map row, then the agents row, then the tracks row, then the memory row (those asked for)."""
+    (``observation.memory_frames``, one stored every step); with ``wall_map`` > 0, one more on the bundled map,
+    static, with the wall map of that many squares a side (``observation.wall_map``, the other wall-map keys at
+    their defaults). Returns the bundled-map row first, then the many-map row, then the agents row, then the
+    tracks row, then the memory row, then the wall-map row (those asked for)."""
     envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
     if maps is not None:
         envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
@@ -91,6 +94,9 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
             envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
     if memory:
         preset = load_robot(robot, **{"observation.memory_frames": memory, "observation.memory_every": 1})
+        envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
+    if wall_map:
+        preset = load_robot(robot, **{"observation.wall_map": wall_map})
         envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
     dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
@@ -110,7 +116,8 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
             _sync(dev)
             seconds[k] += time.perf_counter() - start
     return [StepRow(robot, raycaster, num_envs, str(dev), steps[k], seconds[k], env.num_maps,
-                    env.preset.agents.count, env.preset.observation.agent_tracks, env.preset.observation.memory_frames)
+                    env.preset.agents.count, env.preset.observation.agent_tracks, env.preset.observation.memory_frames,
+                    env.preset.observation.wall_map)
             for k, env in enumerate(envs)]
 
 

@@ -18,6 +18,8 @@ static-buffer path's own overhead). Use it to decide whether a way pays on a mac
 
 from __future__ import annotations
 
+import dataclasses
+
 import argparse
 import datetime as dt
 import json
@@ -54,6 +56,10 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
                    help="torch threads on a CPU (default: torch's count, every core, as the learner of a sequential "
                         "CPU run has; 1: the learner's share of an overlapped run, overlap=true)")
     p.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    p.add_argument("--wall-map", type=int, default=0, metavar="C",
+                   help="also time every way with the networks reading a wall map of C x C squares "
+                        "(observation.wall_map: its CNN in the actor and both critics), right after the same way "
+                        "without it; the table gives the ratio ('x no map')")
     p.add_argument("overrides", nargs="*", metavar="key=value",
                    help="hyperparameter overrides, e.g. batch_size=256 (an algo. prefix is accepted)")
     p.set_defaults(func=run_bench_update)
@@ -103,12 +109,15 @@ def random_batches(obs_dim: int, batch_size: int, device, seed: int, n: int) -> 
     return batches
 
 
-def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, num_batches: int = 8) -> dict:
+def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, num_batches: int = 8,
+                 wall_map: int = 0) -> dict:
     """Build the learner of ``spec`` (a :class:`flashnav.spec.RunSpec`; ``seed``), compile its networks
     (a torch.compile way) or run the update under bf16 autocast (``bf16-autocast``), run ``warmup``
     updates, then time whole updates for at least ``seconds`` (device synchronised at both ends).
+    ``wall_map`` C > 0: the networks read a wall map of C x C squares besides the robot's observation (random
+    0 / 1 squares in the batches).
 
-    Returns ``{"way", "batch_size", "warmup_s", "updates", "ms_per_update"}``."""
+    Returns ``{"way", "batch_size", "warmup_s", "updates", "ms_per_update", "wall_map"}``."""
     import torch
 
     from flashnav.learn.learners import make_learner
@@ -117,11 +126,18 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
 
     hp, device = spec.hparams, spec.device
     layout = ObsLayout.from_robot(spec.robot, spec.goal_distance_max)
+    if wall_map:
+        layout = dataclasses.replace(layout, wall_map=wall_map)
     learner = make_learner(spec.algorithm, hp, layout, 2, hp.num_envs, device, seed)
     compile_networks(learner, way)
     batches = random_batches(layout.obs_dim, hp.batch_size, device, seed, num_batches)
+    if wall_map:  # the map's squares are 0 / 1, as the env gives them
+        for b in batches:
+            for obs in (b.obs, b.next_obs):
+                obs[:, layout.memory_end:] = (obs[:, layout.memory_end:] > 2.0).float()
     if way in GRAPH_WAYS:
-        return _time_cycles(learner, layout.obs_dim, batches, hp, device, seconds=seconds, warmup=warmup)
+        return {**_time_cycles(learner, layout.obs_dim, batches, hp, device, seconds=seconds, warmup=warmup),
+                "wall_map": wall_map}
 
     arithmetic = update_precision("bf16" if way in AUTOCAST_WAYS else "float32", device)  # what training runs
 
@@ -135,7 +151,7 @@ def time_updates(spec, way: str, *, seconds: float, warmup: int, seed: int = 0, 
 
     timed = time_steps(lambda i: update(batches[i % num_batches]), warmup, all_batches, num_batches,
                        seconds=seconds, device=device)
-    return {"way": way, "batch_size": hp.batch_size, **timed}
+    return {"way": way, "batch_size": hp.batch_size, **timed, "wall_map": wall_map}
 
 
 def _time_cycles(learner, obs_dim: int, batches: list, hp, device, *, seconds: float, warmup: int) -> dict:
@@ -195,6 +211,8 @@ def run_bench_update(args) -> int:
     ways = parse_ways(args.ways)
     if args.seconds <= 0 or args.warmup < 1 or (args.threads is not None and args.threads < 1):
         raise ValueError("--seconds must be > 0, --warmup >= 1 and --threads >= 1")
+    if args.wall_map < 0 or args.wall_map == 1:
+        raise ValueError(f"--wall-map must be 0 (none) or at least 2 squares a side, got {args.wall_map}")
     spec = run_spec(args.algo, args.robot, args.recipe, args.device, args.overrides)
     device, recipe = spec.device, spec.recipe
     if device == "cpu" and args.threads is not None:
@@ -207,16 +225,23 @@ def run_bench_update(args) -> int:
                   f"recipe {recipe}, >= {args.seconds:g} s per way after {args.warmup} warm-up updates")
     rows = []
     for way in ways:
-        row = time_updates(spec, way, seconds=args.seconds, warmup=args.warmup)
-        rows.append(row)
-        note = "" if row.get("captured", True) else ", capture skipped: static buffers, eager"
-        console.print(f"  {way:28s} {row['ms_per_update']:8.2f} ms/update (warm-up {row['warmup_s']:.1f} s{note})")
-    ref = next((r for r in rows if r["way"] == "eager"), rows[0])   # the ratio's baseline
+        for cells in (0, args.wall_map) if args.wall_map else (0,):
+            row = time_updates(spec, way, seconds=args.seconds, warmup=args.warmup, wall_map=cells)
+            rows.append(row)
+            note = "" if row.get("captured", True) else ", capture skipped: static buffers, eager"
+            what = f"{way} + wall map {cells}" if cells else way
+            console.print(f"  {what:28s} {row['ms_per_update']:8.2f} ms/update (warm-up {row['warmup_s']:.1f} s{note})")
+    plain = [r for r in rows if not r["wall_map"]]
+    ref = next((r for r in plain if r["way"] == "eager"), plain[0])   # the ratio's baseline
     t = Table(title=f"learner update, batch {rows[0]['batch_size']}, device {device}")
-    for col in ("way", "ms / update", f"speed vs {ref['way']}", "warm-up s", "updates timed"):
+    for col in ("way", *(("wall map",) if args.wall_map else ()), "ms / update", f"speed vs {ref['way']}",
+                *(("x no map",) if args.wall_map else ()), "warm-up s", "updates timed"):
         t.add_column(col, justify="right")
     for r in rows:
-        t.add_row(r["way"], f"{r['ms_per_update']:.2f}", f"{ref['ms_per_update'] / r['ms_per_update']:.2f}x",
+        same = next(p for p in plain if p["way"] == r["way"])
+        t.add_row(r["way"], *((str(r["wall_map"]),) if args.wall_map else ()), f"{r['ms_per_update']:.2f}",
+                  f"{ref['ms_per_update'] / r['ms_per_update']:.2f}x",
+                  *((f"{same['ms_per_update'] / r['ms_per_update']:.2f}x",) if args.wall_map else ()),
                   f"{r['warmup_s']:.1f}", f"{r['updates']:,}")
     console.print(t)
     if args.json:
