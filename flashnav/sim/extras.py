@@ -5,13 +5,11 @@ Each is None where its option is 0: then the step is exactly the paper's."""
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from flashnav.config import RobotPreset
 from flashnav.sim.history import ScanHistory
-from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, WallMemory
+from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, WallMemory, grid_shape
 from flashnav.sim.tracks import AgentTracks
 from flashnav.sim.trail import PoseTrail
 
@@ -35,11 +33,8 @@ class ObservationExtras:
         o = self.preset.observation
         if not o.wall_map:
             return
-        cell = o.wall_map_grid
-        h = max(math.ceil(g.shape[0] * g.resolution / cell - 1e-9) for g in maps)
-        w = max(math.ceil(g.shape[1] * g.resolution / cell - 1e-9) for g in maps)
-        self.walls = WallGrid(self.n, (h, w), cell, self.preset.lidar.max_range, self.beam_angles, self.device,
-                              HIT_BEYOND_M)
+        self.walls = WallGrid(self.n, grid_shape(maps, o.wall_map_grid), o.wall_map_grid, self.preset.lidar.max_range,
+                              self.beam_angles, self.device, HIT_BEYOND_M)
         self._origins = torch.tensor([g.origin for g in maps], dtype=torch.float32, device=self.device)
 
     def append(self, obs: torch.Tensor, sel, agents, pose: torch.Tensor, ranges: torch.Tensor, start: bool,

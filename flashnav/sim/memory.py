@@ -178,6 +178,13 @@ class WallMemory:
         return self.scan(self.points[idx], pose)
 
 
+def grid_shape(maps, cell: float) -> tuple[int, int]:
+    """(H, W): the cells of ``cell`` metres that span the largest extent of ``maps`` (OccupancyMaps: shape times
+    resolution), row by row and column by column."""
+    return (max(math.ceil(g.shape[0] * g.resolution / cell - 1e-9) for g in maps),
+            max(math.ceil(g.shape[1] * g.resolution / cell - 1e-9) for g in maps))
+
+
 #: Metres past a hit where the env's wall map marks it (:class:`WallGrid`'s ``beyond``): a wall face that lies on a
 #: grid cell's edge then puts its hits in the wall's cell from whichever side the robot sees it, so the map of a
 #: mirrored world is the mirror of the map (tests/test_mirror.py); far below any cell.
@@ -217,10 +224,7 @@ class WallGrid:
                  device: torch.device, beyond: float = 0.0) -> "WallGrid":
         """A grid of ``cell`` metres over ``geometry``'s extent (an OccupancyMap: its shape times its
         resolution), every slot's origin at the map's."""
-        h, w = geometry.shape
-        res = geometry.resolution
-        grid = cls(num_envs, (math.ceil(h * res / cell - 1e-9), math.ceil(w * res / cell - 1e-9)), cell,
-                   max_range, beam_angles, device, beyond)
+        grid = cls(num_envs, grid_shape([geometry], cell), cell, max_range, beam_angles, device, beyond)
         grid.origin[:] = torch.tensor(geometry.origin, dtype=torch.float32)
         return grid
 
