@@ -8,6 +8,7 @@ module only knows how to read and check it, so that a robot-side runtime can do 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -112,6 +113,28 @@ def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tu
         raise ValueError(f"{path}: the policy's metadata records a memory scan of {frames} frames but "
                          f"observation.memory_scan.points_per_frame {points!r}; expected an integer >= 1")
     return frames, every, points
+
+
+def wall_map_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, float, float, float]:
+    """``(cells, cell_m, grid_m, beyond_m)`` of the policy's wall map (``observation.wall_map``,
+    :class:`flashnav.sim.memory.WallGrid`): the metadata's ``observation.wall_map``; ``(0, 0, 0, 0)`` for a policy
+    without one or a file written before the wall map existed.
+
+    Raises ValueError naming ``path`` when a recorded value has the wrong type or range."""
+    cells = _recorded_int(meta, "wall_map", "cells", "wall_map", 0, path)
+    if not cells:
+        return 0, 0.0, 0.0, 0.0
+    values = []
+    for field, low in (("cell_m", 0.0), ("grid_m", 0.0), ("beyond_m", None)):
+        v = _metadata_field(meta, "wall_map", field)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and (
+            v > low if low is not None else v >= 0)
+        if not ok:
+            raise ValueError(f"{path}: the policy's metadata records a wall map of {cells} squares but "
+                             f"observation.wall_map.{field} {v!r}; expected a finite number "
+                             f"{'> 0' if low is not None else '>= 0'} (metres)")
+        values.append(float(v))
+    return (cells, *values)
 
 
 def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | Path) -> int:

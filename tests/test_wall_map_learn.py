@@ -1,10 +1,11 @@
 """The learners' reading of the wall map (observation.wall_map; flashnav/learn/wall_map.py): the batched critics'
 encoders are independent copies, IPAPRec leaves the map's columns to the encoder, the actor loss's detached critic
-writes no encoder gradient, and a run with the map trains, saves, exports what it reads and is refused by the
-robot-side runtime that cannot build the map yet."""
+writes no encoder gradient, and a run with the map trains, saves and exports what it reads; on the robot
+(flashnav/deploy/memory.py: WallCells) the deploy controller rebuilds the env's map from odometry and scans alone."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -85,11 +86,12 @@ def test_the_actor_loss_writes_no_gradient_into_the_critics_encoder():
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in critic.walls.parameters())
 
 
-def test_a_run_with_the_wall_map_trains_saves_exports_and_is_refused_on_the_robot(tmp_path):
+def test_a_run_with_the_wall_map_trains_saves_and_exports_what_it_reads(tmp_path):
     from flashnav import train
     from flashnav.deploy.runtime import PolicyRuntime
     from flashnav.export import load_policy
     from flashnav.learn.artefacts import save_run
+    from flashnav.sim.memory import HIT_BEYOND_M
     from tests.test_train import TINY, tiny
 
     result = train(tiny(overrides={**TINY, "robot.observation.wall_map": 6, "algo.mirror": 0.5}))
@@ -97,13 +99,74 @@ def test_a_run_with_the_wall_map_trains_saves_exports_and_is_refused_on_the_robo
     out = save_run(result, tmp_path / "run")
     policy, meta = load_policy(out / "policy.onnx")
     wm = meta["observation"]["wall_map"]
-    assert wm["cells"] == 6 and wm["columns"] == [34, 34 + 72] and meta["obs_dim"] == 34 + 72
+    assert (wm["cells"], wm["cell_m"], wm["grid_m"], wm["beyond_m"]) == (6, 0.5, 0.25, HIT_BEYOND_M)
+    assert wm["columns"] == [34, 34 + 72] and meta["obs_dim"] == 34 + 72
     assert meta["observation"]["memory_scan"]["columns"] == [34, 34]
     torch_policy, _ = load_policy(out / "policy.pt")
     obs = sample_observations(result.spec.robot, 5, torch.Generator().manual_seed(0), 14.0)
     torch.testing.assert_close(torch.as_tensor(policy(obs)), torch_policy(obs), atol=1e-5, rtol=0)
-    with pytest.raises(ValueError, match="reads a wall map .observation.wall_map 6., which the robot-side runtime"):
-        PolicyRuntime.load(out / "policy.onnx")
+    rt = PolicyRuntime.load(out / "policy.onnx")
+    assert (rt.wall_map, rt.wall_cell, rt.wall_grid, rt.wall_beyond) == (6, 0.5, 0.25, HIT_BEYOND_M)
+    sectors, pose, goal, vel = np.full(30, 2.0, np.float32), (0.0, 0.0, 0.0), (1.0, 0.0), (0.0, 0.0)
+    assert rt.observation(sectors, pose, goal, vel, wall_map=np.zeros(72)).shape == (106,)
+    for bad, said in ((None, "got None"), (np.zeros(71), "got 71"), (np.full(72, 0.5), "got not 0 / 1")):
+        with pytest.raises(ValueError, match=f"wall_map must be 72 squares of 0 or 1 .*{said}"):
+            rt.observation(sectors, pose, goal, vel, wall_map=bad)
+
+
+def test_the_robot_wall_image_is_the_simulators():
+    """numpy's wall image (the robot's) against the simulator's torch one, on random points, poses and goals."""
+    from flashnav.deploy.memory import wall_image as robot_image
+    from flashnav.sim.memory import wall_image
+
+    rng = np.random.default_rng(2)
+    for cells, cell in ((24, 0.5), (7, 0.3)):
+        pts = rng.uniform(-6, 6, (5, 300, 2))
+        pts[:, :20] = np.inf  # no hit
+        pose = np.concatenate([rng.uniform(-1, 1, (5, 2)), rng.uniform(-np.pi, np.pi, (5, 1))], 1)
+        goal = rng.uniform(-9, 9, (5, 2))
+        want = wall_image(*(torch.from_numpy(v) for v in (pts, pose, goal)), cells, cell).numpy()
+        for k in range(5):
+            np.testing.assert_array_equal(robot_image(pts[k], pose[k], goal[k], cells, cell), want[k])
+        assert want[:, 0].sum() > 30
+
+
+def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scans(tmp_path):
+    """A simulated episode stream fed to the Controller as a robot would (odometry, scans, a goal per episode):
+    every control step's observation equals the env's, the wall map included (the robot's grid starts at the
+    odometry origin, the bundled map's at the same point), through new goals."""
+    from test_export import random_actor
+
+    from flashnav.deploy.controller import Controller
+    from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.deploy.scan import simulator_scan_fields
+    from flashnav.export import export_policy
+    from flashnav.sim.env import make_env
+
+    preset = load_robot("turtlebot2", **{"observation.wall_map": 12})
+    paths = export_policy(random_actor(preset, seed=3), preset, tmp_path)
+    ctl = Controller(PolicyRuntime.load(paths["onnx"]), timeout=1.0)
+    env = make_env(preset, 1, seed=4)
+    env.reset(seed=4)
+    assert env.frame_map.origin == (0.0, 0.0)
+    scan = simulator_scan_fields(preset.lidar)
+    t, dt, end, goals, walls, differ = 0.0, preset.episode.dt, preset.memory_end, 1, 0, 0
+    ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
+    for _ in range(150):
+        ctl.on_odom(*env.world_pose()[0].tolist(), now=t)
+        command = ctl.on_scan(ranges=env.scan()[0].numpy(), stamp=t, now=t, **scan)
+        if command is None or command.state != "driving":
+            break
+        want = env.obs[0].numpy()
+        np.testing.assert_allclose(ctl.last_obs[:end], want[:end], rtol=0, atol=1e-3)
+        differ += int((ctl.last_obs[end:] != want[end:]).sum())
+        walls += int(want[end: end + 144].sum())
+        _, _, terminated, truncated, _ = env.step(torch.tensor([ctl.last_action]))
+        t += dt
+        if bool(terminated[0] | truncated[0]):
+            ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
+            goals += 1
+    assert walls > 3000 and goals >= 2 and differ <= 0.002 * walls  # (a hit on a cell's edge in float32 / 64)
 
 
 def test_bench_sim_times_the_wall_map_beside_the_static_step(tmp_path, capsys):
@@ -136,3 +199,20 @@ def test_bench_update_times_the_wall_map_beside_each_way(tmp_path, capsys):
     assert "x no map" in capsys.readouterr().out
     assert main(["bench", "update", "--device", "cpu", "--wall-map", "1"]) == 2
     assert "--wall-map must be 0 (none) or at least 2 squares a side, got 1" in " ".join(capsys.readouterr().err.split())
+
+
+def test_the_metadata_reader_names_a_bad_wall_map_record():
+    from flashnav.export import policy_metadata
+    from flashnav.policy_meta import wall_map_shape
+
+    assert wall_map_shape(policy_metadata(load_robot("turtlebot2"))) == (0, 0.0, 0.0, 0.0)
+    assert wall_map_shape({"obs_dim": 34}) == (0, 0.0, 0.0, 0.0)  # a file from before the wall map
+    meta = policy_metadata(PRESET)
+    assert wall_map_shape(meta)[:3] == (CELLS, 0.5, 0.25)
+    for field, value, said in (("cell_m", 0, "cell_m 0; expected a finite number > 0"),
+                               ("beyond_m", -1.0, "beyond_m -1.0; expected a finite number >= 0"),
+                               ("grid_m", "x", "grid_m 'x'"), ("cells", 2.5, "wall_map 2.5; expected an integer")):
+        bad = {**meta, "observation": {**meta["observation"], "wall_map": {**meta["observation"]["wall_map"],
+                                                                           field: value}}}
+        with pytest.raises(ValueError, match=f"policy.onnx: .*{said}"):
+            wall_map_shape(bad, "policy.onnx")

@@ -38,6 +38,10 @@ A policy with a memory scan (``observation.memory_frames`` F > 0, :mod:`flashnav
 :class:`flashnav.deploy.memory.ScanMemory`: the goal's first control step's scan is stored, then that of
 every ``memory_every``-th control step since the goal (its wall hits in the odometry frame, the last F
 kept); only a new goal forgets them.
+A policy with a wall map (``observation.wall_map`` C > 0, :class:`flashnav.sim.memory.WallGrid`) gets it from
+:class:`flashnav.deploy.memory.WallCells`: every beam's return of every control step since the goal marks a cell of
+the policy's grid in the odometry frame, and the marked cells' centres are drawn as the C x C squares around the
+robot with the goal's square (the target's, with guidance); only a new goal forgets them.
 With a ``shield`` (:class:`flashnav.shield.PeopleShield`: a people shield, ``flashnav deploy ros --shield S``) every
 command the policy gives is checked against the tracker's people (:meth:`Controller.on_people`), each walking straight
 on, and the scan's points, and only a predicted contact with a person replaces it (:func:`flashnav.shield.robot_command`);
@@ -57,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flashnav.deploy.memory import ScanMemory
+from flashnav.deploy.memory import ScanMemory, WallCells
 from flashnav.deploy.runtime import PolicyRuntime, robot_frame
 from flashnav.mapless import ScanGuide
 
@@ -105,6 +109,8 @@ class Controller:
         rt = runtime
         self.memory = (ScanMemory(rt.memory_frames, rt.memory_every, rt.layout.sectors, rt.memory_points,
                                   rt.layout.fov_deg, rt.layout.max_range) if rt.memory_frames else None)
+        self.walls = (WallCells(rt.wall_map, rt.wall_cell, rt.wall_grid, rt.layout.max_range, rt.wall_beyond)
+                      if rt.wall_map else None)
 
     # ---- inputs ---------------------------------------------------------------------------------
     def on_goal(self, x: float, y: float, now: float) -> None:
@@ -117,6 +123,8 @@ class Controller:
         self.state, self.frames, self.crumbs, self.goal_steps = "driving", [], [], 0
         if self.memory is not None:
             self.memory.forget()
+        if self.walls is not None:
+            self.walls.forget()
         if self.guide is not None:
             self.guide.start(self.goal)
             self.carrot = None
@@ -147,8 +155,8 @@ class Controller:
         sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
         if self.rt.adapter.no_valid_reading:  # a dead or covered sensor would read as open space
             return self._stop("blind")
-        target, goal_distance, memory = self.goal, None, None
-        if self.guide is not None or self.memory is not None or self.shield is not None:
+        target, goal_distance, memory, walls = self.goal, None, None, None
+        if self.guide is not None or self.memory is not None or self.walls is not None or self.shield is not None:
             angles, beams = self.rt.adapter.beams(angle_min, angle_increment, ranges, range_min, range_max)
         if self.guide is not None:
             goal_distance = self.rt.goal_in_robot_frame(self.pose, self.goal)[0]
@@ -159,8 +167,10 @@ class Controller:
                 target = self.carrot  # (a carrot at the goal radius would read as arrived: aim at the goal)
         if self.memory is not None:
             memory = self.memory.step(self.pose, angles, beams, self.goal_steps)
+        if self.walls is not None:  # the goal's square is the target's (a carrot with guidance)
+            walls = self.walls.step(self.pose, angles, beams, target)
         d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
-                           self._trail(), memory)
+                           self._trail(), memory, walls)
         self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1
         self.last_obs = d.obs
         self.distance = d.distance if target is self.goal else goal_distance

@@ -70,3 +70,62 @@ class ScanMemory:
                              0, self.sectors - 1)
             np.minimum.at(out, sector, np.minimum(np.hypot(x, y), self.max_range))
         return out.astype(np.float32)
+
+
+def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float) -> np.ndarray:
+    """[2, cells, cells] float32: :func:`flashnav.sim.memory.wall_image` of one robot in numpy (float64), the
+    wall ``points`` [Q, 2] and ``goal`` (x, y) in the frame of ``pose`` (x, y, yaw): channel 0 is 1 in each square
+    a point falls in, channel 1 in the goal's square (clipped onto the edge); row = left (row 0 rightmost),
+    column = forward (column 0 behind)."""
+    half = cells * cell / 2
+    c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
+
+    def squares(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        dx, dy = xy[:, 0] - float(pose[0]), xy[:, 1] - float(pose[1])
+        fwd, left = c * dx + s * dy, -s * dx + c * dy
+        return np.floor((left + half) / cell), np.floor((fwd + half) / cell)
+
+    out = np.zeros((2, cells, cells), np.float32)
+    pts = np.asarray(points, np.float64).reshape(-1, 2)
+    r, col = squares(pts)
+    inside = np.isfinite(pts).all(1) & (r >= 0) & (r < cells) & (col >= 0) & (col < cells)
+    out[0, r[inside].astype(np.int64), col[inside].astype(np.int64)] = 1.0
+    r, col = squares(np.asarray(goal, np.float64).reshape(1, 2))
+    out[1, int(np.clip(r[0], 0, cells - 1)), int(np.clip(col[0], 0, cells - 1))] = 1.0
+    return out
+
+
+class WallCells:
+    """The wall map on the robot (:class:`flashnav.sim.memory.WallGrid`'s): the cells of a grid of ``grid``
+    metres in the odometry frame (cell (0, 0) from its origin) in which a beam ended, ``beyond`` metres past its
+    return, since the goal; drawn as the policy's ``cells`` x ``cells`` squares of ``cell`` metres at the marked
+    cells' centres. The simulator's grid starts at its map's corner, the robot's at the odometry origin: the
+    same kind of grid, placed elsewhere against the walls."""
+
+    def __init__(self, cells: int, cell: float, grid: float, max_range: float, beyond: float = 0.0):
+        if cells < 2 or not (cell > 0 and grid > 0 and max_range > 0 and beyond >= 0):
+            raise ValueError(f"WallCells needs >= 2 squares a side, cells and grid > 0 m, max_range > 0 and beyond "
+                             f">= 0, got {cells}, {cell}, {grid}, {max_range}, {beyond}")
+        self.cells, self.cell, self.grid = int(cells), float(cell), float(grid)
+        self.max_range, self.beyond = float(max_range), float(beyond)
+        self.known = np.zeros((0, 2), np.int64)  # marked (column, row) pairs, each once
+
+    def forget(self) -> None:
+        """A new goal: no wall is known."""
+        self.known = np.zeros((0, 2), np.int64)
+
+    def mark(self, pose, angles: np.ndarray, ranges: np.ndarray) -> None:
+        """Marks the cells where the beams at ``angles`` [B] (radians from the heading) with ``ranges`` [B] (m; inf =
+        no return, NaN = invalid) from ``pose`` (x, y, yaw) end: returns below max range only."""
+        angles, ranges = np.asarray(angles, np.float64), np.asarray(ranges, np.float64)
+        hit = np.isfinite(ranges) & (ranges < self.max_range)
+        r, bearing = ranges[hit] + self.beyond, angles[hit] + float(pose[2])
+        x, y = float(pose[0]) + r * np.cos(bearing), float(pose[1]) + r * np.sin(bearing)
+        new = np.stack([np.floor(x / self.grid), np.floor(y / self.grid)], axis=1).astype(np.int64)
+        self.known = np.unique(np.concatenate([self.known, new]), axis=0)
+
+    def step(self, pose, angles, ranges, goal) -> np.ndarray:
+        """The wall map's columns [2 cells^2] float32 at ``pose`` after marking this scan, with ``goal`` (x, y)."""
+        self.mark(pose, angles, ranges)
+        centres = (self.known + 0.5) * self.grid
+        return wall_image(centres, pose, goal, self.cells, self.cell).reshape(-1)

@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
-from flashnav.policy_meta import agent_track_count, memory_scan_shape, open_onnx, pose_trail_shape, scan_history_frames
+from flashnav.policy_meta import (agent_track_count, memory_scan_shape, open_onnx, pose_trail_shape,
+                                  scan_history_frames, wall_map_shape)
 
 #: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
 TRACK_WIDTH = 6
@@ -94,17 +95,17 @@ class PolicyRuntime:
         self.pose_trail, self.trail_every = pose_trail_shape(meta, path)  # P breadcrumbs
         # the memory scan, last: F stored scans, one every E control steps, P hits each
         self.memory_frames, self.memory_every, self.memory_points = memory_scan_shape(meta, path)
-        cells = ((meta.get("observation") or {}).get("wall_map") or {}).get("cells", 0)
-        if cells:  # not silently: its columns would be read as something else
-            raise ValueError(f"{path}: the policy reads a wall map (observation.wall_map {cells}), which the robot-side "
-                             "runtime does not build yet; evaluate it in the simulator (flashnav eval)")
         memory = self.layout.sectors if self.memory_frames else 0
+        # the wall map, after everything: C x C squares of cell_m, hits kept in cells of grid_m, beyond_m past them
+        self.wall_map, self.wall_cell, self.wall_grid, self.wall_beyond = wall_map_shape(meta, path)
+        squares = 2 * self.wall_map ** 2
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
-                              - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory)
+                              - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory - squares)
         if self.velocity_dims not in (2, 3):
             raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + "
                              f"velocity + {self.scan_history} history frames + {self.agent_tracks} agent tracks + "
-                             f"{self.pose_trail} pose-trail breadcrumbs + {memory} memory-scan sectors")
+                             f"{self.pose_trail} pose-trail breadcrumbs + {memory} memory-scan sectors + "
+                             f"{squares} wall-map squares")
         bounds = meta.get("command_bounds") or {}
         self.v_limit = float(bounds.get("max_linear_velocity", math.inf))
         self.w_limit = float(bounds.get("max_angular_velocity", math.inf))
@@ -137,7 +138,7 @@ class PolicyRuntime:
         return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - float(pose[2]))
 
     def observation(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None,
-                    memory=None) -> np.ndarray:
+                    memory=None, wall_map=None) -> np.ndarray:
         """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed,
         then ``history`` [k, S] m (the sectors of the k previous control steps, newest first; None
         when the policy has no scan history), then the policy's M agent tracks from ``tracks`` (the
@@ -145,7 +146,8 @@ class PolicyRuntime:
         it reports nobody; None when the policy has no tracks), then ``trail`` [P, 2] (the robot's
         earlier positions in the pose's frame, newest first; None when the policy has no pose trail)
         in the robot frame of ``pose``, then ``memory`` [S] m (the memory scan,
-        :class:`flashnav.deploy.memory.ScanMemory`; None when the policy has none)."""
+        :class:`flashnav.deploy.memory.ScanMemory`; None when the policy has none), then ``wall_map`` [2 C^2] of
+        0 / 1 (:class:`flashnav.deploy.memory.WallCells`; None when the policy has none)."""
         sectors = np.asarray(sectors, np.float32).reshape(-1)
         if sectors.size != self.layout.sectors:
             raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
@@ -182,6 +184,14 @@ class PolicyRuntime:
                 raise ValueError(f"memory must be {want_mem} finite distances (the policy's memory scan, "
                                  f"observation.memory_frames {self.memory_frames}), got {got}")
             parts.append(mem)
+        if wall_map is not None or self.wall_map:
+            squares = np.asarray(wall_map, np.float32).reshape(-1) if wall_map is not None else None
+            want = 2 * self.wall_map ** 2
+            if squares is None or squares.size != want or not np.isin(squares, (0.0, 1.0)).all():
+                got = None if squares is None else (squares.size if np.isin(squares, (0.0, 1.0)).all() else "not 0 / 1")
+                raise ValueError(f"wall_map must be {want} squares of 0 or 1 (the policy's observation.wall_map "
+                                 f"{self.wall_map}), got {got}")
+            parts.append(squares)
         return np.concatenate(parts)
 
     # ---- the command ----------------------------------------------------------------------------
@@ -196,10 +206,11 @@ class PolicyRuntime:
         w = min(max(float(command[0, 1]), -self.w_limit), self.w_limit)
         return action[0], v, w
 
-    def decide(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None, memory=None) -> Decision:
+    def decide(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None, memory=None,
+               wall_map=None) -> Decision:
         """One control step: stop inside the goal radius, else the policy's command (``history``,
-        ``tracks``, ``trail`` and ``memory`` as in :meth:`observation`)."""
-        obs = self.observation(sectors, pose, goal, velocity, history, tracks, trail, memory)
+        ``tracks``, ``trail``, ``memory`` and ``wall_map`` as in :meth:`observation`)."""
+        obs = self.observation(sectors, pose, goal, velocity, history, tracks, trail, memory, wall_map)
         dist, angle = float(obs[self.layout.sectors]), float(obs[self.layout.sectors + 1])
         if dist < self.goal_threshold:
             return Decision("reached", 0.0, 0.0, dist, angle, None, obs)
