@@ -85,7 +85,9 @@ class WallMap:
     nearest hit of each group of beams, 60 points a scan, one scan stored every ``every`` steps, the last F kept),
     the form a simulator slot and a robot can keep cheaply; ``grid=G > 0`` the simulator's dense memory of hits
     (:class:`flashnav.sim.memory.WallGrid`: every beam's hit of every scan, kept as the cells of a coarse grid of
-    G metres over the map, drawn at the marked cells' centres), the form a wall-map observation would keep."""
+    G metres over the map, drawn at the marked cells' centres; a hit marked at its return, where the env's
+    ``observation.wall_map`` marks it 1 mm past: :data:`flashnav.sim.memory.HIT_BEYOND_M`), the form a wall-map
+    observation keeps."""
 
     cells: int
     cell: float

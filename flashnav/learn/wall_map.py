@@ -4,7 +4,9 @@ The wall map is the observation's last ``2 C^2`` columns: an egocentric image of
 the robot's LiDAR hit this episode, channel 1 the goal's square (each 0 or 1, row by row). Issue 15's
 behaviour-cloning probe (``scripts/bc_memory_probe.py``, docs/benchmarks.md) found that a student reading the
 teacher's memory through this encoder imitates a planner on fresh mazes better than with the usual input alone,
-while one dense layer over the same squares, or a smaller CNN, gained little; the encoder here is that probe's
+while one dense layer over the same squares, or a smaller CNN, gained little (drawn from a grid of every hit, as
+the simulator keeps it, the same student reached less than from the teacher's memory: docs/benchmarks.md, "A dense
+grid of every hit"; whether the map pays in reinforcement learning is not measured yet); the encoder here is that probe's
 ``cnn``: three 3 x 3 convolutions of 16, 32 and 32 channels (the last two with stride 2; each output sees 9 x 9
 squares), LeakyReLU after each (the networks' activation), then one layer of :data:`WALL_MAP_FEATURES` units whose
 output joins the IPAPRec features ahead of the actor's or critic's MLP.
@@ -68,11 +70,6 @@ class WallMapEncoder(nn.Module):
                 w[j].uniform_(-bound, bound, generator=generator)
                 b[j].uniform_(-bound, bound, generator=generator)
         self.out_weight, self.out_bias = nn.Parameter(w), nn.Parameter(b)
-
-    @property
-    def columns(self) -> int:
-        """Observation columns it reads: 2 C^2."""
-        return WALL_MAP_CHANNELS * self.cells ** 2
 
     def forward(self, image: torch.Tensor, detach_params: bool = False) -> torch.Tensor:
         lead = image.shape[:-1]
