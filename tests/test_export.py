@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from flashnav.checkpoint import CHECKPOINT_FORMAT_VERSION, load_checkpoint, save_checkpoint
-from flashnav.export import DeployablePolicy, export_policy, load_policy, recorded_robot, sample_observations
+from flashnav.export import DeployablePolicy, export_policy, load_policy, recorded_robot
+from flashnav.observation_samples import sample_observations
 from flashnav.learn.networks import Actor, DeterministicActor, ObsLayout
 from flashnav.presets import load_robot
 from flashnav.sim.motion import action_to_velocity

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from flashnav.export import sample_observations
+from flashnav.observation_samples import sample_observations
 from flashnav.learn.networks import Actor, IPAPRec, ObsLayout, TwinCritic
 from flashnav.learn.wall_map import WALL_MAP_CONVS, WALL_MAP_FEATURES, WallMapEncoder, conv_side
 from flashnav.presets import load_robot
