@@ -60,6 +60,13 @@ def check_wall_image(cells: int, cell: float) -> None:
         raise ValueError(f"a wall image needs at least 2 cells a side of > 0 metres, got {cells} x {cell}")
 
 
+def cell_index(r: torch.Tensor, c: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """Flat index ``r * w + c`` (long) of rows ``r`` and columns ``c`` (whole numbers, float or integer) on an
+    ``h`` x ``w`` grid, -1 off it (NaN and inf are off it: they compare False); the same ops whatever the values."""
+    inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+    return torch.where(inside, torch.where(inside, r, 0).long() * w + torch.where(inside, c, 0).long(), -1)
+
+
 def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
     """An egocentric image [k, 2, cells, cells] of wall ``points [k, Q, 2]`` (simulator frame, metres; a point
     with a non-finite coordinate is none) seen from ``pose [k, 3]``, with the goal ``goal [k, 2]``: squares of
@@ -78,10 +85,9 @@ def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cel
         fwd, left = to_robot_frame(xy, pose).unbind(-1)
         return torch.floor((left + half) / cell), torch.floor((fwd + half) / cell)
 
-    r, c = squares(points)
-    inside = torch.isfinite(points).all(-1) & (r >= 0) & (r < cells) & (c >= 0) & (c < cells)  # NaN compares False
-    r, c = torch.where(inside, r, 0).long(), torch.where(inside, c, 0).long()  # NaN and inf cannot become integers
-    at = (torch.arange(k, device=pose.device)[:, None] * cells + r) * cells + c
+    square = cell_index(*squares(points), cells, cells)
+    inside = torch.isfinite(points).all(-1) & (square >= 0)
+    at = torch.arange(k, device=pose.device)[:, None] * (cells * cells) + square
     at = torch.where(inside, at, k * cells * cells)  # outside: one spare square, dropped
     walls = torch.zeros(k * cells * cells + 1, device=pose.device, dtype=points.dtype)
     walls = walls.index_fill_(0, at.reshape(-1), 1.0)[:-1].view(k, cells, cells)
@@ -234,8 +240,8 @@ class WallGrid:
         h, w = self.shape
         c = torch.floor((xy[..., 0] - origin[:, 0:1]) / self.cell)
         r = torch.floor((xy[..., 1] - origin[:, 1:2]) / self.cell)
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)  # NaN and inf compare False
-        return torch.where(inside, torch.where(inside, r, 0).long() * w + torch.where(inside, c, 0).long(), h * w)
+        flat = cell_index(r, c, h, w)
+        return torch.where(flat >= 0, flat, h * w)
 
     def hits(self, pose: torch.Tensor, ranges: torch.Tensor) -> torch.Tensor:
         """[k, beams, 2] where the hits of scans ``ranges [k, beams]`` from ``pose [k, 3]`` are marked (``beyond``
@@ -282,8 +288,9 @@ class WallGrid:
         step = torch.arange(n, device=pose.device)
         c = (base[:, 0:1] + step)[:, None, :].expand(-1, n, -1)  # [k, n, n]: column varies along the last axis
         r = (base[:, 1:2] + step)[:, :, None].expand(-1, -1, n)
-        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-        flat = torch.where(inside, r * w + c, h * w).reshape(len(rows), -1)  # off the grid: the spare cell
-        marked = torch.gather(self.known[rows], 1, flat) & inside.reshape(len(rows), -1)  # (which holds dropped hits)
+        flat = cell_index(r, c, h, w).reshape(len(rows), -1)
+        inside = flat >= 0
+        # off the grid: the spare cell, read as unmarked (it holds the dropped hits)
+        marked = torch.gather(self.known[rows], 1, torch.where(inside, flat, h * w)) & inside
         xy = (torch.stack([c, r], -1).reshape(len(rows), -1, 2).to(pose.dtype) + 0.5) * self.cell + org[:, None]
         return wall_image(torch.where(marked[..., None], xy, math.inf), pose, goal, cells, cell)
