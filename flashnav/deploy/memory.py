@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from flashnav.deploy.runtime import robot_frame
+
 
 class ScanMemory:
     """The stored wall points of one robot (odometry frame) and the memory scan they give."""
@@ -78,11 +80,9 @@ def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float) -> np.nd
     a point falls in, channel 1 in the goal's square (clipped onto the edge); row = left (row 0 rightmost),
     column = forward (column 0 behind)."""
     half = cells * cell / 2
-    c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
 
     def squares(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        dx, dy = xy[:, 0] - float(pose[0]), xy[:, 1] - float(pose[1])
-        fwd, left = c * dx + s * dy, -s * dx + c * dy
+        fwd, left = robot_frame(xy, pose).T
         return np.floor((left + half) / cell), np.floor((fwd + half) / cell)
 
     out = np.zeros((2, cells, cells), np.float32)
