@@ -1,6 +1,6 @@
-"""The learners' reading of the wall map (observation.wall_map; flashnav/learn/wall_map.py): the batched critics'
-encoders are independent copies, IPAPRec leaves the map's columns to the encoder, the actor loss's detached critic
-writes no encoder gradient, and a run with the map trains, saves and exports what it reads; on the robot
+"""The learners' reading of the wall map (observation.wall_map; flashnav/learn/wall_map.py): one encoder serves the
+actor and the critics (the critic loss trains it), encoding a batch once is the update the networks would make reading
+the squares, IPAPRec leaves the map's columns to the encoder, the actor step writes no encoder gradient, and a run with the map trains, saves and exports what it reads; on the robot
 (flashnav/deploy/memory.py: WallCells) the deploy controller rebuilds the env's map from odometry and scans alone."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import torch
 
 from flashnav.observation_samples import sample_observations
 from flashnav.learn.networks import Actor, IPAPRec, ObsLayout, TwinCritic
-from flashnav.learn.wall_map import WALL_MAP_CONVS, WALL_MAP_FEATURES, WallMapEncoder, conv_side
+from flashnav.learn.wall_map import WALL_MAP_FEATURES, WallMapEncoder, conv_side, with_features
 from flashnav.presets import load_robot
 
 CELLS = 10
@@ -38,25 +38,68 @@ def test_the_layout_places_the_map_after_every_other_column():
         WallMapEncoder(1)
 
 
-def test_the_critics_encoders_are_independent_copies_of_one_encoder():
-    """A 2-copy encoder (one grouped convolution) gives what two 1-copy encoders holding each copy's weights give."""
-    gen = torch.Generator().manual_seed(3)
-    twin = WallMapEncoder(CELLS, copies=2, generator=gen)
-    image = observations(7)[:, LAYOUT.memory_end:]
-    got = twin(image)
-    assert got.shape == (2, 7, WALL_MAP_FEATURES)
-    for k in range(2):
-        one = WallMapEncoder(CELLS)
-        with torch.no_grad():
-            for (w1, b1), (w2, b2), (c_out, _) in zip(zip(one.conv_weights, one.conv_biases),
-                                                     zip(twin.conv_weights, twin.conv_biases), WALL_MAP_CONVS):
-                w1.copy_(w2[k * c_out:(k + 1) * c_out])
-                b1.copy_(b2[k * c_out:(k + 1) * c_out])
-            one.out_weight.copy_(twin.out_weight[k: k + 1])
-            one.out_bias.copy_(twin.out_bias[k: k + 1])
-        torch.testing.assert_close(one(image), got[k], rtol=1e-5, atol=1e-6)
-    assert not torch.allclose(got[0], got[1])  # drawn independently
-    torch.testing.assert_close(WallMapEncoder(CELLS, 2, torch.Generator().manual_seed(3))(image), got)  # seeded
+def learner(algo: str, **hp):
+    from flashnav.learn.hparams import load_hparams
+    from flashnav.learn.learners import make_learner
+    small = {"batch_size": 16, "actor_hidden": [32, 32], "critic_hidden": [32, 32], **hp}
+    return make_learner(algo, load_hparams(algo, "turtlebot2", "cpu", small), LAYOUT, 2, 4, "cpu", seed=5)
+
+
+def batch(n: int, seed: int):
+    from flashnav.learn.replay import Transition
+    gen = torch.Generator().manual_seed(seed)
+    return Transition(obs=observations(n, seed), action=torch.rand(n, 2, generator=gen) * 2 - 1,
+                      reward=torch.randn(n, generator=gen), bootstrap=torch.ones(n) * 0.9,
+                      next_obs=observations(n, seed + 100))
+
+
+@pytest.mark.parametrize("algo", ["fastdsac", "fastsac", "fasttd3"])
+def test_one_encoder_serves_the_actor_and_the_critics_and_the_critic_loss_trains_it(algo):
+    from flashnav.learn.common import actor_own_params
+    state = learner(algo).state
+    assert state.actor.walls is state.critic.walls and state.critic_target.walls is not state.critic.walls
+    assert state.collector.walls is not state.actor.walls  # the collector's copy, synced with the actor's weights
+    encoder = {id(p) for p in state.critic.walls.parameters()}
+    in_actor_opt = {id(p) for g in state.actor_opt.param_groups for p in g["params"]}
+    in_critic_opt = {id(p) for g in state.critic_opt.param_groups for p in g["params"]}
+    assert encoder <= in_critic_opt and not encoder & in_actor_opt
+    assert {id(p) for p in actor_own_params(state.actor)} == in_actor_opt
+    assert len(in_actor_opt) == len(list(state.actor.parameters())) - len(encoder)
+
+
+def test_the_networks_read_encoded_features_as_they_read_the_squares():
+    state = learner("fastdsac").state
+    obs, action = observations(9, seed=2), torch.rand(9, 2) * 2 - 1
+    end = LAYOUT.memory_end
+    encoded = with_features(obs, state.critic.walls, end)
+    assert encoded.shape == (9, end + WALL_MAP_FEATURES + 2 * CELLS ** 2) and torch.equal(encoded[:, :end], obs[:, :end])
+    torch.testing.assert_close(encoded[:, end:end + WALL_MAP_FEATURES], state.critic.walls(obs[:, end:]))
+    assert torch.equal(encoded[:, end + WALL_MAP_FEATURES:], obs[:, end:])
+    torch.testing.assert_close(state.actor(encoded), state.actor(obs))
+    torch.testing.assert_close(state.critic(encoded, action), state.critic(obs, action))
+    torch.testing.assert_close(state.critic(encoded, action, detach_params=True), state.critic(obs, action))
+
+
+@pytest.mark.parametrize("algo", ["fastdsac", "fastsac", "fasttd3"])
+def test_encoding_a_batch_once_is_the_update_the_networks_reading_the_squares_would_make(algo):
+    """With tau 1 the target encoder is the encoder itself after every update, so encoding each batch once
+    (:func:`encode_wall_maps`) must give exactly the update that the learner's own functions make on the raw squares
+    (every network reading them through the shared encoder, the actor step after the critic's; the actor loss's
+    gradient into the encoder, which only the critic's optimiser holds, is cleared by the next critic step); four
+    updates, two actor steps."""
+    from flashnav.learn.learners import MODULES
+    fast, slow = learner(algo, tau=1.0), learner(algo, tau=1.0)  # the same seed: the same weights and draws
+    raw = MODULES[algo].update
+    for i in range(4):
+        b = batch(16, seed=10 + i)
+        fast.update(b)
+        raw(slow.state, b)
+    before = learner(algo, tau=1.0).state.critic.walls
+    for net in ("actor", "critic", "critic_target"):
+        for (name, p), q in zip(getattr(fast.state, net).named_parameters(), getattr(slow.state, net).parameters()):
+            torch.testing.assert_close(p, q, rtol=1e-4, atol=1e-5, msg=f"{net}.{name}")
+    assert not torch.allclose(fast.state.critic.walls.out_weight, before.out_weight)  # the critic loss trained it
+    torch.testing.assert_close(fast.state.critic_target.walls.out_weight, fast.state.critic.walls.out_weight)
 
 
 def test_ipaprec_leaves_the_map_to_the_encoder_and_the_networks_read_it():
@@ -77,6 +120,9 @@ def test_ipaprec_leaves_the_map_to_the_encoder_and_the_networks_read_it():
 
 
 def test_the_actor_loss_writes_no_gradient_into_the_critics_encoder():
+    from flashnav.learn.common import actor_view
+    from flashnav.learn.fastdsac import update_actor
+    from flashnav.learn.wall_map import encode_wall_maps
     critic = TwinCritic(LAYOUT, 2, [32], 2, torch.Generator().manual_seed(0))
     obs, action = observations(8), (torch.rand(8, 2) * 2 - 1).requires_grad_()
     critic(obs, action, detach_params=True).sum().backward()
@@ -84,6 +130,12 @@ def test_the_actor_loss_writes_no_gradient_into_the_critics_encoder():
     assert all(p.grad is None for p in critic.walls.parameters())
     critic(obs, action).sum().backward()
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in critic.walls.parameters())
+    state = learner("fastdsac").state  # the learner's actor step on an encoded batch: the actor trains, not the encoder
+    encoded = encode_wall_maps(batch(16, seed=3), state.critic, state.critic_target)
+    assert encoded.obs.requires_grad and not encoded.next_obs.requires_grad
+    update_actor(state, actor_view(state, encoded))
+    assert all(p.grad is None for p in state.critic.walls.parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in state.actor.mlp.parameters())
 
 
 def test_a_run_with_the_wall_map_trains_saves_and_exports_what_it_reads(tmp_path):

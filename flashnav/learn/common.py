@@ -13,6 +13,7 @@ from torch import nn
 
 from flashnav.learn.networks import Actor, TwinCritic
 from flashnav.learn.noise import ColoredNoise, exponents
+from flashnav.learn.wall_map import with_features
 
 
 def adamw(params: Iterable[torch.Tensor], lr: float, betas: Sequence[float], weight_decay: float) -> torch.optim.AdamW:
@@ -238,23 +239,46 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     layout = dataclasses.replace(layout, goal_sincos=hp.goal_sincos)
     actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, out_init_std=hp.actor_out_init_std,
                   headroom=hp.action_headroom, **norms).to(device)
-    critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen, **norms).to(device)
+    # a wall map's one encoder (drawn after the actor's layers) is the critics', shared with the actor: the critic
+    # loss trains it, the actor step reads its features detached (flashnav.learn.wall_map)
+    critic = TwinCritic(layout, action_dim, hp.critic_hidden, critic_out, init_gen, walls=actor.walls,
+                        **norms).to(device)
     critic_target = frozen_copy(critic)
-    averaged = frozen_copy(actor) if hp.policy_averaging > 0 else None
+    averaged = None
+    if hp.policy_averaging > 0:
+        averaged = frozen_copy(actor)
+        averaged.walls = actor.walls  # the average reads the live encoder; its own layers are averaged
     collect_gen = generator(device, collect_seed)
     return LearnerState(
         hp=hp, actor=actor, collector=frozen_copy(actor), critic=critic, critic_target=critic_target,
-        actor_opt=adamw(actor.parameters(), hp.actor_lr, hp.betas, hp.weight_decay),
+        actor_opt=adamw(actor_own_params(actor), hp.actor_lr, hp.betas, hp.weight_decay),
         critic_opt=adamw(critic.parameters(), hp.critic_lr, hp.betas, hp.weight_decay),
         collect_gen=collect_gen, update_gen=generator(device, update_seed),
         critic_params=list(critic.parameters()), target_params=list(critic_target.parameters()),
-        actor_params=list(actor.parameters()),
+        actor_params=actor_own_params(actor),
         averaged_actor=averaged,
-        averaged_params=[] if averaged is None else list(averaged.parameters()),
+        averaged_params=[] if averaged is None else actor_own_params(averaged),
         averaged_buffers=[] if averaged is None else list(averaged.buffers()),
         actor_buffers=list(actor.buffers()),
         noise=collection_colour(hp.noise_color, num_envs, action_dim, collect_gen, device),
     )
+
+
+def actor_own_params(actor: nn.Module) -> list[nn.Parameter]:
+    """The parameters the actor loss trains: all of ``actor``'s but a wall-map encoder's (the critics', shared)."""
+    shared = set() if actor.walls is None else {id(p) for p in actor.walls.parameters()}
+    return [p for p in actor.parameters() if id(p) not in shared]
+
+
+def actor_view(state: LearnerState, batch: Any) -> Any:
+    """The actor step's batch, its observations detached. With a wall map (a batch from
+    :func:`flashnav.learn.wall_map.encode_wall_maps`) the features are computed again by the encoder as the critic
+    step left it, without gradients: the actor loss trains the actor only, as in the pixel-based references (SAC-AE,
+    DrQ). Without one the observations are the replay's own tensors: the same batch."""
+    if state.critic.walls is None:
+        return batch._replace(obs=batch.obs.detach())
+    with torch.no_grad():
+        return batch._replace(obs=with_features(batch.obs, state.critic.walls, state.critic.vector_end))
 
 
 def collection_colour(beta: float | Sequence[float], num_envs: int, action_dim: int, gen: torch.Generator,

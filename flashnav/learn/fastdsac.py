@@ -18,7 +18,7 @@ from statistics import NormalDist
 import torch
 import torch.nn.functional as F
 
-from flashnav.learn.common import (LearnerState, Temperature, build_state, collection_noise, finish_update,
+from flashnav.learn.common import (LearnerState, Temperature, actor_view, build_state, collection_noise, finish_update,
                                    make_temperature, optimizer_step, resample_where, uniform)
 from flashnav.learn.hparams import FastDSACHParams
 from flashnav.learn.networks import (ObsLayout, bounded_log_std, dem_log_weights, gaussian_head, squashed_gaussian,
@@ -190,6 +190,6 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
 
 def update(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
     """One critic update (+ actor and temperature every ``policy_frequency``-th) + Polyak."""
-    metrics = finish_update(state, update_critic(state, batch), lambda s: update_actor(s, batch))
+    metrics = finish_update(state, update_critic(state, batch), lambda s: update_actor(s, actor_view(s, batch)))
     metrics["alpha"] = state.algo.temperature.alpha
     return metrics

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from flashnav.learn import c51
-from flashnav.learn.common import (LearnerState, Temperature, build_state, collection_noise, finish_update,
+from flashnav.learn.common import (LearnerState, Temperature, actor_view, build_state, collection_noise, finish_update,
                                    make_temperature, optimizer_step)
 from flashnav.learn.hparams import FastSACHParams
 from flashnav.learn.networks import ObsLayout, bounded_log_std, squashed_gaussian, with_headroom
@@ -121,4 +121,4 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
 
 def update(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
     """One critic + temperature update (+ actor every ``policy_frequency``-th) + Polyak."""
-    return finish_update(state, update_critic(state, batch), lambda s: update_actor(s, batch))
+    return finish_update(state, update_critic(state, batch), lambda s: update_actor(s, actor_view(s, batch)))

@@ -13,8 +13,8 @@ import torch
 import torch.nn.functional as F
 
 from flashnav.learn import c51
-from flashnav.learn.common import (LearnerState, build_state, collection_noise, finish_update, optimizer_step,
-                                   resample_where, uniform)
+from flashnav.learn.common import (LearnerState, actor_view, build_state, collection_noise, finish_update,
+                                   optimizer_step, resample_where, uniform)
 from flashnav.learn.hparams import FastTD3HParams
 from flashnav.learn.networks import ObsLayout, with_headroom
 from flashnav.learn.replay import Transition
@@ -97,4 +97,4 @@ def update_actor(state: LearnerState, batch: Transition) -> dict[str, torch.Tens
 
 def update(state: LearnerState, batch: Transition) -> dict[str, torch.Tensor]:
     """One critic update (+ actor every ``policy_frequency``-th) + Polyak. ``batch``: ``[B, ...]``."""
-    return finish_update(state, update_critic(state, batch), lambda s: update_actor(s, batch))
+    return finish_update(state, update_critic(state, batch), lambda s: update_actor(s, actor_view(s, batch)))

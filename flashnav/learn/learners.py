@@ -27,6 +27,7 @@ from flashnav.learn import common
 from flashnav.learn.networks import DeterministicActor, ObsLayout
 from flashnav.learn.protocol import AlgorithmModule
 from flashnav.learn.replay import Transition
+from flashnav.learn.wall_map import encode_wall_maps
 from flashnav.names import ALGORITHMS
 
 #: name -> algorithm module, for every name in :data:`flashnav.names.ALGORITHMS`.
@@ -96,9 +97,12 @@ class Learner:
 
     def update(self, batch: Transition) -> dict[str, torch.Tensor]:
         """One critic update (+ actor/temperature on schedule) + Polyak on ``batch`` ``[B, ...]``
-        (with ``hp.obs_norm``, the batch's observations first update the running feature statistics)."""
+        (with ``hp.obs_norm``, the batch's observations first update the running feature statistics; with a wall
+        map, its squares are encoded once for the whole update: :func:`flashnav.learn.wall_map.encode_wall_maps`)."""
         if self.state.hp.obs_norm:
             common.update_obs_stats(self.state, batch.obs)
+        if self.state.critic.walls is not None:
+            batch = encode_wall_maps(batch, self.state.critic, self.state.critic_target)
         return self._ops.update(self.state, batch)
 
     def state_dict(self) -> dict[str, Any]:

@@ -9,7 +9,8 @@ columns ``0..S-1`` pooled LiDAR sector minima (metres, ``(0, max_range]``), ``S`
 with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns follow (present, x, y, vx, vy, radius each);
 with a pose trail of P breadcrumbs (:mod:`flashnav.sim.trail`) 2 P columns follow (x, y each, metres); with a
 memory scan S more LiDAR-like columns; with a wall map of C x C squares (:mod:`flashnav.sim.memory`) 2 C^2 columns
-of 0 / 1 end it, read by a CNN (:class:`flashnav.learn.wall_map.WallMapEncoder`) whose features join IPAPRec's.
+of 0 / 1 end it, read by a CNN (:class:`flashnav.learn.wall_map.WallMapEncoder`, one shared by a learner's actor and
+critics) whose features join IPAPRec's.
 Actions are ``[N, A]`` in ``[-1, 1]``.
 
 Every network owns its input transform: LiDAR readings become ``1 / (l - beta)`` with a trainable
@@ -28,7 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from flashnav.learn.features import BETA_INIT, BETA_MARGIN, NORM_EPS, IPAPRec, ObsLayout  # noqa: F401 (re-exported)
-from flashnav.learn.wall_map import WallMapEncoder
+from flashnav.learn.wall_map import WallMapEncoder, wall_features
 
 #: std of the actor's output-layer weights at init: actions start near 0, DEM weights near uniform.
 ACTOR_OUT_INIT_STD = 0.01
@@ -82,7 +83,8 @@ class Actor(nn.Module):
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], heads: int,
                  generator: torch.Generator | None = None, layer_norm: bool = False, obs_norm: bool = False,
-                 out_init_std: float = ACTOR_OUT_INIT_STD, headroom: float = 1.0):
+                 out_init_std: float = ACTOR_OUT_INIT_STD, headroom: float = 1.0,
+                 walls: WallMapEncoder | None = None):
         super().__init__()
         self.action_dim = action_dim
         self.heads = heads
@@ -90,14 +92,20 @@ class Actor(nn.Module):
         self.transform = IPAPRec(layout, normalize=obs_norm)
         # out_init_std 0: the output layer keeps the uniform draw of every other layer (PyTorch's default)
         self.mlp = MLP(layout.feature_dim, hidden, heads * action_dim, generator, out_init_std or None, layer_norm)
-        # after the MLP's draws: without a wall map the same seed gives the same weights as before it existed
-        self.walls = WallMapEncoder(layout.wall_map, generator=generator) if layout.wall_map else None
+        # ``walls``: the critics' encoder, shared (the learners'; its parameters are trained by the critic loss); a
+        # network built alone draws its own after the MLP's draws (without a wall map the same seed gives the same
+        # weights as before it existed)
+        if walls is None and layout.wall_map:
+            walls = WallMapEncoder(layout.wall_map, generator=generator)
+        self.walls = walls
         self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """``obs [N, D]``: raw observations, or with a wall map, the vector columns followed by the encoder's features
+        (:func:`flashnav.learn.wall_map.encode_wall_maps`)."""
         x = self.transform(obs)
         if self.walls is not None:
-            x = torch.cat([x, self.walls(obs[..., self.vector_end:])], dim=-1)
+            x = torch.cat([x, wall_features(self.walls, obs, self.vector_end)], dim=-1)
         return self.mlp(x)
 
 
@@ -141,7 +149,7 @@ class TwinCritic(nn.Module):
 
     def __init__(self, layout: ObsLayout, action_dim: int, hidden: Sequence[int], out_dim: int,
                  generator: torch.Generator | None = None, copies: int = 2, layer_norm: bool = False,
-                 obs_norm: bool = False):
+                 obs_norm: bool = False, walls: WallMapEncoder | None = None):
         super().__init__()
         self.copies = copies
         self.layer_norm = layer_norm
@@ -160,13 +168,21 @@ class TwinCritic(nn.Module):
         if layer_norm:  # after the weight draws: the same seed gives the same Linear weights either way
             self.norm_gains = nn.ParameterList(nn.Parameter(torch.ones(copies, 1, n)) for n in hidden)
             self.norm_biases = nn.ParameterList(nn.Parameter(torch.zeros(copies, 1, n)) for n in hidden)
-        self.walls = WallMapEncoder(layout.wall_map, copies, generator) if layout.wall_map else None
+        # one wall-map encoder for both critics (given, or drawn after the layers' draws)
+        if walls is None and layout.wall_map:
+            walls = WallMapEncoder(layout.wall_map, generator=generator)
+        self.walls = walls
         self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor, detach_params: bool = False) -> torch.Tensor:
+        """``obs [B, D]`` as :meth:`Actor.forward` reads it. ``detach_params`` detaches the wall-map encoder's
+        output too: the actor loss writes no critic gradient."""
         x = self.transform(obs, detach_rho=detach_params)
         if self.walls is not None:
-            x = torch.cat([x, self.walls(obs[..., self.vector_end:], detach_params)], dim=-1)
+            walls = wall_features(self.walls, obs, self.vector_end)
+            if detach_params:
+                walls = walls.detach()
+            x = torch.cat([x, walls.unsqueeze(0).expand(self.copies, -1, -1)], dim=-1)
         x = torch.cat([x, action.unsqueeze(0).expand(self.copies, -1, -1)], dim=-1)
         last = len(self.weights) - 1
         for i, (w, b) in enumerate(zip(self.weights, self.biases)):

@@ -1,4 +1,5 @@
-"""The networks' reader of the wall map (``observation.wall_map``, :mod:`flashnav.sim.memory`): a small CNN.
+"""The networks' reader of the wall map (``observation.wall_map``, :mod:`flashnav.sim.memory`): a small CNN, one
+per learner, shared by the actor and the critics.
 
 The wall map is the observation's last ``2 C^2`` columns: an egocentric image of C x C squares, channel 0 the walls
 the robot's LiDAR hit this episode, channel 1 the goal's square (each 0 or 1, row by row). Issue 15's
@@ -6,13 +7,20 @@ behaviour-cloning probe (``scripts/bc_memory_probe.py``, docs/benchmarks.md) fou
 teacher's memory through this encoder imitates a planner on fresh mazes better than with the usual input alone,
 while one dense layer over the same squares, or a smaller CNN, gained little (drawn from a grid of every hit, as
 the simulator keeps it, the same student reached less than from the teacher's memory: docs/benchmarks.md, "A dense
-grid of every hit"; whether the map pays in reinforcement learning is not measured yet); the encoder here is that probe's
-``cnn``: three 3 x 3 convolutions of 16, 32 and 32 channels (the last two with stride 2; each output sees 9 x 9
-squares), LeakyReLU after each (the networks' activation), then one layer of :data:`WALL_MAP_FEATURES` units whose
-output joins the IPAPRec features ahead of the actor's or critic's MLP.
+grid of every hit"); the encoder here is that probe's ``cnn``: three 3 x 3 convolutions of 16, 32 and 32 channels
+(the last two with stride 2; each output sees 9 x 9 squares), LeakyReLU after each (the networks' activation), then
+one layer of :data:`WALL_MAP_FEATURES` units whose output joins the IPAPRec features ahead of the actor's or
+critic's MLP.
 
-``copies`` C > 0 (the twin critics) runs C independent encoders as one grouped convolution (weights of copy k
-in group k) and one batched matrix product, as :class:`flashnav.learn.networks.TwinCritic` batches its layers.
+One encoder serves the actor and both critics, as in pixel-based off-policy learners (SAC-AE, DrQ: the critic's
+loss trains it, the actor reads its features detached, the target critics read the map through their own Polyak
+copy): :func:`encode_wall_maps` runs it once on a replay batch's observations (with gradients, for the critic loss)
+and the target copy once on the next observations, and the networks read those features instead of encoding the
+squares again (:func:`is_encoded`); the actor step encodes the observations again after the critic's step, without
+gradients, as the references do. Collection, evaluation and the exported policy read the squares through the same
+encoder. Against one encoder per network (the first build, never trained at length) this runs the CNN forward on
+two and a half batches an update and backward on one, instead of about eight and three
+(``flashnav bench update --wall-map``; docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -40,51 +48,70 @@ def conv_side(cells: int) -> int:
 
 
 class WallMapEncoder(nn.Module):
-    """The wall map's columns ``[B, 2 C^2]`` -> features ``[B, F]`` (``copies`` 0) or ``[copies, B, F]``,
-    F = :data:`WALL_MAP_FEATURES`. Every weight is drawn from ``generator`` (PyTorch's default uniform bounds),
-    copy by copy."""
+    """The wall map's columns ``[..., 2 C^2]`` -> features ``[..., F]``, F = :data:`WALL_MAP_FEATURES`. Every weight is
+    drawn from ``generator`` (PyTorch's default uniform bounds)."""
 
-    def __init__(self, cells: int, copies: int = 0, generator: torch.Generator | None = None):
+    def __init__(self, cells: int, generator: torch.Generator | None = None):
         super().__init__()
         if cells < 2:
             raise ValueError(f"a wall-map encoder needs at least 2 x 2 squares, got {cells}")
-        self.cells, self.copies = cells, copies
-        k = max(copies, 1)
+        self.cells = cells
         self.conv_weights, self.conv_biases = nn.ParameterList(), nn.ParameterList()
         c_in = WALL_MAP_CHANNELS
         for c_out, _ in WALL_MAP_CONVS:
-            w, b = torch.empty(k * c_out, c_in, 3, 3), torch.empty(k * c_out)
+            w, b = torch.empty(c_out, c_in, 3, 3), torch.empty(c_out)
             bound = 1.0 / math.sqrt(c_in * 9)
             with torch.no_grad():
-                for j in range(k):
-                    w[j * c_out:(j + 1) * c_out].uniform_(-bound, bound, generator=generator)
-                    b[j * c_out:(j + 1) * c_out].uniform_(-bound, bound, generator=generator)
+                w.uniform_(-bound, bound, generator=generator)
+                b.uniform_(-bound, bound, generator=generator)
             self.conv_weights.append(nn.Parameter(w))
             self.conv_biases.append(nn.Parameter(b))
             c_in = c_out
         self.flat = c_in * conv_side(cells) ** 2
         bound = 1.0 / math.sqrt(self.flat)
-        w, b = torch.empty(k, self.flat, WALL_MAP_FEATURES), torch.empty(k, 1, WALL_MAP_FEATURES)
+        w, b = torch.empty(WALL_MAP_FEATURES, self.flat), torch.empty(WALL_MAP_FEATURES)
         with torch.no_grad():
-            for j in range(k):
-                w[j].uniform_(-bound, bound, generator=generator)
-                b[j].uniform_(-bound, bound, generator=generator)
+            w.uniform_(-bound, bound, generator=generator)
+            b.uniform_(-bound, bound, generator=generator)
         self.out_weight, self.out_bias = nn.Parameter(w), nn.Parameter(b)
 
-    def forward(self, image: torch.Tensor, detach_params: bool = False) -> torch.Tensor:
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
         lead = image.shape[:-1]
-        k = max(self.copies, 1)
         x = image.reshape(-1, WALL_MAP_CHANNELS, self.cells, self.cells)
-        if k > 1:  # every copy reads the same map: its own group of channels
-            x = x.repeat(1, k, 1, 1)
         for w, b, (_, stride) in zip(self.conv_weights, self.conv_biases, WALL_MAP_CONVS):
-            if detach_params:
-                w, b = w.detach(), b.detach()
-            x = F.leaky_relu(F.conv2d(x, w, b, stride=stride, padding=1, groups=k))
-        x = x.reshape(x.shape[0], k, self.flat).transpose(0, 1)  # [k, B, flat]: copy j's channels are group j's
-        w, b = (self.out_weight, self.out_bias) if not detach_params else (self.out_weight.detach(),
-                                                                           self.out_bias.detach())
-        x = F.leaky_relu(torch.baddbmm(b, x, w))  # [k, B, F]
-        if self.copies:
-            return x
-        return x[0].reshape(*lead, WALL_MAP_FEATURES)
+            x = F.leaky_relu(F.conv2d(x, w, b, stride=stride, padding=1))
+        x = F.leaky_relu(F.linear(x.reshape(x.shape[0], self.flat), self.out_weight, self.out_bias))
+        return x.reshape(*lead, WALL_MAP_FEATURES)
+
+
+def is_encoded(obs: torch.Tensor, vector_end: int, cells: int) -> bool:
+    """Whether ``obs [..., D]`` carries the encoder's features between its first ``vector_end`` columns and the
+    ``2 C^2`` squares (D = vector_end + :data:`WALL_MAP_FEATURES` + 2 C^2, :func:`encode_wall_maps`) rather than the
+    squares alone (D = vector_end + 2 C^2)."""
+    return obs.shape[-1] == vector_end + WALL_MAP_FEATURES + WALL_MAP_CHANNELS * cells * cells
+
+
+def wall_features(encoder: WallMapEncoder, obs: torch.Tensor, vector_end: int) -> torch.Tensor:
+    """``[..., F]``: the features ``obs`` carries (:func:`is_encoded`), or the encoder's features of its squares."""
+    if is_encoded(obs, vector_end, encoder.cells):
+        return obs[..., vector_end: vector_end + WALL_MAP_FEATURES]
+    return encoder(obs[..., vector_end:])
+
+
+def with_features(obs: torch.Tensor, encoder: WallMapEncoder, vector_end: int) -> torch.Tensor:
+    """``obs [B, vector_end + 2 C^2]`` (or an encoded one: its squares are read again) -> ``[B, vector_end + F + 2 C^2]``
+    with ``encoder``'s features of the squares (with gradients where ``encoder`` and grad mode give them)."""
+    squares = obs[..., obs.shape[-1] - WALL_MAP_CHANNELS * encoder.cells ** 2:]
+    return torch.cat([obs[..., :vector_end], encoder(squares), squares], dim=-1)
+
+
+def encode_wall_maps(batch, critic: nn.Module, critic_target: nn.Module):
+    """A replay batch with each observation's features computed once for the whole update (:func:`with_features`):
+    ``obs``'s by the critics' encoder, with gradients (the critic loss trains it), ``next_obs``'s by the target
+    critics' copy, without (the target and the next action read them). The actor step re-reads ``obs``'s squares
+    after the critic step, without gradients: :func:`flashnav.learn.common.actor_view`."""
+    end = critic.vector_end
+    obs = with_features(batch.obs, critic.walls, end)
+    with torch.no_grad():
+        next_obs = with_features(batch.next_obs, critic_target.walls, end)
+    return batch._replace(obs=obs, next_obs=next_obs)
