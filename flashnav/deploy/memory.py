@@ -87,8 +87,9 @@ def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float) -> np.nd
 
     out = np.zeros((2, cells, cells), np.float32)
     pts = np.asarray(points, np.float64).reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(1)]  # a point at infinity lies in no square (and would turn into nan)
     r, col = squares(pts)
-    inside = np.isfinite(pts).all(1) & (r >= 0) & (r < cells) & (col >= 0) & (col < cells)
+    inside = (r >= 0) & (r < cells) & (col >= 0) & (col < cells)
     out[0, r[inside].astype(np.int64), col[inside].astype(np.int64)] = 1.0
     r, col = squares(np.asarray(goal, np.float64).reshape(1, 2))
     out[1, int(np.clip(r[0], 0, cells - 1)), int(np.clip(col[0], 0, cells - 1))] = 1.0
