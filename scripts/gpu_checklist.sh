@@ -5,8 +5,10 @@
 #   1. the CUDA tests (session 50: all 44 passed in 87 s; session 54 added the wall map's device test), a regression
 #      check of the GPU paths;
 #   2. the wall map's update cost on the GPU (`flashnav bench update --wall-map 24`, eager and cuda-graph, each beside
-#      the same update without the map; on the 2-core CPU it costs ~70x the update: docs/benchmarks.md);
-#   3. issue 15 DM2's first reinforcement-learning run with the wall map (observation.wall_map, session 54): the
+#      the same update without the map; on the 2-core CPU it costs ~11x the update since session 55's shared
+#      encoder: docs/benchmarks.md);
+#   3. issue 15 DM2's reinforcement-learning run with the wall map to the whole budget (observation.wall_map; session
+#      55 ran seed 0 on the CPU to 171,264 env steps: a faster climb, no higher plateau, docs/benchmarks.md): the
 #      TurtleBot2 `generalist` recipe, FastDSAC seed 0, with a 24 x 24 wall map and, beside it, without (the
 #      recipe itself), both to the recipe's 409,600 env steps, then each on the held-out suite (256 episodes a map);
 #      the runs' validation curves are `flashnav bench runs OUT/gen-*/`;
