@@ -1,7 +1,8 @@
 """The learners' reading of the wall map (observation.wall_map; flashnav/learn/wall_map.py): one encoder serves the
 actor and the critics (the critic loss trains it), encoding a batch once is the update the networks would make reading
-the squares, IPAPRec leaves the map's columns to the encoder, the actor step writes no encoder gradient, and a run with the map trains, saves and exports what it reads; on the robot
-(flashnav/deploy/memory.py: WallCells) the deploy controller rebuilds the env's map from odometry and scans alone."""
+the squares, IPAPRec leaves the map's columns to the encoder, the actor step writes no encoder gradient, and a run
+with the map trains, saves and exports what it reads; on the robot (flashnav/deploy/memory.py: WallCells) the deploy
+controller rebuilds the env's map from odometry and scans alone."""
 
 from __future__ import annotations
 

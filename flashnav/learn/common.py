@@ -271,12 +271,12 @@ def actor_own_params(actor: nn.Module) -> list[nn.Parameter]:
 
 
 def actor_view(state: LearnerState, batch: Any) -> Any:
-    """The actor step's batch, its observations detached. With a wall map (a batch from
+    """The actor step's batch. With a wall map (a batch from
     :func:`flashnav.learn.wall_map.encode_wall_maps`) the features are computed again by the encoder as the critic
     step left it, without gradients: the actor loss trains the actor only, as in the pixel-based references (SAC-AE,
     DrQ). Without one the observations are the replay's own tensors: the same batch."""
     if state.critic.walls is None:
-        return batch._replace(obs=batch.obs.detach())
+        return batch
     with torch.no_grad():
         return batch._replace(obs=with_features(batch.obs, state.critic.walls, state.critic.vector_end))
 

@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from flashnav.learn.features import BETA_INIT, BETA_MARGIN, NORM_EPS, IPAPRec, ObsLayout  # noqa: F401 (re-exported)
-from flashnav.learn.wall_map import WallMapEncoder, wall_features
+from flashnav.learn.wall_map import WallMapEncoder, network_encoder, wall_features
 
 #: std of the actor's output-layer weights at init: actions start near 0, DEM weights near uniform.
 ACTOR_OUT_INIT_STD = 0.01
@@ -95,9 +95,7 @@ class Actor(nn.Module):
         # ``walls``: the critics' encoder, shared (the learners'; its parameters are trained by the critic loss); a
         # network built alone draws its own after the MLP's draws (without a wall map the same seed gives the same
         # weights as before it existed)
-        if walls is None and layout.wall_map:
-            walls = WallMapEncoder(layout.wall_map, generator=generator)
-        self.walls = walls
+        self.walls = network_encoder(layout.wall_map, walls, generator)
         self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
@@ -169,9 +167,7 @@ class TwinCritic(nn.Module):
             self.norm_gains = nn.ParameterList(nn.Parameter(torch.ones(copies, 1, n)) for n in hidden)
             self.norm_biases = nn.ParameterList(nn.Parameter(torch.zeros(copies, 1, n)) for n in hidden)
         # one wall-map encoder for both critics (given, or drawn after the layers' draws)
-        if walls is None and layout.wall_map:
-            walls = WallMapEncoder(layout.wall_map, generator=generator)
-        self.walls = walls
+        self.walls = network_encoder(layout.wall_map, walls, generator)
         self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor, detach_params: bool = False) -> torch.Tensor:

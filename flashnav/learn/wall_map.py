@@ -84,6 +84,15 @@ class WallMapEncoder(nn.Module):
         return x.reshape(*lead, WALL_MAP_FEATURES)
 
 
+def network_encoder(cells: int, given: WallMapEncoder | None,
+                    generator: torch.Generator | None) -> WallMapEncoder | None:
+    """A network's encoder: ``given`` (a learner's one, shared by its networks), else the network's own for a map of
+    ``cells`` squares a side drawn from ``generator`` (None without a map, ``cells`` 0)."""
+    if given is None and cells:
+        return WallMapEncoder(cells, generator=generator)
+    return given
+
+
 def is_encoded(obs: torch.Tensor, vector_end: int, cells: int) -> bool:
     """Whether ``obs [..., D]`` carries the encoder's features between its first ``vector_end`` columns and the
     ``2 C^2`` squares (D = vector_end + :data:`WALL_MAP_FEATURES` + 2 C^2, :func:`encode_wall_maps`) rather than the
