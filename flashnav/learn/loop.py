@@ -37,6 +37,7 @@ from flashnav.finetune import load_learner
 from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
 from flashnav.learn.mirror import mirror_for
+from flashnav.learn.wall_shift import wall_shift_for
 from flashnav.learn.networks import ObsLayout
 from flashnav.learn.replay import Replay
 from flashnav.learn.precision import update_precision
@@ -160,7 +161,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     cycles = math.ceil(spec.max_env_steps / hp.num_envs)
     maps = _map_stream(spec, cycles)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed,
-                    n_step=hp.n_step, gamma=hp.gamma, mirror=mirror_for(preset, hp.mirror, dev))
+                    n_step=hp.n_step, gamma=hp.gamma, mirror=mirror_for(preset, hp.mirror, dev),
+                    wall_shift=wall_shift_for(preset, hp.wall_shift))
     # The static-buffer updates of one batch size; with algo.late_batch_size they are replaced (and, on a
     # GPU, captured anew) for the late batch when the run gets there.
     def static_updates(batch_size: int) -> CycleUpdates:

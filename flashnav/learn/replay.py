@@ -21,6 +21,7 @@ import torch
 
 if TYPE_CHECKING:
     from flashnav.learn.mirror import Mirror
+    from flashnav.learn.wall_shift import WallShift
 
 
 class Transition(NamedTuple):
@@ -54,11 +55,13 @@ class Replay:
     samples n-step returns discounted by ``gamma`` (module docstring); ``add`` then needs ``ended``.
     ``mirror``: a :class:`flashnav.learn.mirror.Mirror` that reflects a share of every sampled batch's
     rows left-right (``algo.mirror``; its draws come from the same generator, after the rows').
+    ``wall_shift``: a :class:`flashnav.learn.wall_shift.WallShift` that moves every sampled row's wall map by a
+    few squares (``algo.wall_shift``; its draws come from the same generator, after the mirror's).
     """
 
     def __init__(self, num_envs: int, obs_dim: int, action_dim: int, capacity: int,
                  device: torch.device | str = "cpu", seed: int = 0, n_step: int = 1, gamma: float | None = None,
-                 mirror: "Mirror | None" = None):
+                 mirror: "Mirror | None" = None, wall_shift: "WallShift | None" = None):
         if num_envs <= 0 or capacity <= 0:
             raise ValueError(f"Replay needs num_envs > 0 and capacity > 0, got {num_envs}, {capacity}")
         if not isinstance(n_step, int) or n_step < 1:
@@ -70,6 +73,10 @@ class Replay:
             raise ValueError(f"Replay mirror is for {mirror.obs_index.numel()} observation and {mirror.action_sign.numel()} "
                              f"action columns, the buffer holds {obs_dim} and {action_dim}")
         self.mirror = mirror
+        if wall_shift is not None and wall_shift.start + 2 * wall_shift.cells ** 2 > obs_dim:
+            raise ValueError(f"Replay wall_shift reads columns up to {wall_shift.start + 2 * wall_shift.cells ** 2}, "
+                             f"the buffer holds {obs_dim}")
+        self.wall_shift = wall_shift
         self.num_envs = num_envs
         self.rows_per_env = math.ceil(capacity / num_envs)
         self.device = torch.device(device)
@@ -136,7 +143,9 @@ class Replay:
             self._check_out(out, batch_size, n_batches)
         rows = torch.randint(self.size, (n_batches, batch_size), generator=self.generator, device=self.device)
         batch = self._gather(rows, n_batches, batch_size, out)
-        return batch if self.mirror is None else self.mirror.apply(batch, self.generator)
+        if self.mirror is not None:
+            batch = self.mirror.apply(batch, self.generator)
+        return batch if self.wall_shift is None else self.wall_shift.apply(batch, self.generator)
 
     def _gather(self, rows: torch.Tensor, n_batches: int, batch_size: int, out: Transition | None) -> Transition:
         """The transitions of ``rows`` [U, B] (into ``out`` where given)."""
