@@ -90,14 +90,17 @@ def test_the_grid_marks_the_cells_of_every_hit_against_a_beam_by_beam_reference(
     assert total > 100  # the draw reaches the grid
 
 
+@pytest.mark.parametrize("kernel", ["numba", "torch"])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("cells,cell,grid_cell", [(24, 0.5, 0.25), (10, 0.3, 0.1), (6, 0.25, 0.5), (8, 0.5, 0.5)])
-def test_the_image_draws_every_marked_cells_centre(dtype, cells, cell, grid_cell):
+def test_the_image_draws_every_marked_cells_centre(dtype, cells, cell, grid_cell, kernel):
     """From a window of the grid, the same image as :func:`wall_image` of every marked centre, with the robot
-    inside, at the edge of and off the grid (a window partly or wholly off it)."""
+    inside, at the edge of and off the grid (a window partly or wholly off it), by either kernel."""
     rng = np.random.default_rng(cells)
     num, shape = 6, (30, 45)
     grid = WallGrid(num, shape, grid_cell, 8.0, beam_angles(360.0, 8), CPU)
+    assert grid.kernel == "numba"  # the CPU default
+    grid.kernel = kernel
     grid.origin[:] = torch.as_tensor(rng.uniform(-2, 2, (num, 2)), dtype=torch.float32)
     grid.known[:, :-1] = torch.from_numpy(rng.random((num, shape[0] * shape[1])) < 0.3)
     grid.known[:, -1] = True  # the spare cell (where dropped hits go) is never drawn
@@ -116,6 +119,29 @@ def test_the_image_draws_every_marked_cells_centre(dtype, cells, cell, grid_cell
     assert got.dtype == dtype and got[:, 0].sum() > 10 and got[:, 1].sum((1, 2)).eq(1).all()
     with pytest.raises(ValueError, match="at least 2 cells"):
         grid.image(idx, pose, goal, 1, cell)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_numba_kernel_draws_the_torch_paths_squares_bit_for_bit(dtype):
+    """Many random slots, poses (headings on the grid's axes too, where centres line up with squares' edges) and
+    windows off the grid: the CPU kernel's image equals the torch path's exactly."""
+    rng = np.random.default_rng(7)
+    num, shape = 400, (50, 70)
+    grid = WallGrid(num, shape, 0.25, 8.0, beam_angles(360.0, 8), CPU)
+    grid.origin[:] = torch.as_tensor(rng.uniform(-3, 3, (num, 2)), dtype=torch.float32)
+    grid.known[:, :-1] = torch.from_numpy(rng.random((num, shape[0] * shape[1])) < 0.2)
+    o = grid.origin.double().numpy()
+    xy = o + rng.uniform(-0.2, 1.2, (num, 2)) * np.array([shape[1], shape[0]]) * 0.25
+    xy[::3] = np.round(xy[::3] * 8) / 8  # on cell edges and centres
+    heading = rng.uniform(-math.pi, math.pi, num)
+    heading[::2] = rng.integers(-2, 3, num // 2) * (math.pi / 2)
+    pose = torch.as_tensor(np.concatenate([xy, heading[:, None]], 1), dtype=dtype)
+    goal = torch.as_tensor(xy + rng.uniform(-9, 9, (num, 2)), dtype=dtype)
+    idx = torch.from_numpy(rng.permutation(num))
+    got = grid.image(idx, pose, goal, 24, 0.5)
+    grid.kernel = "torch"
+    want = grid.image(idx, pose, goal, 24, 0.5)
+    assert torch.equal(got, want) and got[:, 0].sum() > 1000
 
 
 def test_a_start_clears_its_slots_only_and_a_push_leaves_the_others_bit_identical():

@@ -27,9 +27,10 @@ were: it is a memory of hits, as a robot's own would be.
 
 The same points can also be drawn as an egocentric image (:func:`wall_image`, :meth:`WallMemory.image`):
 squares around the robot, 1 where a stored point lies, and the goal's square. :class:`WallGrid` is the dense
-form of the same memory: every beam's hit of every scan, kept as the cells of a coarse grid. No observation uses
-either yet; issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py --wall-map-frames`` and
-``--wall-map-grid``) reads them through a CNN.
+form of the same memory: every beam's hit of every scan, kept as the cells of a coarse grid; its image is the
+observation's wall map (``observation.wall_map``; on the CPU drawn by the numba kernel of
+:mod:`flashnav.sim.wall_numba`). Issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py
+--wall-map-frames`` and ``--wall-map-grid``) reads both through a CNN.
 """
 
 from __future__ import annotations
@@ -79,22 +80,29 @@ def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cel
     slot's stored points (:meth:`WallMemory.image`) or from any other set of wall points."""
     check_wall_image(cells, cell)
     k = points.shape[0]
-    half = cells * cell / 2
-
-    def squares(xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # (row, column), unclipped, float
-        fwd, left = to_robot_frame(xy, pose).unbind(-1)
-        return torch.floor((left + half) / cell), torch.floor((fwd + half) / cell)
-
-    square = cell_index(*squares(points), cells, cells)
+    square = cell_index(*_squares(points, pose, cells, cell), cells, cells)
     inside = torch.isfinite(points).all(-1) & (square >= 0)
     at = torch.arange(k, device=pose.device)[:, None] * (cells * cells) + square
     at = torch.where(inside, at, k * cells * cells)  # outside: one spare square, dropped
     walls = torch.zeros(k * cells * cells + 1, device=pose.device, dtype=points.dtype)
     walls = walls.index_fill_(0, at.reshape(-1), 1.0)[:-1].view(k, cells, cells)
-    r, c = (v[:, 0].clamp(0, cells - 1).long() for v in squares(goal[:, None]))
-    target = torch.zeros(k, cells, cells, device=pose.device, dtype=points.dtype)
+    return torch.stack([walls, _goal_square(goal, pose, cells, cell, points.dtype)], dim=1)
+
+
+def _squares(xy: torch.Tensor, pose: torch.Tensor, cells: int, cell: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(row, column) of :func:`wall_image`'s squares, unclipped, as floats, of ``xy [k, Q, 2]`` seen from ``pose``."""
+    fwd, left = to_robot_frame(xy, pose).unbind(-1)
+    half = cells * cell / 2
+    return torch.floor((left + half) / cell), torch.floor((fwd + half) / cell)
+
+
+def _goal_square(goal: torch.Tensor, pose: torch.Tensor, cells: int, cell: float, dtype) -> torch.Tensor:
+    """:func:`wall_image`'s goal channel [k, cells, cells]: 1 in the goal's square, clipped onto the edge."""
+    k = goal.shape[0]
+    r, c = (v[:, 0].clamp(0, cells - 1).long() for v in _squares(goal[:, None], pose, cells, cell))
+    target = torch.zeros(k, cells, cells, device=pose.device, dtype=dtype)
     target[torch.arange(k, device=pose.device), r, c] = 1.0
-    return torch.stack([walls, target], dim=1)
+    return target
 
 
 class WallMemory:
@@ -224,6 +232,9 @@ class WallGrid:
         self.known = torch.zeros(num_envs, h * w + 1, device=device, dtype=torch.bool)
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
         self.rows = torch.arange(num_envs, device=device)
+        #: how :meth:`image` draws: "numba" (the CPU default: :mod:`flashnav.sim.wall_numba`, the marked cells only)
+        #: or "torch" (every cell of the window; the only path on a GPU); the same squares either way
+        self.kernel = "numba" if self.known.device.type == "cpu" else "torch"
 
     @classmethod
     def covering(cls, geometry, num_envs: int, cell: float, max_range: float, beam_angles: torch.Tensor,
@@ -285,6 +296,14 @@ class WallGrid:
         n = math.ceil(2 * reach / self.cell) + 3
         org = self.origin[rows].to(pose.dtype)
         base = torch.floor((pose[:, :2] - reach - org) / self.cell).long() - 1  # [k, 2]: first column, first row
+        if self.kernel == "numba":
+            from flashnav.sim.wall_numba import wall_squares
+
+            heading = pose[:, 2]
+            walls = wall_squares(self.known.numpy(), rows.numpy(), base.numpy(), org.numpy(), pose.numpy(),
+                                 torch.cos(heading).numpy(), torch.sin(heading).numpy(), n, self.shape, self.cell,
+                                 cells, cell)
+            return torch.stack([torch.from_numpy(walls), _goal_square(goal, pose, cells, cell, pose.dtype)], dim=1)
         step = torch.arange(n, device=pose.device)
         c = (base[:, 0:1] + step)[:, None, :].expand(-1, n, -1)  # [k, n, n]: column varies along the last axis
         r = (base[:, 1:2] + step)[:, :, None].expand(-1, -1, n)
