@@ -8,9 +8,11 @@
 #      the same update without the map; on the 2-core CPU it costs ~11x the update since session 55's shared
 #      encoder: docs/benchmarks.md);
 #   3. issue 15 DM2's reinforcement-learning run with the wall map to the whole budget (observation.wall_map; session
-#      55 ran seed 0 on the CPU to 171,264 env steps: a faster climb, no higher plateau, docs/benchmarks.md): the
-#      TurtleBot2 `generalist` recipe, FastDSAC seed 0, with a 24 x 24 wall map and, beside it, without (the
-#      recipe itself), both to the recipe's 409,600 env steps, then each on the held-out suite (256 episodes a map);
+#      55 ran seed 0 on the CPU to 171,264 env steps: a faster climb, no higher plateau; session 56 added DrQ's
+#      random shift of the map, algo.wall_shift=1, to 162,944: the best policy yet, docs/benchmarks.md): the
+#      TurtleBot2 `generalist` recipe, FastDSAC seed 0, with a 24 x 24 wall map shifted by up to one square and,
+#      beside it, without the map (the recipe itself), both to the recipe's 409,600 env steps, then each on the
+#      held-out suite (256 episodes a map);
 #      the runs' validation curves are `flashnav bench runs OUT/gen-*/`;
 #   4. with what time is left, FastDSAC's `paper-mirror` on Go2 (issue 16 DM1's Go2 bar, 20/30 on the CPU) for seeds
 #      2-7 to the whole budget of 401,408 env steps (session 50 ran seeds 0-1 to it: 1/2), three lanes.
@@ -60,7 +62,7 @@ gen() { NAME=$1; shift
   [ -f "$OUT/gen-$NAME-s0/policy.pt" ] && timeout 50 $FN eval "$OUT/gen-$NAME-s0/policy.pt" --maps heldout \
       --episodes $HELDOUT --device $DEV --label "$NAME/s0" --json "$OUT/heldout-$NAME-s0.json" \
       > "$OUT/heldout-$NAME-s0.txt" 2>&1; }
-gen wallmap robot.observation.wall_map=24 & gen plain &
+gen wallmap robot.observation.wall_map=24 algo.wall_shift=1 & gen plain &
 wait
 $FN bench runs "$OUT"/gen-*/ --json "$OUT/gen.json" > "$OUT/gen.txt" 2>&1; tail -12 "$OUT/gen.txt"
 tail -n 3 "$OUT"/heldout-*.txt
