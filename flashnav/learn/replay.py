@@ -73,9 +73,8 @@ class Replay:
             raise ValueError(f"Replay mirror is for {mirror.obs_index.numel()} observation and {mirror.action_sign.numel()} "
                              f"action columns, the buffer holds {obs_dim} and {action_dim}")
         self.mirror = mirror
-        if wall_shift is not None and wall_shift.start + 2 * wall_shift.cells ** 2 > obs_dim:
-            raise ValueError(f"Replay wall_shift reads columns up to {wall_shift.start + 2 * wall_shift.cells ** 2}, "
-                             f"the buffer holds {obs_dim}")
+        if wall_shift is not None and wall_shift.end > obs_dim:
+            raise ValueError(f"Replay wall_shift reads columns up to {wall_shift.end}, the buffer holds {obs_dim}")
         self.wall_shift = wall_shift
         self.num_envs = num_envs
         self.rows_per_env = math.ceil(capacity / num_envs)

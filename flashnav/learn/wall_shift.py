@@ -35,11 +35,16 @@ class WallShift:
     cells: int
     reach: int
 
+    @property
+    def end(self) -> int:
+        """One past the map's last column."""
+        return self.start + WALL_MAP_CHANNELS * self.cells ** 2
+
     def shifted(self, obs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """The squares of ``obs [..., D]``, each row's map moved by its own (dr, dc) drawn from ``generator``
         (rows' shifts first, then columns'): ``[..., 2 C^2]``, 0 where a square came from beyond the map."""
         c, lead = self.cells, obs.shape[:-1]
-        image = obs[..., self.start: self.start + WALL_MAP_CHANNELS * c * c].reshape(-1, WALL_MAP_CHANNELS, c, c)
+        image = obs[..., self.start: self.end].reshape(-1, WALL_MAP_CHANNELS, c, c)
         n = image.shape[0]
         draw = dict(generator=generator, device=obs.device)
         dr = torch.randint(-self.reach, self.reach + 1, (n, 1), **draw)
@@ -55,9 +60,8 @@ class WallShift:
     def apply(self, batch, generator: torch.Generator):
         """Shift the maps of every row of ``batch`` (a :class:`flashnav.learn.replay.Transition` of ``[..., D]``
         tensors) in place, ``obs``'s and ``next_obs``'s with separate draws (in that order). Returns ``batch``."""
-        end = self.start + WALL_MAP_CHANNELS * self.cells ** 2
         for obs in (batch.obs, batch.next_obs):
-            obs[..., self.start: end].copy_(self.shifted(obs, generator))
+            obs[..., self.start: self.end].copy_(self.shifted(obs, generator))
         return batch
 
 
