@@ -3,6 +3,8 @@
 
 Payload: ``{format_version, flashnav_version, learner, config, extra}``; tensors, dicts, lists, str,
 int, float, bool and None only (:func:`save_checkpoint` refuses anything else, naming where it sits).
+A run's replay buffer has a file of its own (:func:`save_replay`, ``replay.pt``, the same rules): it is
+hundreds of MB and more, and only ``flashnav train --save-replay`` writes it.
 """
 
 from __future__ import annotations
@@ -122,3 +124,35 @@ def load_checkpoint(path: str | Path, map_location: torch.device | str | None = 
     if missing:
         raise ValueError(f"{path}: checkpoint (format_version {found}) lacks {', '.join(missing)}")
     return payload
+
+
+#: Version of the replay payload (``{format_version, flashnav_version, replay}``); load_replay accepts exactly it.
+REPLAY_FORMAT_VERSION = 1
+
+
+def save_replay(path: str | Path, state: dict) -> Path:
+    """Write a replay buffer's state (:meth:`flashnav.learn.replay.Replay.state_dict`) to ``path``, as
+    :func:`save_checkpoint` writes (plain data only; a temporary name renamed, never a truncated file)."""
+    payload = {"format_version": REPLAY_FORMAT_VERSION, "flashnav_version": __version__, "replay": state}
+    _check_plain(payload, "replay")
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def load_replay(path: str | Path) -> dict:
+    """A :func:`save_replay` file's replay state (``weights_only=True``: no code runs). FileNotFoundError or
+    ValueError naming the file where it is missing, unreadable or of another format version."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such replay file")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable FlashNav replay ({type(exc).__name__}: {_reason(exc)})") from None
+    found = payload.get("format_version") if isinstance(payload, dict) else None
+    if found != REPLAY_FORMAT_VERSION or "replay" not in payload:
+        raise ValueError(f"{path}: not a FlashNav replay of format_version {REPLAY_FORMAT_VERSION} (found {found!r})")
+    return payload["replay"]

@@ -8,9 +8,13 @@ the averaged policy, the input transforms with their running feature statistics)
 moments and step counts, the temperature and its optimiser, FastDSAC's running critic std, the update
 counter (the actor schedule continues) and the RNG streams of collection and updates. What does not:
 
-- the replay buffer: checkpoints do not store one (it holds ``buffer_size`` transitions, 100 MB and
-  more for the paper recipes), so a fine-tuning run starts with an empty replay and warms up for
-  ``learning_start`` transitions, as any run;
+- the replay buffer, unless asked for: checkpoints do not store one (it holds ``buffer_size`` transitions,
+  100 MB and more for the paper recipes), so a fine-tuning run starts with an empty replay and warms up for
+  ``learning_start`` transitions, as any run. A run trained with ``flashnav train --save-replay`` has its
+  buffer in ``replay.pt`` beside the checkpoint, and ``init_replay`` (``--init-replay``) starts from it
+  too (:meth:`flashnav.learn.replay.Replay.load_state_dict`: the same envs and observation layout; the
+  newest rows where this run's buffer is smaller; every env's last stored step an episode end, since the
+  environments start afresh): a run continued on its own maps then learns on without a new warm-up;
 - the optimisers' hyperparameters (learning rates, betas, weight decay, fused/foreach) and the
   temperature's target entropy: they are this run's, so ``algo.actor_lr=...`` takes effect (with the
   same hyperparameters the loaded state equals the checkpoint's bit for bit);
@@ -37,6 +41,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from flashnav.names import CHECKPOINT_FILE as CHECKPOINT_NAME  # the checkpoint file a run folder holds
+from flashnav.names import REPLAY_FILE
 #: Per-environment exploration state in ``state_dict()["algo"]`` (shape ``[num_envs, 1]``).
 PER_ENV_STATE = ("dem_scale", "noise_std")
 #: Optimiser param-group settings that belong to the run, not to the checkpoint.
@@ -53,6 +58,7 @@ class InitSource:
     path: str
     run: dict[str, Any]
     learner_state: dict[str, Any] | None = field(default=None, repr=False, compare=False)
+    replay: str | None = None  # with init_replay: the run's replay.pt (absolute), loaded when training starts
 
     def state(self) -> dict[str, Any]:
         if self.learner_state is not None:
@@ -62,12 +68,12 @@ class InitSource:
         return load_checkpoint(self.path)["learner"]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"path": self.path, **self.run}
+        return {"path": self.path, **({"replay": self.replay} if self.replay else {}), **self.run}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "InitSource":
         data = dict(data)
-        return cls(str(data.pop("path")), data)
+        return cls(str(data.pop("path")), data, replay=data.pop("replay", None))
 
 
 def checkpoint_file(source: str | Path) -> Path:
@@ -89,12 +95,19 @@ def checkpoint_file(source: str | Path) -> Path:
     return path.resolve()
 
 
-def load_init_source(source: str | Path, read_spec: Callable[..., Any]):
+def load_init_source(source: str | Path | None, read_spec: Callable[..., Any], replay: bool = False):
     """(:class:`InitSource`, the checkpoint's run spec) for ``init_from``; ``read_spec`` is
-    :meth:`flashnav.spec.RunSpec.from_dict` (passed in: the spec module imports this one)."""
+    :meth:`flashnav.spec.RunSpec.from_dict` (passed in: the spec module imports this one). ``replay``
+    (``init_replay``): the source's run folder must hold its ``replay.pt`` too (read when training starts)."""
     from flashnav.checkpoint import load_checkpoint
 
+    if source is None:
+        raise ValueError("init_replay needs init_from: the run (trained with --save-replay) whose replay to start from")
     path = checkpoint_file(source)
+    replay_path = path.parent / REPLAY_FILE
+    if replay and not replay_path.is_file():
+        raise FileNotFoundError(f"init_from {str(source)!r} with init_replay: no {REPLAY_FILE} in {path.parent} "
+                                "(a run writes it with flashnav train --save-replay)")
     payload = load_checkpoint(path)
     spec = read_spec(payload["config"], source=f"{path} (its run config)")
     if payload["learner"].get("algorithm") != spec.algorithm:
@@ -106,7 +119,7 @@ def load_init_source(source: str | Path, read_spec: Callable[..., Any]):
            "goal_distance_max": spec.goal_distance_max, "saved_at": saved,
            "saved_at_source": "checkpoint" if extra.get("saved_at") else "file modification time",
            "flashnav_version": payload.get("flashnav_version")}
-    return InitSource(str(path), run, payload["learner"]), spec
+    return InitSource(str(path), run, payload["learner"], str(replay_path) if replay else None), spec
 
 
 def _layout_keys(robot) -> dict[str, Any]:

@@ -75,6 +75,8 @@ EVAL_SEED, EVAL_EPISODES = 12345, 1024
 CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.json", "checkpoint.pt"
 POLICY_TORCHSCRIPT, POLICY_ONNX, POLICY_METADATA = "policy.pt", "policy.onnx", "policy.json"
 RUN_FILES = (CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE, POLICY_TORCHSCRIPT, POLICY_ONNX, POLICY_METADATA)
+#: The replay buffer a run folder holds only with ``flashnav train --save-replay`` (``--init-replay`` reads it).
+REPLAY_FILE = "replay.pt"
 #: A sweep trial's checkpoint (services/trainable.py writes it; services/tracking.py and ``flashnav bench runs`` read
 #: it): one folder per finished seed with the run's config, curve, best policy and its result (a run folder's metrics).
 TRIAL_SEED_DIR, TRIAL_RESULT_FILE = "seed_{seed}", "result.json"

@@ -86,6 +86,8 @@ class TrainConfig(KnownKeys):
     init_from: str | None = Field(
         None, description="fine-tune: start from this run folder's (or checkpoint file's) learner state "
                           "(flashnav/finetune.py); the networks must match its shapes")
+    init_replay: bool = Field(False, description="with init_from: start from its run's replay buffer too (replay.pt, "
+                                                 "written by flashnav train --save-replay; same envs and layout)")
     raycaster: Literal[RAYCASTERS] | None = Field(  # type: ignore[valid-type]
         None, description="None = the simulator's default (exact)")
     overrides: dict[str, Any] = Field(
@@ -307,8 +309,7 @@ class RunSpec:
         plus ``hparams``, ``robot_preset`` and ``goal_distance_max``."""
         data = self.config.model_dump(mode="json")
         data.update(device=self.device, recipe=self.recipe, cuda_graph="on" if self.cuda_graph else "off",
-                    overlap=self.overlap,
-                    hparams=self.hparams.model_dump(mode="json"),
+                    overlap=self.overlap, hparams=self.hparams.model_dump(mode="json"),
                     robot_preset=self.robot.model_dump(mode="json"), goal_distance_max=self.goal_distance_max)
         if self.init is not None:
             data["init_source"] = self.init.to_dict()
@@ -375,8 +376,8 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
                          "use cuda_graph=off or algo.lr_final_ratio=1")
     overlap = resolve_overlap(config.overlap, device)
     init = checkpoint = None
-    if config.init_from is not None:  # before the maps: a mismatch is refused without loading any
-        init, checkpoint = load_init_source(config.init_from, RunSpec.from_dict)
+    if config.init_from is not None or config.init_replay:  # before the maps: a mismatch is refused before any loads
+        init, checkpoint = load_init_source(config.init_from, RunSpec.from_dict, replay=config.init_replay)
         check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from)
     if isinstance(config.maps, GeneratedMaps):  # before drawing set 0: every set's seeds must be valid
         config.maps.check_seeds(math.ceil((config.budget.max_env_steps or hparams.total_env_steps) / hparams.num_envs))

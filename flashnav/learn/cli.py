@@ -41,7 +41,11 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "time-to-threshold and the best policy then measure success on those maps")
     p.add_argument("--init-from", dest="init_from", metavar="RUN_DIR_OR_CHECKPOINT",
                    help="fine-tune: start from a trained run's learner (weights, optimiser state, temperature; "
-                        "not its replay); its network shapes must match this run's")
+                        "its replay only with --init-replay); its network shapes must match this run's")
+    p.add_argument("--init-replay", dest="init_replay", action="store_true", default=None,
+                   help="with --init-from: start from that run's replay buffer too (its replay.pt, written by "
+                        "--save-replay; the same num_envs and observation layout): a run continued on its own maps "
+                        "learns on without a new warm-up")
     p.add_argument("--seed", type=seed_arg, help="training seed (default 0)")
     p.add_argument("--out", help="output folder (default runs/train/<robot>-<algo>-s<seed>-<time>)")
     p.add_argument("--overwrite", action="store_true",
@@ -53,6 +57,10 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "'running') to --out after an evaluation at most every SECONDS of wall-clock time "
                         "(default 600; 0 = after every evaluation), so a crash loses at most that much; the "
                         "finished run overwrites it")
+    p.add_argument("--save-replay", dest="save_replay", action="store_true",
+                   help="also write the replay buffer to --out as replay.pt with every save (the run's transitions: "
+                        "obs_dim x buffer_size x 8 bytes and more, e.g. 1.6 GB for 163,840 wall-map transitions), "
+                        "so that --init-from OUT --init-replay can continue the run with it")
     p.add_argument("--sequential", action="store_true",
                    help="the plain sequential loop, no collector thread (the default on a CPU; overlap=true asks for "
                         "the thread there)")
@@ -64,7 +72,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
 def config_from_args(args) -> TrainConfig:
     """The TrainConfig of ``flashnav train``'s arguments (through :func:`flashnav.spec.config_from_cli`)."""
     flags = {name: getattr(args, name) for name in ("robot", "algorithm", "recipe", "device", "map", "maps", "seed",
-                                                "init_from")}
+                                                "init_from", "init_replay")}
     if args.sequential:
         flags["overlap"] = False
     # the path as a quoted YAML string (a bare `*.yaml` would read as a YAML alias); later key=value wins
@@ -95,7 +103,8 @@ def run_train(args) -> int:
     if spec.init is not None:
         run = spec.init.run
         console.print(f"fine-tuning from {spec.init.path} (seed {run['seed']}, {run['recipe']} recipe, saved "
-                      f"{run['saved_at']}); goal-distance scale {spec.goal_distance_max:.2f} m from its run")
+                      f"{run['saved_at']}); goal-distance scale {spec.goal_distance_max:.2f} m from its run"
+                      + (f"; its replay from {spec.init.replay}" if spec.init.replay else ""), soft_wrap=True)
     if spec.eval_maps is not None:
         grids = spec.eval_env_maps()
         console.print(f"evaluating on {len(grids)} maps of eval.maps = {config.eval.maps} "
@@ -103,7 +112,7 @@ def run_train(args) -> int:
     saved: list[int] = []  # env steps of the snapshots written
 
     def snapshot(so_far) -> None:
-        save_run(so_far, out)
+        save_run(so_far, out, replay=args.save_replay)
         saved.append(so_far.env_steps)
         progress.console.print(f"saved the run so far to {out} ({so_far.env_steps:,} env steps, best "
                                f"{so_far.best_success_rate:.1%})", soft_wrap=True)
@@ -120,7 +129,7 @@ def run_train(args) -> int:
     if result.stop_reason == "interrupted":
         console.print("[yellow]interrupted[/]: writing the run so far (Ctrl-C again aborts)")
 
-    save_run(result, out)  # the folder only now (or at the first snapshot): a failed start leaves none
+    save_run(result, out, replay=args.save_replay)  # the folder only now (or at the first snapshot): a failed start leaves none
     _summary(console, result, out)
     return 0
 

@@ -33,6 +33,7 @@ import torch
 
 from flashnav.eval_maps import EvalSet
 from flashnav.evaluate import ThresholdTracker, TrainingEpisodes, evaluate
+from flashnav.checkpoint import load_replay
 from flashnav.finetune import load_learner
 from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
@@ -70,6 +71,7 @@ class TrainResult:
     training_episodes_to_threshold: dict[str, dict[float, Any]] = field(default_factory=dict)
     learner: Learner | None = field(default=None, repr=False)
     best_policy: torch.nn.Module | None = field(default=None, repr=False)
+    replay: Replay | None = field(default=None, repr=False)  # the run's buffer (save_run(..., replay=True) writes it)
 
     @property
     def policy(self) -> torch.nn.Module | None:
@@ -163,6 +165,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed,
                     n_step=hp.n_step, gamma=hp.gamma, mirror=mirror_for(preset, hp.mirror, dev),
                     wall_shift=wall_shift_for(preset, hp.wall_shift))
+    if spec.init is not None and spec.init.replay is not None:  # config.init_replay: the run's transitions too
+        replay.load_state_dict(load_replay(spec.init.replay), spec.init.replay)
     # The static-buffer updates of one batch size; with algo.late_batch_size they are replaced (and, on a
     # GPU, captured anew) for the late batch when the run gets there.
     def static_updates(batch_size: int) -> CycleUpdates:
@@ -248,6 +252,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
             best_success_rate=best_rate,
             learner=learner,
             best_policy=best_policy,
+            replay=replay,
         )
 
     try:

@@ -204,3 +204,46 @@ class Replay:
         """Forget all transitions (storage is kept)."""
         self._pos = 0
         self._filled = 0
+
+    #: The per-row tensors a state dict carries (``ended`` only with n-step returns).
+    _STORED = ("obs", "action", "reward", "terminated", "next_obs", "ended")
+
+    def state_dict(self) -> dict:
+        """What :meth:`load_state_dict` restores (``flashnav train --save-replay`` writes it as ``replay.pt``): the
+        stored rows oldest first (``[S, N, ...]``, S = rows written, at most ``rows_per_env``; a copy, the buffer
+        keeps its own), the layout they need (envs, observation and action width, whether episode ends are
+        kept) and the sampler's generator state with its device type. Tensors on the CPU; loads with
+        ``torch.load(weights_only=True)``."""
+        order = torch.arange(self._filled, device=self.device)
+        if self._filled == self.rows_per_env:  # wrapped: the oldest row is the next one to be written
+            order = (order + self._pos) % self.rows_per_env
+        rows = {name: getattr(self, name)[order].cpu() for name in self._STORED if getattr(self, name) is not None}
+        return {"format": 1, "num_envs": self.num_envs, "obs_dim": self.obs.shape[-1],
+                "action_dim": self.action.shape[-1], "rows": rows, "generator": self.generator.get_state(),
+                "generator_device": self.device.type}
+
+    def load_state_dict(self, state: dict, source: str = "replay state") -> None:
+        """Restore :meth:`state_dict`'s rows into this buffer (its own capacity: where it holds fewer rows per
+        env than were saved, the newest are kept) and its generator state (saved on the same kind of device: a
+        CPU's and a GPU's generators differ, and across them this buffer keeps its own seeded one). The newest
+        row of every env is marked as an episode end, so an n-step return never sums across into the rows this
+        buffer adds next (a new episode). ValueError naming ``source`` where the layout differs: another env
+        count, observation or action width, or saved without episode ends for a buffer with n-step returns."""
+        want = {"num_envs": self.num_envs, "obs_dim": self.obs.shape[-1], "action_dim": self.action.shape[-1]}
+        for key, value in want.items():
+            if state.get(key) != value:
+                raise ValueError(f"{source}: saved with {key} {state.get(key)}, this run's replay has {value} "
+                                 "(a replay continues only with the same envs and observation layout)")
+        rows = state["rows"]
+        if self.ended is not None and "ended" not in rows:
+            raise ValueError(f"{source}: saved without episode ends (n_step 1); this run's n_step {self.n_step} needs "
+                             "them to stop its returns where episodes ended")
+        count = min(rows["obs"].shape[0], self.rows_per_env)
+        for name in self._STORED:
+            if getattr(self, name) is not None:
+                getattr(self, name)[:count].copy_(rows[name][rows[name].shape[0] - count:])
+        if self.ended is not None and count:
+            self.ended[count - 1] = True
+        self._filled, self._pos = count, count % self.rows_per_env
+        if state.get("generator_device") == self.device.type:
+            self.generator.set_state(state["generator"])
