@@ -107,9 +107,13 @@ def test_replay_files_load_safely_and_name_a_bad_file(tmp_path):
 
 
 def test_a_run_continues_with_its_replay(tmp_path):
-    """save_run(replay=True) writes replay.pt; init_replay starts the next run from it (no warm-up: it updates from
+    """train(keep_replay=True) and save_run(replay=True) write replay.pt; init_replay starts the next run from it (no warm-up: it updates from
     its first vector step), the config records it and reads back; without replay=True a stale replay.pt goes."""
-    first = train(tiny())
+    plain = train(tiny())
+    assert plain.replay is None  # kept only when asked for: a result held on to holds no buffer
+    with pytest.raises(ValueError, match="carries no replay buffer"):
+        save_run(plain, tmp_path / "plain", replay=True)
+    first = train(tiny(), keep_replay=True)
     out = save_run(first, tmp_path / "run", replay=True)
     assert sorted(p.name for p in out.iterdir()) == sorted((*RUN_FILES, REPLAY_FILE))
     saved = load_replay(out / REPLAY_FILE)
@@ -120,7 +124,7 @@ def test_a_run_continues_with_its_replay(tmp_path):
     spec = resolve(config)
     assert spec.init.replay == str((out / REPLAY_FILE).resolve())
     assert RunSpec.from_dict(spec.to_dict()).init == spec.init
-    went_on = train(spec)
+    went_on = train(spec, keep_replay=True)
     assert went_on.replay.size == first.replay.size + went_on.env_steps
     assert torch.equal(went_on.replay.obs[: first.replay.size // 32], first.replay.obs[: first.replay.size // 32])
     # 256 loaded + 32 collected reach learning_start 257 after the first of its 8 vector steps: 7 x 2 updates (an

@@ -40,7 +40,8 @@ def save_run(result, out: str | Path, replay: bool = False) -> Path:
         export_policy(result.policy, result.spec.robot, tmp)  # the best evaluated policy
         if replay:
             if result.replay is None:
-                raise ValueError(f"save_run(..., replay=True) into {out}: the result carries no replay buffer")
+                raise ValueError(f"save_run(..., replay=True) into {out}: the result carries no replay buffer "
+                                 "(train it with train(..., keep_replay=True))")
             save_replay(tmp / REPLAY_FILE, result.replay.state_dict())
         else:
             (out / REPLAY_FILE).unlink(missing_ok=True)

@@ -120,7 +120,7 @@ def run_train(args) -> int:
     with TrainProgress(console) as progress, sigterm_as_ctrl_c():
         try:
             result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress, interruptible=True,
-                           on_snapshot=snapshot, snapshot_every=args.save_every)
+                           on_snapshot=snapshot, snapshot_every=args.save_every, keep_replay=args.save_replay)
         except Exception:
             if saved:
                 progress.console.print(f"[red]training failed[/]: the run as it stood at {saved[-1]:,} env steps "
@@ -129,7 +129,7 @@ def run_train(args) -> int:
     if result.stop_reason == "interrupted":
         console.print("[yellow]interrupted[/]: writing the run so far (Ctrl-C again aborts)")
 
-    save_run(result, out, replay=args.save_replay)  # the folder only now (or at the first snapshot): a failed start leaves none
+    save_run(result, out, replay=args.save_replay)  # only now (or at the first snapshot): a failed start leaves none
     _summary(console, result, out)
     return 0
 

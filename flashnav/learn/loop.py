@@ -31,9 +31,9 @@ from typing import Any, Callable
 
 import torch
 
+from flashnav.checkpoint import load_replay
 from flashnav.eval_maps import EvalSet
 from flashnav.evaluate import ThresholdTracker, TrainingEpisodes, evaluate
-from flashnav.checkpoint import load_replay
 from flashnav.finetune import load_learner
 from flashnav.learn.cuda_graph import CycleUpdates
 from flashnav.learn.learners import Learner, make_learner
@@ -71,7 +71,7 @@ class TrainResult:
     training_episodes_to_threshold: dict[str, dict[float, Any]] = field(default_factory=dict)
     learner: Learner | None = field(default=None, repr=False)
     best_policy: torch.nn.Module | None = field(default=None, repr=False)
-    replay: Replay | None = field(default=None, repr=False)  # the run's buffer (save_run(..., replay=True) writes it)
+    replay: Replay | None = field(default=None, repr=False)  # with train(keep_replay=True): the run's buffer
 
     @property
     def policy(self) -> torch.nn.Module | None:
@@ -122,7 +122,8 @@ class _Timer:
 
 def train(config: TrainConfig | RunSpec | None = None, *, on_eval: Callable[[dict], bool | None] | None = None,
           on_progress: Callable[[dict], None] | None = None, interruptible: bool = False,
-          on_snapshot: Callable[[TrainResult], None] | None = None, snapshot_every: float = 600.0) -> TrainResult:
+          on_snapshot: Callable[[TrainResult], None] | None = None, snapshot_every: float = 600.0,
+          keep_replay: bool = False) -> TrainResult:
     """Train one policy; see docs/train-api.md. ``config``: a TrainConfig (resolved here by
     :func:`flashnav.spec.resolve`) or an already resolved RunSpec. ``on_progress`` (optional, outside
     the clock) gets a dict with env_steps, train_seconds and the last evaluation after every cycle.
@@ -132,19 +133,23 @@ def train(config: TrainConfig | RunSpec | None = None, *, on_eval: Callable[[dic
     or script that calls train() keeps Ctrl-C for itself. ``on_snapshot`` (optional, outside the clock) gets
     the run so far as a TrainResult with ``stop_reason`` "running" after an evaluation, at most once per
     ``snapshot_every`` wall-clock seconds (0: after every evaluation), so that a caller can keep it on disk
-    against a crash; ``flashnav train --save-every`` writes it to the run folder."""
+    against a crash; ``flashnav train --save-every`` writes it to the run folder. ``keep_replay``: the results
+    (snapshots too) carry the replay buffer (``TrainResult.replay``, for ``save_run(..., replay=True)``,
+    ``flashnav train --save-replay``); off by default, so that a caller keeping a result does not keep its
+    buffer (hundreds of MB and more) alive."""
     if not snapshot_every >= 0:
         raise ValueError(f"snapshot_every must be >= 0 seconds, got {snapshot_every}")
     spec = config if isinstance(config, RunSpec) else resolve(config)
     threads_before = torch.get_num_threads()
     try:
-        return _train(spec, on_eval, on_progress, interruptible, threads_before, on_snapshot, snapshot_every)
+        return _train(spec, on_eval, on_progress, interruptible, threads_before, on_snapshot, snapshot_every,
+                      keep_replay)
     finally:
         torch.set_num_threads(threads_before)
 
 
 def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, threads: int | None = None,
-           on_snapshot=None, snapshot_every: float = 600.0) -> TrainResult:
+           on_snapshot=None, snapshot_every: float = 600.0, keep_replay: bool = False) -> TrainResult:
     config, preset, hp = spec.config, spec.robot, spec.hparams
     dev = torch.device(spec.device)
     torch.manual_seed(config.seed)
@@ -252,7 +257,7 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
             best_success_rate=best_rate,
             learner=learner,
             best_policy=best_policy,
-            replay=replay,
+            replay=replay if keep_replay else None,
         )
 
     try:
