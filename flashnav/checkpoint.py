@@ -58,7 +58,12 @@ def save_checkpoint(path: str | Path, learner_state: dict, config: Any, extra: d
         config = config.model_dump(mode="json")
     payload = {"format_version": CHECKPOINT_FORMAT_VERSION, "flashnav_version": __version__,
                "learner": learner_state, "config": config, "extra": dict(extra or {})}
-    _check_plain(payload, "checkpoint")
+    return _save_plain(payload, path, "checkpoint")
+
+
+def _save_plain(payload: dict, path: str | Path, what: str) -> Path:
+    """``torch.save`` a plain ``payload`` (refused by name otherwise) to a temporary name beside ``path``, renamed."""
+    _check_plain(payload, what)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -133,13 +138,8 @@ REPLAY_FORMAT_VERSION = 1
 def save_replay(path: str | Path, state: dict) -> Path:
     """Write a replay buffer's state (:meth:`flashnav.learn.replay.Replay.state_dict`) to ``path``, as
     :func:`save_checkpoint` writes (plain data only; a temporary name renamed, never a truncated file)."""
-    payload = {"format_version": REPLAY_FORMAT_VERSION, "flashnav_version": __version__, "replay": state}
-    _check_plain(payload, "replay")
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
-    return path
+    return _save_plain({"format_version": REPLAY_FORMAT_VERSION, "flashnav_version": __version__, "replay": state},
+                       path, "replay")
 
 
 def load_replay(path: str | Path) -> dict:
