@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+import textwrap
 
 import matplotlib
 
@@ -16,6 +17,9 @@ from flashnav.metrics import THRESHOLDS  # noqa: E402
 
 AGENT_COLOUR = "tab:purple"
 OUTCOME_COLOURS = {"success": "tab:green", "collision": "tab:red", "timeout": "tab:orange", "running": "tab:blue"}
+#: Characters per line of a trajectory picture's title (7 inches wide at 10 pt): a longer title (a map's whole
+#: path, the overrides) is wrapped, not cut at the figure's edges.
+TITLE_WIDTH = 80
 
 
 def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.ndarray, outcomes: list[str],
@@ -29,7 +33,9 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
     ``env.goal``, in its simulator frame) pass ``env.frame_map``, which is ``env.map`` itself unless
     the map lies far from the world origin (then re-centred on it, see :mod:`flashnav.sim.env`)."""
     xmin, ymin, xmax, ymax = grid.bounds
-    fig, ax = plt.subplots(figsize=(7, 7 * (ymax - ymin) / (xmax - xmin) + 0.4), dpi=110)
+    title = textwrap.fill(title, TITLE_WIDTH, break_on_hyphens=False)
+    lines = title.count("\n") + 1 if title else 0  # 0.17 inch a line of 10 pt above the map
+    fig, ax = plt.subplots(figsize=(7, 7 * (ymax - ymin) / (xmax - xmin) + 0.4 + 0.17 * lines), dpi=110)
     ax.imshow(grid.occupied, origin="lower", extent=(xmin, xmax, ymin, ymax), cmap="Greys", vmin=0, vmax=1.4,
               interpolation="nearest")
     for track, radius in agents:
