@@ -52,3 +52,37 @@ def test_final_status_ends_its_line_in_a_log_file():
     console.print("SUMMARY")
     lines = console.file.getvalue().splitlines()
     assert lines[-1] == "SUMMARY" and lines[-2].startswith("env steps 1,000"), lines
+
+
+class _Clock:
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_off_a_terminal_a_progress_line_at_most_every_log_every_seconds():
+    """A log file gets no live line until the end: flashnav train prints a plain one every LOG_EVERY seconds."""
+    console, clock = Console(file=io.StringIO(), width=200), _Clock()
+    with TrainProgress(console, log_every=60.0, clock=clock) as progress:
+        for cycle in range(1, 11):  # a cycle every 25 s of wall clock: lines at 75, 150 and 225 s
+            clock.now = 25.0 * cycle
+            progress.on_progress({"env_steps": 128 * cycle, "max_env_steps": 1280, "train_seconds": 20.0 * cycle})
+            if cycle == 4:
+                progress.on_eval(_eval(0, 0.969, 80.0))
+    lines = [line for line in console.file.getvalue().splitlines() if line.startswith("progress ")]
+    assert lines == ["progress 384 of 1,280 env steps (30%), train time 60.0 s",
+                     "progress 768 of 1,280 env steps (60%), train time 120.0 s, last success 96.9%",
+                     "progress 1,152 of 1,280 env steps (90%), train time 180.0 s, last success 96.9%"], lines
+
+
+def test_no_progress_lines_on_a_terminal_or_without_log_every():
+    for console, every in ((Console(file=io.StringIO(), width=200, force_terminal=True), 60.0),
+                           (Console(file=io.StringIO(), width=200), None)):
+        clock = _Clock()
+        with TrainProgress(console, log_every=every, clock=clock) as progress:
+            for cycle in range(1, 6):
+                clock.now = 100.0 * cycle
+                progress.on_progress({"env_steps": cycle, "max_env_steps": 5, "train_seconds": 1.0})
+        assert "progress " not in console.file.getvalue()

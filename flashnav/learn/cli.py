@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.table import Table
 
 from flashnav.learn.artefacts import RUN_FILES, save_run
-from flashnav.learn.progress import TrainProgress
+from flashnav.learn.progress import LOG_EVERY, TrainProgress
 from flashnav.names import (ALGORITHMS, DEVICE_HELP, RECIPE_CHOICES, RECIPE_HELP, ROBOT_HELP, SNAPSHOT_STOP_REASON,
                             THRESHOLDS, seed_arg)
 from flashnav.spec import TrainConfig, config_from_cli, resolve, run_request
@@ -117,7 +117,7 @@ def run_train(args) -> int:
         progress.console.print(f"saved the run so far to {out} ({so_far.env_steps:,} env steps, best "
                                f"{so_far.best_success_rate:.1%})", soft_wrap=True)
 
-    with TrainProgress(console) as progress, sigterm_as_ctrl_c():
+    with TrainProgress(console, log_every=LOG_EVERY) as progress, sigterm_as_ctrl_c():
         try:
             result = train(spec, on_eval=progress.on_eval, on_progress=progress.on_progress, interruptible=True,
                            on_snapshot=snapshot, snapshot_every=args.save_every, keep_replay=args.save_replay)

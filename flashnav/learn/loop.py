@@ -126,7 +126,8 @@ def train(config: TrainConfig | RunSpec | None = None, *, on_eval: Callable[[dic
           keep_replay: bool = False) -> TrainResult:
     """Train one policy; see docs/train-api.md. ``config``: a TrainConfig (resolved here by
     :func:`flashnav.spec.resolve`) or an already resolved RunSpec. ``on_progress`` (optional, outside
-    the clock) gets a dict with env_steps, train_seconds and the last evaluation after every cycle.
+    the clock) gets a dict with env_steps, max_env_steps (the budget's), train_seconds and the last evaluation
+    after every cycle.
     ``interruptible``: a KeyboardInterrupt (Ctrl-C) during the cycles ends the run like a budget
     (``stop_reason`` "interrupted", the curve and best policy so far kept) instead of propagating;
     ``flashnav train`` sets it, so a stopped run still writes its artefacts. Off by default: a sweep
@@ -169,7 +170,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
     maps = _map_stream(spec, cycles)
     replay = Replay(hp.num_envs, preset.obs_dim, 2, hp.buffer_size, dev, seed=config.seed,
                     n_step=hp.n_step, gamma=hp.gamma, mirror=mirror_for(preset, hp.mirror, dev),
-                    wall_shift=wall_shift_for(preset, hp.wall_shift))
+                    wall_shift=wall_shift_for(preset, hp.wall_shift),
+                    binary_columns=preset.obs_dim - preset.memory_end)  # the wall map's 0 / 1 squares, as uint8
     if spec.init is not None and spec.init.replay is not None:  # config.init_replay: the run's transitions too
         replay.load_state_dict(load_replay(spec.init.replay), spec.init.replay)
     # The static-buffer updates of one batch size; with algo.late_batch_size they are replaced (and, on a
@@ -294,7 +296,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
                 learning_cycles.count += 1
             env_steps = cycle * hp.num_envs
             if on_progress is not None:
-                on_progress({"env_steps": env_steps, "train_seconds": cycle_t.total, "last_eval": last_eval})
+                on_progress({"env_steps": env_steps, "max_env_steps": spec.max_env_steps, "train_seconds": cycle_t.total,
+                             "last_eval": last_eval})
             out_of_time = cycle_t.total >= config.budget.max_train_seconds
             if cycle % eval_every and cycle != cycles and not out_of_time:
                 continue  # every run ends with an evaluation, whichever budget ends it

@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import time
+from typing import Callable
+
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
 from flashnav.metrics import THRESHOLDS, reaches
+
+#: Off a terminal, ``flashnav train`` prints a plain progress line at most this often, seconds of wall-clock time.
+LOG_EVERY = 60.0
 
 
 class TrainProgress:
@@ -14,10 +20,16 @@ class TrainProgress:
 
     Shows env steps, training seconds, the last success rate and the thresholds reached so far. With
     ``eval_lines`` every evaluation also prints a line; otherwise only a threshold's first crossing does.
+    ``log_every``: off a terminal (a log file, a batch job's output), where the live line is not drawn until the
+    end, print a plain progress line at most every that many seconds of wall-clock time (None = never), so that a
+    long run's log shows it moving between evaluations.
     """
 
-    def __init__(self, console: Console, *, label: str = "", eval_lines: bool = True, transient: bool = False):
+    def __init__(self, console: Console, *, label: str = "", eval_lines: bool = True, transient: bool = False,
+                 log_every: float | None = None, clock: Callable[[], float] = time.monotonic):
         self.console, self.label, self.eval_lines = console, label, eval_lines
+        self.log_every, self._clock = (log_every if not console.is_terminal else None), clock
+        self._logged = clock()
         self.thresholds: dict[float, float | None] = {t: None for t in THRESHOLDS}
         self.state: dict = {}
         self._live = Live(self._render(), console=console, refresh_per_second=4, transient=transient)
@@ -46,6 +58,18 @@ class TrainProgress:
     def on_progress(self, progress: dict) -> None:
         self.state.update(progress)
         self._live.update(self._render())
+        if self.log_every is not None and self._clock() - self._logged >= self.log_every:
+            self._logged = self._clock()
+            self._live.console.print(self._log_line(), soft_wrap=True)
+
+    def _log_line(self) -> str:
+        """``progress 12,288 of 40,960 env steps (30%), train time 250.1 s, last success 96.9%``."""
+        steps, budget = self.state.get("env_steps", 0), self.state.get("max_env_steps")
+        of = f" of {budget:,} env steps ({steps / budget:.0%})" if budget else " env steps"
+        ev = self.state.get("last_eval") or {}
+        last = f", last success {ev['success_rate']:.1%}" if ev else ""
+        prefix = f"{self.label} " if self.label else ""
+        return f"{prefix}progress {steps:,}{of}, train time {self.state.get('train_seconds', 0.0):.1f} s{last}"
 
     def on_eval(self, m: dict) -> None:
         self.state["last_eval"] = m
