@@ -149,8 +149,11 @@ def test_a_run_with_the_wall_map_trains_saves_and_exports_what_it_reads(tmp_path
     from flashnav.sim.memory import HIT_BEYOND_M
     from tests.test_train import TINY, tiny
 
-    result = train(tiny(overrides={**TINY, "robot.observation.wall_map": 6, "algo.mirror": 0.5}))
+    result = train(tiny(overrides={**TINY, "robot.observation.wall_map": 6, "algo.mirror": 0.5}), keep_replay=True)
     assert result.spec.robot.observation.wall_map == 6 and result.learner.state.actor.walls is not None
+    bits = result.replay.obs_bits  # the replay keeps the 72 squares as uint8, the walls the runs saw among them
+    assert bits.dtype == torch.uint8 and bits.shape[-1] == 72 and result.replay.obs.shape[-1] == 34
+    assert set(bits[: result.replay.size // result.replay.num_envs].unique().tolist()) == {0, 1}
     out = save_run(result, tmp_path / "run")
     policy, meta = load_policy(out / "policy.onnx")
     wm = meta["observation"]["wall_map"]
