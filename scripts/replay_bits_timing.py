@@ -1,6 +1,7 @@
 """The replay's wall-map columns as uint8 against float32: memory and sampling time, side by side in one run.
 
-    .venv/bin/python scripts/replay_bits_timing.py [--repeats 20] [--wall-map 24] [--before OLD/flashnav/learn/replay.py]
+    .venv/bin/python scripts/replay_bits_timing.py [--repeats 20] [--wall-map 24] \
+        [--before OLD/flashnav/learn/replay.py]
 
 Two buffers of the generalist recipe's shape (num_envs, buffer_size, batch_size, updates_per_step, n_step, with
 ``robot.observation.wall_map`` C) are filled with the same random transitions whose last 2 C^2 observation columns
@@ -49,7 +50,8 @@ def main() -> None:
         obs = torch.cat((torch.rand(hp.num_envs, robot.obs_dim - bits, generator=g),
                          (torch.rand(hp.num_envs, bits, generator=g) < 0.2).float()), dim=-1)
         step = (obs, torch.rand(hp.num_envs, 2, generator=g), torch.randn(hp.num_envs, generator=g),
-                torch.rand(hp.num_envs, generator=g) < 0.02, obs.roll(1, 0), torch.rand(hp.num_envs, generator=g) < 0.05)
+                torch.rand(hp.num_envs, generator=g) < 0.02, obs.roll(1, 0),
+                torch.rand(hp.num_envs, generator=g) < 0.05)
         for replay in buffers.values():
             replay.add(*step)
     times: dict[str, list[float]] = {name: [] for name in buffers}

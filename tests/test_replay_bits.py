@@ -70,7 +70,8 @@ def test_a_state_moves_between_float_and_uint8_columns(saved_bits, loaded_bits):
 
 def test_a_newer_layout_is_refused_by_name():
     state = _filled(B, 4, 1).state_dict() | {"format": Replay.FORMAT + 1}
-    with pytest.raises(ValueError, match=rf"my replay.pt: replay layout format {Replay.FORMAT + 1}, this FlashNav reads up to"):
+    said = rf"my replay.pt: replay layout format {Replay.FORMAT + 1}, this FlashNav reads up to"
+    with pytest.raises(ValueError, match=said):
         Replay(N, D, A, 30, binary_columns=B).load_state_dict(state, "my replay.pt")
 
 

@@ -59,8 +59,8 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                         "finished run overwrites it")
     p.add_argument("--save-replay", dest="save_replay", action="store_true",
                    help="also write the replay buffer to --out as replay.pt with every save (the run's transitions: "
-                        "8 bytes a float observation column and 2 a wall-map square per transition, e.g. 425 MB for 163,840 "
-                        "transitions with a 24 x 24 wall map), "
+                        "8 bytes a float observation column and 2 a wall-map square per transition, e.g. 425 MB "
+                        "for 163,840 transitions with a 24 x 24 wall map), "
                         "so that --init-from OUT --init-replay can continue the run with it")
     p.add_argument("--sequential", action="store_true",
                    help="the plain sequential loop, no collector thread (the default on a CPU; overlap=true asks for "

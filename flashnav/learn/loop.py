@@ -296,8 +296,8 @@ def _train(spec: RunSpec, on_eval, on_progress, interruptible: bool = False, thr
                 learning_cycles.count += 1
             env_steps = cycle * hp.num_envs
             if on_progress is not None:
-                on_progress({"env_steps": env_steps, "max_env_steps": spec.max_env_steps, "train_seconds": cycle_t.total,
-                             "last_eval": last_eval})
+                on_progress({"env_steps": env_steps, "max_env_steps": spec.max_env_steps,
+                             "train_seconds": cycle_t.total, "last_eval": last_eval})
             out_of_time = cycle_t.total >= config.budget.max_train_seconds
             if cycle % eval_every and cycle != cycles and not out_of_time:
                 continue  # every run ends with an evaluation, whichever budget ends it

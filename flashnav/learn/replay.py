@@ -84,7 +84,8 @@ class Replay:
             raise ValueError(f"Replay wall_shift reads columns up to {wall_shift.end}, the buffer holds {obs_dim}")
         self.wall_shift = wall_shift
         if not isinstance(binary_columns, int) or not 0 <= binary_columns <= obs_dim:
-            raise ValueError(f"Replay binary_columns must be an integer in [0, obs_dim={obs_dim}], got {binary_columns!r}")
+            raise ValueError(f"Replay binary_columns must be an integer in [0, obs_dim={obs_dim}], "
+                             f"got {binary_columns!r}")
         self.obs_dim, self.binary_columns = obs_dim, binary_columns
         self._split = obs_dim - binary_columns  # float32 columns before the binary ones
         self.num_envs = num_envs
