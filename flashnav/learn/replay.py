@@ -182,11 +182,11 @@ class Replay:
     def _gather(self, rows: torch.Tensor, n_batches: int, batch_size: int, out: Transition | None) -> Transition:
         """The transitions of ``rows`` [U, B] (into ``out`` where given)."""
         if self.n_step > 1:
-            fields = self._n_step_fields(rows.view(-1))
+            fields = self._n_step_fields(rows.view(-1), out)
             if out is None:
                 return Transition(*(x.view(n_batches, batch_size, *x.shape[1:]) for x in fields))
-            for src, dst in zip(fields, out):
-                dst.view(-1, *dst.shape[2:]).copy_(src)
+            out.reward.view(-1).copy_(fields.reward)  # obs, action and next obs went straight into out
+            out.bootstrap.view(-1).copy_(fields.bootstrap)
             return out
         r = rows.view(-1)
         stored = ((self.obs, self.obs_bits), (self.action, None), (self.reward, None), (self.terminated, None),
@@ -211,8 +211,9 @@ class Replay:
         """A stored ``[T, N, ...]`` tensor viewed as ``[T * N, ...]`` rows (no copy)."""
         return x.view(self.capacity, *x.shape[2:])
 
-    def _n_step_fields(self, rows: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """``(obs, action, reward, bootstrap, next_obs)`` of the n-step transitions from flat ``rows``."""
+    def _n_step_fields(self, rows: torch.Tensor, out: Transition | None = None) -> Transition:
+        """``(obs, action, reward, bootstrap, next_obs)`` of the n-step transitions from flat ``rows``; with ``out``
+        the gathered fields (obs, action, next obs) are written into its buffers, reward and bootstrap returned."""
         n, rows_per_env = self.num_envs, self.rows_per_env
         slot, env = rows // n, rows % n
         newest = (self._pos - 1) % rows_per_env
@@ -230,8 +231,10 @@ class Replay:
             last = torch.where(adds, row_k, last)
             summing = adds & ~take(self.ended, row_k)
         bootstrap = weight * (1.0 - take(self.terminated, last))
-        return (self._rows(self.obs, self.obs_bits, rows), take(self.action, rows), reward, bootstrap,
-                self._rows(self.next_obs, self.next_obs_bits, last))
+        obs, action, next_obs = (None,) * 3 if out is None else (
+            x.view(-1, *x.shape[2:]) for x in (out.obs, out.action, out.next_obs))
+        return Transition(self._rows(self.obs, self.obs_bits, rows, obs), take(self.action, rows, action), reward,
+                          bootstrap, self._rows(self.next_obs, self.next_obs_bits, last, next_obs))
 
     def _check_out(self, out: Transition, batch_size: int, n_batches: int) -> None:
         """A ValueError naming the first field of ``out`` that cannot take a ``[U, B, ...]`` sample."""
