@@ -272,7 +272,7 @@ TRACK_FEATURES = ("present", "x", "y", "vx", "vy", "radius")
 MAX_POSE_TRAIL = 32
 #: Largest ``observation.memory_frames``: the memory scan's cost per step grows with the frames kept.
 MAX_MEMORY_FRAMES = 64
-#: Largest ``observation.wall_map`` (squares a side): the map adds 2 x wall_map^2 columns.
+#: Largest ``observation.wall_map`` (squares a side): the map adds 2 (3 with ``wall_map_visited``) x wall_map^2 columns.
 MAX_WALL_MAP = 48
 
 
@@ -306,12 +306,25 @@ class Observation(Strict):
     wall_map_cell: float = Field(0.5, gt=0, le=2.0, description="the wall map's square, metres")
     wall_map_grid: float = Field(0.25, gt=0, le=1.0, description="the cell, metres, of the per-slot grid in which "
                                  "the wall map remembers hits (the map is drawn at the marked cells' centres)")
+    wall_map_visited: bool = Field(False, description="a third channel of the wall map: 1 where the robot's centre "
+                                   "has been this episode (the grid cells it passed, kept like the hits; on a robot "
+                                   "from odometry), so that a policy can tell a dead end it has seen from one it has "
+                                   "not; wall_map^2 more columns; needs wall_map > 0")
 
     @model_validator(mode="after")
     def _one_square_is_no_image(self):
         if self.wall_map == 1:
             raise ValueError("observation.wall_map must be 0 (none) or at least 2 squares a side, got 1")
+        if self.wall_map_visited and not self.wall_map:
+            raise ValueError("observation.wall_map_visited=true adds a channel to the wall map, but "
+                             "observation.wall_map is 0 (none): set observation.wall_map to at least 2")
         return self
+
+    @property
+    def wall_map_channels(self) -> int:
+        """The wall map's channels: 0 without one, else walls and goal, then the visited squares with
+        ``wall_map_visited``."""
+        return (2 + int(self.wall_map_visited)) if self.wall_map else 0
 
 
 class RobotPreset(Strict):
@@ -359,6 +372,6 @@ class RobotPreset(Strict):
         """The paper's observation, then ``observation.scan_history`` previous frames of ``sectors`` each,
         then ``observation.agent_tracks`` tracks of ``len(TRACK_FEATURES)`` columns each, then
         ``observation.pose_trail`` breadcrumbs of 2 columns each, then the memory scan's ``sectors`` columns
-        with ``observation.memory_frames`` > 0, then the wall map's 2 x ``observation.wall_map``^2 columns
-        (the walls' squares row by row, then the goal's)."""
-        return self.memory_end + 2 * self.observation.wall_map ** 2
+        with ``observation.memory_frames`` > 0, then the wall map's ``observation.wall_map_channels`` x
+        ``observation.wall_map``^2 columns (the walls' squares row by row, then the goal's, then the visited ones)."""
+        return self.memory_end + self.observation.wall_map_channels * self.observation.wall_map ** 2

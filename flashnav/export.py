@@ -32,6 +32,7 @@ from flashnav.learn.networks import Actor, DeterministicActor
 from flashnav.names import POLICY_METADATA, POLICY_ONNX, POLICY_TORCHSCRIPT
 from flashnav.observation_samples import sample_observations
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, first_sentence, open_onnx  # noqa: F401
+from flashnav.policy_meta import WALL_MAP_CHANNEL_NAMES
 from flashnav.policy_meta import parse_metadata as _parse_metadata
 from flashnav.sim.memory import HIT_BEYOND_M, points_per_frame
 
@@ -152,14 +153,18 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
             # always written (0 = none): the egocentric wall map (flashnav.sim.memory.WallGrid, wall_image)
             "wall_map": {"cells": preset.observation.wall_map, "cell_m": preset.observation.wall_map_cell,
                          "grid_m": preset.observation.wall_map_grid, "beyond_m": HIT_BEYOND_M,
-                         "columns": [preset.memory_end, preset.obs_dim], "channels": ["walls", "goal"],
+                         "columns": [preset.memory_end, preset.obs_dim],
+                         "channels": list(WALL_MAP_CHANNEL_NAMES[:preset.observation.wall_map_channels]),
                          "order": "channel by channel, then row by row: square (row i, column j) spans "
                                   "[(i - cells / 2) cell_m, (i + 1 - cells / 2) cell_m) to the left of the robot "
                                   "(row 0 rightmost) and [(j - cells / 2) cell_m, (j + 1 - cells / 2) cell_m) ahead",
                          "meaning": "walls: 1 where the centre of a grid_m cell that a LiDAR beam ended in (beyond_m "
                                     "past its return) during this episode lies in the square, else 0 (unknown reads "
-                                    "as free); goal: 1 in the goal's square, clipped onto the edge when farther",
-                         "reset": "a new episode (goal) forgets every wall and marks its first scan"},
+                                    "as free); goal: 1 in the goal's square, clipped onto the edge when farther; "
+                                    "visited (when listed): 1 where the centre of a grid_m cell that the robot's "
+                                    "centre was in at a control step of this episode lies in the square",
+                         "reset": "a new episode (goal) forgets every wall (and every visited cell) and marks "
+                                  "its first scan (and its start)"},
         },
         "command_bounds": {"v": list(m.v_bounds), "w": list(m.w_bounds),
                            "max_linear_velocity": m.max_linear_velocity,

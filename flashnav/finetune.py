@@ -136,6 +136,8 @@ def _layout_keys(robot) -> dict[str, Any]:
         "robot.observation.pose_trail": robot.observation.pose_trail,
         "robot.observation.trail_every (trail scale)": robot.observation.trail_every,
         "robot.observation.memory_frames (on/off)": robot.observation.memory_frames > 0,
+        "robot.observation.wall_map": robot.observation.wall_map,
+        "robot.observation.wall_map_visited": robot.observation.wall_map_visited,
     }
 
 

@@ -115,6 +115,26 @@ def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tu
     return frames, every, points
 
 
+#: The wall map's channels in their order, as the metadata's ``observation.wall_map.channels`` lists them: walls and
+#: goal, then the visited squares only with ``observation.wall_map_visited``.
+WALL_MAP_CHANNEL_NAMES = ("walls", "goal", "visited")
+
+
+def wall_map_channels(meta: dict[str, Any], path: str | Path = "<policy>") -> int:
+    """The policy's wall-map channels: 0 without a wall map, 2 (walls, goal; also for a file written before the
+    metadata listed them) or 3 (and visited). Raises ValueError naming ``path`` for any other list."""
+    if not wall_map_shape(meta, path)[0]:
+        return 0
+    names = _metadata_field(meta, "wall_map", "channels")
+    if names is None:
+        return 2
+    for n in (2, 3):
+        if names == list(WALL_MAP_CHANNEL_NAMES[:n]):
+            return n
+    raise ValueError(f"{path}: the policy's metadata lists wall-map channels {names!r}; this runtime knows "
+                     f"{list(WALL_MAP_CHANNEL_NAMES[:2])} and {list(WALL_MAP_CHANNEL_NAMES)}")
+
+
 def wall_map_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, float, float, float]:
     """``(cells, cell_m, grid_m, beyond_m)`` of the policy's wall map (``observation.wall_map``,
     :class:`flashnav.sim.memory.WallGrid`): the metadata's ``observation.wall_map``; ``(0, 0, 0, 0)`` for a policy

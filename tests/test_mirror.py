@@ -58,29 +58,33 @@ def test_mirrored_observations_are_the_mirror_worlds(robot, extras):
     assert compared > 1000
 
 
-def test_the_mirrored_wall_map_is_the_mirror_worlds():
-    """The wall map's squares (both channels, rows reversed) reflect exactly as the mirror world draws them, with
-    the memory scan and everything else, step after step until each episode ends."""
+@pytest.mark.parametrize("visited", [False, True])
+def test_the_mirrored_wall_map_is_the_mirror_worlds(visited):
+    """The wall map's squares (every channel, rows reversed; the visited squares too) reflect exactly as the mirror
+    world draws them, with the memory scan and everything else, step after step until each episode ends."""
     cells = 12
-    preset = load_robot("turtlebot2", **{"observation.wall_map": cells, "observation.memory_frames": 2})
+    preset = load_robot("turtlebot2", **{"observation.wall_map": cells, "observation.memory_frames": 2,
+                                         "observation.wall_map_visited": visited})
     mirror = mirror_for(preset, 1.0)
     env, twin, (pose, goal), (mpose, mgoal) = _mirrored_world(preset, n=32)
     obs, mobs = env.set_state(pose, goal), twin.set_state(mpose, mgoal)
     end = preset.memory_end
     gen = torch.Generator().manual_seed(0)
-    active, walls = torch.arange(env.num_envs), 0
+    active, walls, been = torch.arange(env.num_envs), 0, 0
     for _ in range(20):
         torch.testing.assert_close(mirror.obs(obs)[:, :end], mobs[:, :end], atol=1e-3, rtol=0)
         assert torch.equal(mirror.obs(obs)[:, end:], mobs[:, end:])
         assert not torch.equal(obs[:, end:], mobs[:, end:])  # the reflection is not the identity here
         walls += int(mobs[:, end: end + cells * cells].sum())
+        been += int(mobs[:, end + 2 * cells * cells:].sum())
         action = torch.rand(len(active), 2, generator=gen) * 2 - 1
         a, b = env.step_slots(active, action), twin.step_slots(active, mirror.action(action))
         running = ~(a["terminated"] | a["truncated"])
         active, obs, mobs = active[running], a["obs"][running], b["obs"][running]
         if not len(active):
             break
-    assert walls > 5000
+    assert walls > 5000 and (been > 200 if visited else been == 0)
+    assert mobs.shape[1] == end + (3 if visited else 2) * cells * cells
 
 
 def test_mirror_is_an_involution_and_knows_every_column():

@@ -183,19 +183,28 @@ def test_the_robot_wall_image_is_the_simulators():
         pts[:, :20] = np.inf  # no hit
         pose = np.concatenate([rng.uniform(-1, 1, (5, 2)), rng.uniform(-np.pi, np.pi, (5, 1))], 1)
         goal = rng.uniform(-9, 9, (5, 2))
+        been = np.random.default_rng(cells).uniform(-3, 3, (5, 40, 2))  # its own draws: the walls' are as before
+        been[:, :5] = np.inf  # none
         want = wall_image(*(torch.from_numpy(v) for v in (pts, pose, goal)), cells, cell).numpy()
+        want3 = wall_image(*(torch.from_numpy(v) for v in (pts, pose, goal)), cells, cell,
+                           visited=torch.from_numpy(been)).numpy()
         for k in range(5):
             with warnings.catch_warnings():
                 warnings.simplefilter("error")  # the points at infinity are dropped, not turned into nan
                 got = robot_image(pts[k], pose[k], goal[k], cells, cell)
+                got3 = robot_image(pts[k], pose[k], goal[k], cells, cell, visited=been[k])
             np.testing.assert_array_equal(got, want[k])
-        assert want[:, 0].sum() > 30
+            np.testing.assert_array_equal(got3, want3[k])
+        assert want[:, 0].sum() > 30 and want3[:, 2].sum() > 10
+        np.testing.assert_array_equal(want3[:, :2], want)
 
 
-def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scans(tmp_path):
+@pytest.mark.parametrize("visited", [False, True])
+def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scans(tmp_path, visited):
     """A simulated episode stream fed to the Controller as a robot would (odometry, scans, a goal per episode):
     every control step's observation equals the env's, the wall map included (the robot's grid starts at the
-    odometry origin, the bundled map's at the same point), through new goals."""
+    odometry origin, the bundled map's at the same point; with the visited channel, where the robot has been),
+    through new goals."""
     from test_export import random_actor
 
     from flashnav.deploy.controller import Controller
@@ -204,14 +213,15 @@ def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scan
     from flashnav.export import export_policy
     from flashnav.sim.env import make_env
 
-    preset = load_robot("turtlebot2", **{"observation.wall_map": 12})
+    preset = load_robot("turtlebot2", **{"observation.wall_map": 12, "observation.wall_map_visited": visited})
     paths = export_policy(random_actor(preset, seed=3), preset, tmp_path)
     ctl = Controller(PolicyRuntime.load(paths["onnx"]), timeout=1.0)
+    assert ctl.rt.wall_channels == (3 if visited else 2) and (ctl.walls.visited is not None) == visited
     env = make_env(preset, 1, seed=4)
     env.reset(seed=4)
     assert env.frame_map.origin == (0.0, 0.0)
     scan = simulator_scan_fields(preset.lidar)
-    t, dt, end, goals, walls, differ = 0.0, preset.episode.dt, preset.memory_end, 1, 0, 0
+    t, dt, end, goals, walls, differ, been = 0.0, preset.episode.dt, preset.memory_end, 1, 0, 0, 0
     ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
     for _ in range(150):
         ctl.on_odom(*env.world_pose()[0].tolist(), now=t)
@@ -222,12 +232,16 @@ def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scan
         np.testing.assert_allclose(ctl.last_obs[:end], want[:end], rtol=0, atol=1e-3)
         differ += int((ctl.last_obs[end:] != want[end:]).sum())
         walls += int(want[end: end + 144].sum())
+        been += int(want[end + 288:].sum())
+        if visited:  # where the robot has been: from odometry, exactly the env's squares
+            np.testing.assert_array_equal(ctl.last_obs[end + 288:], want[end + 288:])
         _, _, terminated, truncated, _ = env.step(torch.tensor([ctl.last_action]))
         t += dt
         if bool(terminated[0] | truncated[0]):
             ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
             goals += 1
     assert walls > 3000 and goals >= 2 and differ <= 0.002 * walls  # (a hit on a cell's edge in float32 / 64)
+    assert len(want) == end + (3 if visited else 2) * 144 and (been > 300 if visited else been == 0)
 
 
 def test_bench_sim_times_the_wall_map_beside_the_static_step(tmp_path, capsys):

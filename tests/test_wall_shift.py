@@ -17,10 +17,10 @@ CELLS = 7
 PRESET = load_robot("turtlebot2", **{"observation.wall_map": CELLS})
 
 
-def loop_shift(obs: torch.Tensor, start: int, cells: int, dr: int, dc: int) -> torch.Tensor:
+def loop_shift(obs: torch.Tensor, start: int, cells: int, dr: int, dc: int, channels: int = 2) -> torch.Tensor:
     """One row's map moved by (dr, dc) squares, one square at a time; squares from beyond the map are 0."""
     out = obs.clone()
-    for ch in range(2):
+    for ch in range(channels):
         base = start + ch * cells * cells
         for i in range(cells):
             for j in range(cells):
@@ -30,20 +30,21 @@ def loop_shift(obs: torch.Tensor, start: int, cells: int, dr: int, dc: int) -> t
     return out
 
 
-@pytest.mark.parametrize("cells,reach,lead", [(7, 1, (5,)), (5, 2, (3, 4)), (2, 1, (6,))])
-def test_the_shift_is_the_square_by_square_loop(cells, reach, lead):
+@pytest.mark.parametrize("cells,reach,lead,channels", [(7, 1, (5,), 2), (5, 2, (3, 4), 2), (2, 1, (6,), 2),
+                                                       (5, 2, (3, 4), 3)])
+def test_the_shift_is_the_square_by_square_loop(cells, reach, lead, channels):
     start, tail = 9, 3
     gen = torch.Generator().manual_seed(cells * 10 + reach)
-    obs = torch.rand(*lead, start + 2 * cells * cells + tail, generator=gen)
-    shift = WallShift(start=start, cells=cells, reach=reach)
+    obs = torch.rand(*lead, start + channels * cells * cells + tail, generator=gen)
+    shift = WallShift(start=start, cells=cells, reach=reach, channels=channels)
     got = shift.shifted(obs, torch.Generator().manual_seed(3))
     draws = torch.Generator().manual_seed(3)
     n = obs[..., 0].numel()
     dr = torch.randint(-reach, reach + 1, (n, 1), generator=draws)
     dc = torch.randint(-reach, reach + 1, (n, 1), generator=draws)
     flat = obs.reshape(n, -1)
-    want = torch.stack([loop_shift(flat[k], start, cells, int(dr[k]), int(dc[k])) for k in range(n)])
-    torch.testing.assert_close(got.reshape(n, -1), want[:, start: start + 2 * cells * cells], rtol=0, atol=0)
+    want = torch.stack([loop_shift(flat[k], start, cells, int(dr[k]), int(dc[k]), channels) for k in range(n)])
+    torch.testing.assert_close(got.reshape(n, -1), want[:, start: start + channels * cells * cells], rtol=0, atol=0)
     assert {int(v) for v in dr} | {int(v) for v in dc} <= set(range(-reach, reach + 1))
 
 

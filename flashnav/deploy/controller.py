@@ -41,7 +41,8 @@ kept); only a new goal forgets them.
 A policy with a wall map (``observation.wall_map`` C > 0, :class:`flashnav.sim.memory.WallGrid`) gets it from
 :class:`flashnav.deploy.memory.WallCells`: every beam's return of every control step since the goal marks a cell of
 the policy's grid in the odometry frame, and the marked cells' centres are drawn as the C x C squares around the
-robot with the goal's square (the target's, with guidance); only a new goal forgets them.
+robot with the goal's square (the target's, with guidance), and, with a visited channel, the cells its odometry pose
+has been in at the control steps since the goal; only a new goal forgets them.
 With a ``shield`` (:class:`flashnav.shield.PeopleShield`: a people shield, ``flashnav deploy ros --shield S``) every
 command the policy gives is checked against the tracker's people (:meth:`Controller.on_people`), each walking straight
 on, and the scan's points, and only a predicted contact with a person replaces it (:func:`flashnav.shield.robot_command`);
@@ -109,8 +110,8 @@ class Controller:
         rt = runtime
         self.memory = (ScanMemory(rt.memory_frames, rt.memory_every, rt.layout.sectors, rt.memory_points,
                                   rt.layout.fov_deg, rt.layout.max_range) if rt.memory_frames else None)
-        self.walls = (WallCells(rt.wall_map, rt.wall_cell, rt.wall_grid, rt.layout.max_range, rt.wall_beyond)
-                      if rt.wall_map else None)
+        self.walls = (WallCells(rt.wall_map, rt.wall_cell, rt.wall_grid, rt.layout.max_range, rt.wall_beyond,
+                                visited=rt.wall_channels == 3) if rt.wall_map else None)
 
     # ---- inputs ---------------------------------------------------------------------------------
     def on_goal(self, x: float, y: float, now: float) -> None:

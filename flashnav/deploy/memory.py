@@ -74,25 +74,32 @@ class ScanMemory:
         return out.astype(np.float32)
 
 
-def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float) -> np.ndarray:
+def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float,
+               visited: np.ndarray | None = None) -> np.ndarray:
     """[2, cells, cells] float32: :func:`flashnav.sim.memory.wall_image` of one robot in numpy (float64), the
     wall ``points`` [Q, 2] and ``goal`` (x, y) in the frame of ``pose`` (x, y, yaw): channel 0 is 1 in each square
     a point falls in, channel 1 in the goal's square (clipped onto the edge); row = left (row 0 rightmost),
-    column = forward (column 0 behind)."""
+    column = forward (column 0 behind). With ``visited`` [V, 2] (where the robot has been) a third channel
+    [3, cells, cells], drawn as the walls are."""
     half = cells * cell / 2
 
     def squares(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         fwd, left = robot_frame(xy, pose).T
         return np.floor((left + half) / cell), np.floor((fwd + half) / cell)
 
-    out = np.zeros((2, cells, cells), np.float32)
-    pts = np.asarray(points, np.float64).reshape(-1, 2)
-    pts = pts[np.isfinite(pts).all(1)]  # a point at infinity lies in no square (and would turn into nan)
-    r, col = squares(pts)
-    inside = (r >= 0) & (r < cells) & (col >= 0) & (col < cells)
-    out[0, r[inside].astype(np.int64), col[inside].astype(np.int64)] = 1.0
+    def mark(channel: np.ndarray, points: np.ndarray) -> None:
+        pts = np.asarray(points, np.float64).reshape(-1, 2)
+        pts = pts[np.isfinite(pts).all(1)]  # a point at infinity lies in no square (and would turn into nan)
+        r, col = squares(pts)
+        inside = (r >= 0) & (r < cells) & (col >= 0) & (col < cells)
+        channel[r[inside].astype(np.int64), col[inside].astype(np.int64)] = 1.0
+
+    out = np.zeros((2 if visited is None else 3, cells, cells), np.float32)
+    mark(out[0], points)
     r, col = squares(np.asarray(goal, np.float64).reshape(1, 2))
     out[1, int(np.clip(r[0], 0, cells - 1)), int(np.clip(col[0], 0, cells - 1))] = 1.0
+    if visited is not None:
+        mark(out[2], visited)
     return out
 
 
@@ -101,19 +108,24 @@ class WallCells:
     metres in the odometry frame (cell (0, 0) from its origin) in which a beam ended, ``beyond`` metres past its
     return, since the goal; drawn as the policy's ``cells`` x ``cells`` squares of ``cell`` metres at the marked
     cells' centres. The simulator's grid starts at its map's corner, the robot's at the odometry origin: the
-    same kind of grid, placed elsewhere against the walls."""
+    same kind of grid, placed elsewhere against the walls. With ``visited`` it also keeps the cells the robot's
+    odometry pose has been in at each control step since the goal, drawn as a third channel."""
 
-    def __init__(self, cells: int, cell: float, grid: float, max_range: float, beyond: float = 0.0):
+    def __init__(self, cells: int, cell: float, grid: float, max_range: float, beyond: float = 0.0,
+                 visited: bool = False):
         if cells < 2 or not (cell > 0 and grid > 0 and max_range > 0 and beyond >= 0):
             raise ValueError(f"WallCells needs >= 2 squares a side, cells and grid > 0 m, max_range > 0 and beyond "
                              f">= 0, got {cells}, {cell}, {grid}, {max_range}, {beyond}")
         self.cells, self.cell, self.grid = int(cells), float(cell), float(grid)
         self.max_range, self.beyond = float(max_range), float(beyond)
         self.known = np.zeros((0, 2), np.int64)  # marked (column, row) pairs, each once
+        self.visited = np.zeros((0, 2), np.int64) if visited else None  # the cells the robot has been in
 
     def forget(self) -> None:
-        """A new goal: no wall is known."""
+        """A new goal: no wall is known (and the robot has been nowhere)."""
         self.known = np.zeros((0, 2), np.int64)
+        if self.visited is not None:
+            self.visited = np.zeros((0, 2), np.int64)
 
     def mark(self, pose, angles: np.ndarray, ranges: np.ndarray) -> None:
         """Marks the cells where the beams at ``angles`` [B] (radians from the heading) with ``ranges`` [B] (m; inf =
@@ -126,7 +138,13 @@ class WallCells:
         self.known = np.unique(np.concatenate([self.known, new]), axis=0)
 
     def step(self, pose, angles, ranges, goal) -> np.ndarray:
-        """The wall map's columns [2 cells^2] float32 at ``pose`` after marking this scan, with ``goal`` (x, y)."""
+        """The wall map's columns [2 cells^2] float32 (3 cells^2 with ``visited``) at ``pose`` after marking this
+        scan (and the pose's cell), with ``goal`` (x, y)."""
         self.mark(pose, angles, ranges)
+        visited = None
+        if self.visited is not None:
+            here = np.floor(np.array([[float(pose[0]), float(pose[1])]]) / self.grid).astype(np.int64)
+            self.visited = np.unique(np.concatenate([self.visited, here]), axis=0)
+            visited = (self.visited + 0.5) * self.grid
         centres = (self.known + 0.5) * self.grid
-        return wall_image(centres, pose, goal, self.cells, self.cell).reshape(-1)
+        return wall_image(centres, pose, goal, self.cells, self.cell, visited).reshape(-1)

@@ -33,7 +33,7 @@ import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
 from flashnav.policy_meta import (agent_track_count, memory_scan_shape, open_onnx, pose_trail_shape,
-                                  scan_history_frames, wall_map_shape)
+                                  scan_history_frames, wall_map_channels, wall_map_shape)
 
 #: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
 TRACK_WIDTH = 6
@@ -96,9 +96,11 @@ class PolicyRuntime:
         # the memory scan, last: F stored scans, one every E control steps, P hits each
         self.memory_frames, self.memory_every, self.memory_points = memory_scan_shape(meta, path)
         memory = self.layout.sectors if self.memory_frames else 0
-        # the wall map, after everything: C x C squares of cell_m, hits kept in cells of grid_m, beyond_m past them
+        # the wall map, after everything: C x C squares of cell_m, hits kept in cells of grid_m, beyond_m past them;
+        # 2 channels (walls, goal) or 3 (and where the robot has been)
         self.wall_map, self.wall_cell, self.wall_grid, self.wall_beyond = wall_map_shape(meta, path)
-        squares = 2 * self.wall_map ** 2
+        self.wall_channels = wall_map_channels(meta, path)
+        squares = self.wall_channels * self.wall_map ** 2
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
                               - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory - squares)
         if self.velocity_dims not in (2, 3):
@@ -147,7 +149,8 @@ class PolicyRuntime:
         earlier positions in the pose's frame, newest first; None when the policy has no pose trail)
         in the robot frame of ``pose``, then ``memory`` [S] m (the memory scan,
         :class:`flashnav.deploy.memory.ScanMemory`; None when the policy has none), then ``wall_map`` [2 C^2] of
-        0 / 1 (:class:`flashnav.deploy.memory.WallCells`; None when the policy has none)."""
+        0 / 1 (3 C^2 with a visited channel; :class:`flashnav.deploy.memory.WallCells`; None when the policy has
+        none)."""
         sectors = np.asarray(sectors, np.float32).reshape(-1)
         if sectors.size != self.layout.sectors:
             raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
@@ -186,7 +189,7 @@ class PolicyRuntime:
             parts.append(mem)
         if wall_map is not None or self.wall_map:
             squares = np.asarray(wall_map, np.float32).reshape(-1) if wall_map is not None else None
-            want = 2 * self.wall_map ** 2
+            want = self.wall_channels * self.wall_map ** 2
             if squares is None or squares.size != want or not np.isin(squares, (0.0, 1.0)).all():
                 got = None if squares is None else (squares.size if np.isin(squares, (0.0, 1.0)).all() else "not 0 / 1")
                 raise ValueError(f"wall_map must be {want} squares of 0 or 1 (the policy's observation.wall_map "

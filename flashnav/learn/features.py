@@ -46,6 +46,7 @@ class ObsLayout:
     ``memory_sectors``: the memory scan's columns after the trail (LiDAR-like, :mod:`flashnav.sim.memory`; 0 = none).
     ``wall_map``: the wall map's squares a side C after the memory scan (2 C^2 columns of 0 / 1, an image read by
     :class:`flashnav.learn.wall_map.WallMapEncoder`, not by IPAPRec; 0 = none).
+    ``wall_visited``: the wall map has a third channel, the squares the robot has been in (3 C^2 columns).
     ``goal_sincos``: the networks see the goal angle as (sin, cos) instead of angle / pi (one feature more than
     the observation's columns: :attr:`feature_dim`); the observation itself is unchanged.
     """
@@ -63,6 +64,7 @@ class ObsLayout:
     memory_sectors: int = 0
     goal_sincos: bool = False
     wall_map: int = 0
+    wall_visited: bool = False
 
     def __post_init__(self) -> None:
         goal = self.goal_scale
@@ -90,6 +92,8 @@ class ObsLayout:
             raise ValueError(f"ObsLayout.memory_sectors must be an integer >= 0, got {self.memory_sectors!r}")
         if not isinstance(self.wall_map, int) or self.wall_map < 0 or self.wall_map == 1:
             raise ValueError(f"ObsLayout.wall_map must be 0 or an integer >= 2, got {self.wall_map!r}")
+        if self.wall_visited and not self.wall_map:
+            raise ValueError("ObsLayout.wall_visited needs a wall map (wall_map >= 2)")
 
     @property
     def base_dim(self) -> int:
@@ -114,8 +118,13 @@ class ObsLayout:
     @property
     def obs_dim(self) -> int:
         """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail + memory_sectors
-        + 2 * wall_map^2."""
-        return self.memory_end + 2 * self.wall_map ** 2
+        + wall_channels * wall_map^2."""
+        return self.memory_end + self.wall_channels * self.wall_map ** 2
+
+    @property
+    def wall_channels(self) -> int:
+        """The wall map's channels: 0 without one, else 2 (walls, goal), 3 with ``wall_visited``."""
+        return (2 + int(self.wall_visited)) if self.wall_map else 0
 
     @property
     def vector_feature_dim(self) -> int:
@@ -153,7 +162,7 @@ class ObsLayout:
                    agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset),
                    pose_trail=preset.observation.pose_trail, trail_scale=trail_bound(preset),
                    memory_sectors=preset.lidar.sectors if preset.observation.memory_frames else 0,
-                   wall_map=preset.observation.wall_map)
+                   wall_map=preset.observation.wall_map, wall_visited=preset.observation.wall_map_visited)
 
 
 class IPAPRec(nn.Module):

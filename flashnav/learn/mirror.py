@@ -18,7 +18,8 @@ The observation columns (:attr:`flashnav.config.RobotPreset.obs_dim`) and what t
 - agent tracks (present, x, y, vx, vy, radius): y and vy negated;
 - pose-trail breadcrumbs (x, y): y negated;
 - the memory scan (360 deg from straight behind): reversed in order;
-- the wall map's squares, both channels: rows (across the robot, row 0 rightmost) reversed, columns kept.
+- the wall map's squares, every channel (walls, goal, visited): rows (across the robot, row 0 rightmost)
+  reversed, columns kept.
 
 Actions (v, w), normalised: w negated, which is the mirrored command because ``motion.w_bounds`` are
 symmetric about 0 (a preset whose bounds are not cannot be mirrored: :func:`mirror_for` says so).
@@ -104,7 +105,8 @@ def mirror_for(preset: RobotPreset, fraction: float, device: torch.device | str 
         index += list(range(preset.trail_end, preset.trail_end + s))[::-1]
         sign += [1.0] * s
     cells = preset.observation.wall_map
-    for channel in range(2 if cells else 0):  # rows run across the robot (row 0 rightmost): a mirror reverses them
+    # rows run across the robot (row 0 rightmost): a mirror reverses them
+    for channel in range(preset.observation.wall_map_channels):
         start = preset.memory_end + channel * cells * cells
         index += [start + (cells - 1 - r) * cells + c for r in range(cells) for c in range(cells)]
         sign += [1.0] * (cells * cells)

@@ -1,16 +1,15 @@
 """Actor and critic networks; their input transform, IPAPRec (paper eq. 2), and the observation layout it reads
 live in :mod:`flashnav.learn.features` (imported here under the same names).
 
-Observation layout (raw physical units, from the simulator), ``obs [N, D] float32``:
-columns ``0..S-1`` pooled LiDAR sector minima (metres, ``(0, max_range]``), ``S`` goal distance
-(metres), ``S+1`` goal angle in the robot frame (radians, ``[-pi, pi)``), then the velocity state
-(``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5); with a scan history of k frames
-(:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans newest first;
-with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns follow (present, x, y, vx, vy, radius each);
-with a pose trail of P breadcrumbs (:mod:`flashnav.sim.trail`) 2 P columns follow (x, y each, metres); with a
+Observation layout (raw physical units, from the simulator), ``obs [N, D] float32``: columns ``0..S-1`` pooled LiDAR
+sector minima (metres, ``(0, max_range]``), ``S`` goal distance (metres), ``S+1`` goal angle in the robot frame
+(radians, ``[-pi, pi)``), then the velocity state (``(v, w)`` -> D = S + 4, or ``(vx, vy, w)`` -> D = S + 5); with a
+scan history of k frames (:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans
+newest first; with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns follow (present, x, y, vx, vy, radius
+each); with a pose trail of P breadcrumbs (:mod:`flashnav.sim.trail`) 2 P columns follow (x, y each, metres); with a
 memory scan S more LiDAR-like columns; with a wall map of C x C squares (:mod:`flashnav.sim.memory`) 2 C^2 columns
-of 0 / 1 end it, read by a CNN (:class:`flashnav.learn.wall_map.WallMapEncoder`, one shared by a learner's actor and
-critics) whose features join IPAPRec's.
+(3 C^2 with the visited squares) of 0 / 1 end it, read by a CNN (:class:`flashnav.learn.wall_map.WallMapEncoder`, one
+shared by a learner's actor and critics) whose features join IPAPRec's.
 Actions are ``[N, A]`` in ``[-1, 1]``.
 
 Every network owns its input transform: LiDAR readings become ``1 / (l - beta)`` with a trainable
@@ -95,7 +94,7 @@ class Actor(nn.Module):
         # ``walls``: the critics' encoder, shared (the learners'; its parameters are trained by the critic loss); a
         # network built alone draws its own after the MLP's draws (without a wall map the same seed gives the same
         # weights as before it existed)
-        self.walls = network_encoder(layout.wall_map, walls, generator)
+        self.walls = network_encoder(layout, walls, generator)
         self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
@@ -167,7 +166,7 @@ class TwinCritic(nn.Module):
             self.norm_gains = nn.ParameterList(nn.Parameter(torch.ones(copies, 1, n)) for n in hidden)
             self.norm_biases = nn.ParameterList(nn.Parameter(torch.zeros(copies, 1, n)) for n in hidden)
         # one wall-map encoder for both critics (given, or drawn after the layers' draws)
-        self.walls = network_encoder(layout.wall_map, walls, generator)
+        self.walls = network_encoder(layout, walls, generator)
         self.vector_end = layout.memory_end
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor, detach_params: bool = False) -> torch.Tensor:

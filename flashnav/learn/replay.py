@@ -12,9 +12,9 @@ are summed or the newest stored row is reached, and bootstraps from the last sum
 observation; ``n_step = 1`` is the one-step transition, gathered exactly as stored.
 
 Binary columns (``binary_columns`` B > 0): the observation's last B columns hold only 0 and 1 (the wall map's
-squares, 2 C^2 of them with ``observation.wall_map`` C) and are kept as uint8 beside the float32 rest (``obs_bits``,
-``next_obs_bits``): a quarter of their memory, joined back into float32 rows when sampled, so a batch is the same
-as from an all-float buffer.
+squares, 2 C^2 of them with ``observation.wall_map`` C, 3 C^2 with its visited channel) and are kept as uint8
+beside the float32 rest (``obs_bits``, ``next_obs_bits``): a quarter of their memory, joined back into float32 rows
+when sampled, so a batch is the same as from an all-float buffer.
 """
 
 from __future__ import annotations

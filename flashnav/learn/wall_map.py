@@ -2,7 +2,8 @@
 per learner, shared by the actor and the critics.
 
 The wall map is the observation's last ``2 C^2`` columns: an egocentric image of C x C squares, channel 0 the walls
-the robot's LiDAR hit this episode, channel 1 the goal's square (each 0 or 1, row by row). Issue 15's
+the robot's LiDAR hit this episode, channel 1 the goal's square (each 0 or 1, row by row); with
+``observation.wall_map_visited`` a third channel (``3 C^2`` columns), the squares the robot has been in. Issue 15's
 behaviour-cloning probe (``scripts/bc_memory_probe.py``, docs/benchmarks.md) found that a student reading the
 teacher's memory through this encoder imitates a planner on fresh mazes better than with the usual input alone,
 while one dense layer over the same squares, or a smaller CNN, gained little (drawn from a grid of every hit, as
@@ -35,7 +36,7 @@ from torch import nn
 WALL_MAP_FEATURES = 256
 #: (out channels, stride) of the three 3 x 3 convolutions.
 WALL_MAP_CONVS = ((16, 1), (32, 2), (32, 2))
-#: Channels of the wall map: walls, goal.
+#: Channels of the wall map: walls, goal (a third, the visited squares, with ``observation.wall_map_visited``).
 WALL_MAP_CHANNELS = 2
 
 
@@ -48,16 +49,20 @@ def conv_side(cells: int) -> int:
 
 
 class WallMapEncoder(nn.Module):
-    """The wall map's columns ``[..., 2 C^2]`` -> features ``[..., F]``, F = :data:`WALL_MAP_FEATURES`. Every weight is
-    drawn from ``generator`` (PyTorch's default uniform bounds)."""
+    """The wall map's columns ``[..., channels C^2]`` -> features ``[..., F]``, F = :data:`WALL_MAP_FEATURES`. Every
+    weight is drawn from ``generator`` (PyTorch's default uniform bounds)."""
 
-    def __init__(self, cells: int, generator: torch.Generator | None = None):
+    def __init__(self, cells: int, generator: torch.Generator | None = None, channels: int = WALL_MAP_CHANNELS):
         super().__init__()
         if cells < 2:
             raise ValueError(f"a wall-map encoder needs at least 2 x 2 squares, got {cells}")
-        self.cells = cells
+        if channels not in (2, 3):
+            raise ValueError(f"a wall-map encoder reads 2 channels (walls, goal) or 3 (and visited), got {channels}")
+        self.cells, self.channels = cells, channels
+        #: the columns it reads: channels x cells^2
+        self.squares = channels * cells * cells
         self.conv_weights, self.conv_biases = nn.ParameterList(), nn.ParameterList()
-        c_in = WALL_MAP_CHANNELS
+        c_in = channels
         for c_out, _ in WALL_MAP_CONVS:
             w, b = torch.empty(c_out, c_in, 3, 3), torch.empty(c_out)
             bound = 1.0 / math.sqrt(c_in * 9)
@@ -77,40 +82,41 @@ class WallMapEncoder(nn.Module):
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         lead = image.shape[:-1]
-        x = image.reshape(-1, WALL_MAP_CHANNELS, self.cells, self.cells)
+        x = image.reshape(-1, self.channels, self.cells, self.cells)
         for w, b, (_, stride) in zip(self.conv_weights, self.conv_biases, WALL_MAP_CONVS):
             x = F.leaky_relu(F.conv2d(x, w, b, stride=stride, padding=1))
         x = F.leaky_relu(F.linear(x.reshape(x.shape[0], self.flat), self.out_weight, self.out_bias))
         return x.reshape(*lead, WALL_MAP_FEATURES)
 
 
-def network_encoder(cells: int, given: WallMapEncoder | None,
+def network_encoder(layout, given: WallMapEncoder | None,
                     generator: torch.Generator | None) -> WallMapEncoder | None:
-    """A network's encoder: ``given`` (a learner's one, shared by its networks), else the network's own for a map of
-    ``cells`` squares a side drawn from ``generator`` (None without a map, ``cells`` 0)."""
-    if given is None and cells:
-        return WallMapEncoder(cells, generator=generator)
+    """A network's encoder: ``given`` (a learner's one, shared by its networks), else the network's own for the wall
+    map of ``layout`` (a :class:`flashnav.learn.features.ObsLayout`) drawn from ``generator`` (None without a map)."""
+    if given is None and layout.wall_map:
+        return WallMapEncoder(layout.wall_map, generator=generator, channels=layout.wall_channels)
     return given
 
 
-def is_encoded(obs: torch.Tensor, vector_end: int, cells: int) -> bool:
+def is_encoded(obs: torch.Tensor, vector_end: int, encoder: WallMapEncoder) -> bool:
     """Whether ``obs [..., D]`` carries the encoder's features between its first ``vector_end`` columns and the
-    ``2 C^2`` squares (D = vector_end + :data:`WALL_MAP_FEATURES` + 2 C^2, :func:`encode_wall_maps`) rather than the
-    squares alone (D = vector_end + 2 C^2)."""
-    return obs.shape[-1] == vector_end + WALL_MAP_FEATURES + WALL_MAP_CHANNELS * cells * cells
+    squares (D = vector_end + :data:`WALL_MAP_FEATURES` + ``encoder.squares``, :func:`encode_wall_maps`) rather than
+    the squares alone (D = vector_end + ``encoder.squares``)."""
+    return obs.shape[-1] == vector_end + WALL_MAP_FEATURES + encoder.squares
 
 
 def wall_features(encoder: WallMapEncoder, obs: torch.Tensor, vector_end: int) -> torch.Tensor:
     """``[..., F]``: the features ``obs`` carries (:func:`is_encoded`), or the encoder's features of its squares."""
-    if is_encoded(obs, vector_end, encoder.cells):
+    if is_encoded(obs, vector_end, encoder):
         return obs[..., vector_end: vector_end + WALL_MAP_FEATURES]
     return encoder(obs[..., vector_end:])
 
 
 def with_features(obs: torch.Tensor, encoder: WallMapEncoder, vector_end: int) -> torch.Tensor:
-    """``obs [B, vector_end + 2 C^2]`` (or an encoded one: its squares are read again) -> ``[B, vector_end + F + 2 C^2]``
-    with ``encoder``'s features of the squares (with gradients where ``encoder`` and grad mode give them)."""
-    squares = obs[..., obs.shape[-1] - WALL_MAP_CHANNELS * encoder.cells ** 2:]
+    """``obs [B, vector_end + S]`` (S = ``encoder.squares``; or an encoded one: its squares are read again) ->
+    ``[B, vector_end + F + S]`` with ``encoder``'s features of the squares (with gradients where ``encoder`` and grad
+    mode give them)."""
+    squares = obs[..., obs.shape[-1] - encoder.squares:]
     return torch.cat([obs[..., :vector_end], encoder(squares), squares], dim=-1)
 
 

@@ -1,15 +1,15 @@
 """Random-shift augmentation of the wall map in replay batches (``algo.wall_shift``), as in DrQ and DrQ-v2.
 
-DrQ (Kostrikov et al. 2020; Yarats et al. 2021) trains an image encoder with the critic's loss alone and keeps
-it from fitting the few images it has seen by shifting every sampled image a few pixels at random (pad 4 of an
-84 x 84 frame, then a random crop back to 84 x 84), the observation and the next observation each with its own
-draw. Here the image is the egocentric wall map (:mod:`flashnav.learn.wall_map`, ``observation.wall_map``
-squares of ``observation.wall_map_cell`` metres a side): each sampled row's map, both channels together (walls and
-goal, so the goal keeps its place among the walls), moves by (dr, dc) squares, each drawn uniformly from
+DrQ (Kostrikov et al. 2020; Yarats et al. 2021) trains an image encoder with the critic's loss alone and keeps it
+from fitting the few images it has seen by shifting every sampled image a few pixels at random (pad 4 of an 84 x 84
+frame, then a random crop back to 84 x 84), the observation and the next observation each with its own draw. Here the
+image is the egocentric wall map (:mod:`flashnav.learn.wall_map`, ``observation.wall_map`` squares of
+``observation.wall_map_cell`` metres a side): each sampled row's map, every channel together (walls, goal and visited
+squares, so the goal keeps its place among the walls), moves by (dr, dc) squares, each drawn uniformly from
 ``-k..k``, and the squares it uncovers are 0. Zero and not DrQ's replicated border: beyond the window nothing is
-drawn, a 0 is what the map already says there, and a replicated goal square would smear into a line. With the
-map's 0.5 m squares and k = 1 the robot's place in its map moves by at most one square (DrQ's 4 of 84 pixels are
-about 1.1 of 24 squares); the scan and the goal's distance and angle, the rest of the observation, stay exact.
+drawn, a 0 is what the map already says there, and a replicated goal square would smear into a line. With the map's
+0.5 m squares and k = 1 the robot's place in its map moves by at most one square (DrQ's 4 of 84 pixels are about 1.1
+of 24 squares); the scan and the goal's distance and angle, the rest of the observation, stay exact.
 
 Rows of the map run across the robot, columns along its heading (:func:`flashnav.sim.memory.wall_image`); a shift
 moves both. The actor step reads the same shifted squares as the critic (:func:`flashnav.learn.common.actor_view`
@@ -29,22 +29,23 @@ from flashnav.learn.wall_map import WALL_MAP_CHANNELS
 
 @dataclass(frozen=True)
 class WallShift:
-    """Shift the ``2 C^2`` wall-map columns starting at ``start`` (C = ``cells``) by up to ``reach`` squares."""
+    """Shift the ``channels C^2`` wall-map columns starting at ``start`` (C = ``cells``) by up to ``reach`` squares."""
 
     start: int
     cells: int
     reach: int
+    channels: int = WALL_MAP_CHANNELS
 
     @property
     def end(self) -> int:
         """One past the map's last column."""
-        return self.start + WALL_MAP_CHANNELS * self.cells ** 2
+        return self.start + self.channels * self.cells ** 2
 
     def shifted(self, obs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """The squares of ``obs [..., D]``, each row's map moved by its own (dr, dc) drawn from ``generator``
-        (rows' shifts first, then columns'): ``[..., 2 C^2]``, 0 where a square came from beyond the map."""
+        (rows' shifts first, then columns'): ``[..., channels C^2]``, 0 where a square came from beyond the map."""
         c, lead = self.cells, obs.shape[:-1]
-        image = obs[..., self.start: self.end].reshape(-1, WALL_MAP_CHANNELS, c, c)
+        image = obs[..., self.start: self.end].reshape(-1, self.channels, c, c)
         n = image.shape[0]
         draw = dict(generator=generator, device=obs.device)
         dr = torch.randint(-self.reach, self.reach + 1, (n, 1), **draw)
@@ -53,7 +54,7 @@ class WallShift:
         src_r, src_c = span - dr, span - dc               # output square (i, j) reads input (i - dr, j - dc)
         inside = ((src_r >= 0) & (src_r < c))[:, :, None] & ((src_c >= 0) & (src_c < c))[:, None, :]
         rows = torch.arange(n, device=obs.device)[:, None, None, None]
-        chans = torch.arange(WALL_MAP_CHANNELS, device=obs.device)[None, :, None, None]
+        chans = torch.arange(self.channels, device=obs.device)[None, :, None, None]
         out = image[rows, chans, src_r.clamp(0, c - 1)[:, None, :, None], src_c.clamp(0, c - 1)[:, None, None, :]]
         return (out * inside[:, None].to(out.dtype)).reshape(*lead, -1)
 
@@ -79,4 +80,5 @@ def wall_shift_for(preset: RobotPreset, reach: int) -> WallShift | None:
     if reach >= cells:
         raise ValueError(f"algo.wall_shift={reach} would move {preset.name}'s {cells} x {cells} wall map off its "
                          f"window: at most {cells - 1} squares")
-    return WallShift(start=preset.memory_end, cells=cells, reach=int(reach))
+    return WallShift(start=preset.memory_end, cells=cells, reach=int(reach),
+                     channels=preset.observation.wall_map_channels)

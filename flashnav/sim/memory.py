@@ -25,11 +25,12 @@ frame and turned into the robot frame when observed; a robot keeps them in its o
 (:class:`flashnav.deploy.controller.Controller`). With moving agents the memory also holds where they
 were: it is a memory of hits, as a robot's own would be.
 
-The same points can also be drawn as an egocentric image (:func:`wall_image`, :meth:`WallMemory.image`):
-squares around the robot, 1 where a stored point lies, and the goal's square. :class:`WallGrid` is the dense
-form of the same memory: every beam's hit of every scan, kept as the cells of a coarse grid; its image is the
-observation's wall map (``observation.wall_map``; on the CPU drawn by the numba kernel of
-:mod:`flashnav.sim.wall_numba`). Issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py
+The same points can also be drawn as an egocentric image (:func:`wall_image`, :meth:`WallMemory.image`): squares
+around the robot, 1 where a stored point lies, and the goal's square. :class:`WallGrid` is the dense form of the same
+memory: every beam's hit of every scan, kept as the cells of a coarse grid; its image is the observation's wall map
+(``observation.wall_map``; on the CPU drawn by the numba kernel of :mod:`flashnav.sim.wall_numba`). With
+``observation.wall_map_visited`` it also keeps the cells the robot's centre has passed, drawn as a third channel:
+where the robot has been, beside what it has seen. Issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py
 --wall-map-frames`` and ``--wall-map-grid``) reads both through a CNN.
 """
 
@@ -68,25 +69,34 @@ def cell_index(r: torch.Tensor, c: torch.Tensor, h: int, w: int) -> torch.Tensor
     return torch.where(inside, torch.where(inside, r, 0).long() * w + torch.where(inside, c, 0).long(), -1)
 
 
-def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
+def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float,
+               visited: torch.Tensor | None = None) -> torch.Tensor:
     """An egocentric image [k, 2, cells, cells] of wall ``points [k, Q, 2]`` (simulator frame, metres; a point
     with a non-finite coordinate is none) seen from ``pose [k, 3]``, with the goal ``goal [k, 2]``: squares of
     ``cell`` metres centred on the robot and turned with its heading, row = left (row 0 rightmost), column =
     forward (column 0 behind); channel 0 is 1 where a point falls in the square, channel 1 is 1 in the goal's
-    square (clipped onto the image's edge when farther). Unknown reads as free. Computed in the inputs' dtype,
-    on their device, with no host sync (the same ops whatever the points).
+    square (clipped onto the image's edge when farther). Unknown reads as free. With ``visited [k, V, 2]`` (points
+    the robot has been at, drawn as the walls are) a third channel [k, 3, cells, cells]. Computed in the inputs'
+    dtype, on their device, with no host sync (the same ops whatever the points).
 
     The input of issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py --wall-map``): drawn from a
     slot's stored points (:meth:`WallMemory.image`) or from any other set of wall points."""
     check_wall_image(cells, cell)
+    channels = [_point_squares(points, pose, cells, cell), _goal_square(goal, pose, cells, cell, points.dtype)]
+    if visited is not None:
+        channels.append(_point_squares(visited.to(points.dtype), pose, cells, cell))
+    return torch.stack(channels, dim=1)
+
+
+def _point_squares(points: torch.Tensor, pose: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
+    """[k, cells, cells]: 1 in each of :func:`wall_image`'s squares that holds one of ``points [k, Q, 2]``."""
     k = points.shape[0]
     square = cell_index(*_squares(points, pose, cells, cell), cells, cells)
     inside = torch.isfinite(points).all(-1) & (square >= 0)
     at = torch.arange(k, device=pose.device)[:, None] * (cells * cells) + square
     at = torch.where(inside, at, k * cells * cells)  # outside: one spare square, dropped
-    walls = torch.zeros(k * cells * cells + 1, device=pose.device, dtype=points.dtype)
-    walls = walls.index_fill_(0, at.reshape(-1), 1.0)[:-1].view(k, cells, cells)
-    return torch.stack([walls, _goal_square(goal, pose, cells, cell, points.dtype)], dim=1)
+    marks = torch.zeros(k * cells * cells + 1, device=pose.device, dtype=points.dtype)
+    return marks.index_fill_(0, at.reshape(-1), 1.0)[:-1].view(k, cells, cells)
 
 
 def _squares(xy: torch.Tensor, pose: torch.Tensor, cells: int, cell: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -212,13 +222,15 @@ class WallGrid:
     and slot. Each slot's grid has its own ``origin`` (the corner of cell (0, 0), metres: the slot's map's, in a
     many-map batch), set when its episode starts; a hit off the grid is dropped. ``beyond``: metres past the hit
     along its beam where it is marked (0: the hit itself; half a map cell puts a hit on a wall cell's edge into
-    the wall's cell, as :class:`flashnav.mapless.SeenWalls` marks it).
+    the wall's cell, as :class:`flashnav.mapless.SeenWalls` marks it). With ``visited`` a second grid of the same
+    cells keeps where the slot's robot has been: the cell of its centre at the start and after every step (at
+    0.25 m cells and 0.05 m a step at most, the cells of its path, with no gap).
 
     :meth:`image` draws the marked cells' centres as :func:`wall_image` draws points, reading only the window of
     cells whose centres can fall in the image, so its cost is the image's, not the map's."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], cell: float, max_range: float,
-                 beam_angles: torch.Tensor, device: torch.device, beyond: float = 0.0):
+                 beam_angles: torch.Tensor, device: torch.device, beyond: float = 0.0, visited: bool = False):
         h, w = (int(v) for v in shape)
         if num_envs < 1 or h < 1 or w < 1 or not (math.isfinite(cell) and cell > 0):
             raise ValueError(f"WallGrid needs num_envs >= 1, a shape of >= 1 x 1 cells and cells of > 0 metres, "
@@ -230,6 +242,8 @@ class WallGrid:
         # one spare cell a slot (the last column): every dropped hit goes there, so that marking is the same
         # ops whatever the hits (no host sync); it is never read
         self.known = torch.zeros(num_envs, h * w + 1, device=device, dtype=torch.bool)
+        #: the cells the robot has been in (same layout and spare cell), None without ``visited``
+        self.visited = torch.zeros_like(self.known) if visited else None
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
         self.rows = torch.arange(num_envs, device=device)
         #: how :meth:`image` draws: "numba" (the CPU default: :mod:`flashnav.sim.wall_numba`, the marked cells only)
@@ -238,10 +252,10 @@ class WallGrid:
 
     @classmethod
     def covering(cls, geometry, num_envs: int, cell: float, max_range: float, beam_angles: torch.Tensor,
-                 device: torch.device, beyond: float = 0.0) -> "WallGrid":
+                 device: torch.device, beyond: float = 0.0, visited: bool = False) -> "WallGrid":
         """A grid of ``cell`` metres over ``geometry``'s extent (an OccupancyMap: its shape times its
         resolution), every slot's origin at the map's."""
-        grid = cls(num_envs, grid_shape([geometry], cell), cell, max_range, beam_angles, device, beyond)
+        grid = cls(num_envs, grid_shape([geometry], cell), cell, max_range, beam_angles, device, beyond, visited)
         grid.origin[:] = torch.tensor(geometry.origin, dtype=torch.float32)
         return grid
 
@@ -262,33 +276,44 @@ class WallGrid:
         return pose[:, None, :2] + r[..., None] * torch.stack([torch.cos(bearing), torch.sin(bearing)], dim=-1)
 
     def push(self, idx, pose: torch.Tensor, ranges: torch.Tensor) -> None:
-        """Marks the cells where the beams of slots ``idx`` (at ``pose [k, 3]``, scans ``ranges [k, beams]``) end."""
+        """Marks the cells where the beams of slots ``idx`` (at ``pose [k, 3]``, scans ``ranges [k, beams]``) end
+        (and, with ``visited``, the cell of each robot's centre)."""
         rows = self.rows[idx]
-        at = rows[:, None] * self.known.shape[1] + self._flat(self.hits(pose, ranges), self.origin[rows])
+        origin = self.origin[rows]
+        at = rows[:, None] * self.known.shape[1] + self._flat(self.hits(pose, ranges), origin)
         self.known.view(-1).index_fill_(0, at.reshape(-1), True)
+        if self.visited is not None:
+            at = rows * self.visited.shape[1] + self._flat(pose[:, None, :2], origin)[:, 0]
+            self.visited.view(-1).index_fill_(0, at, True)
 
     def start(self, idx, pose: torch.Tensor, ranges: torch.Tensor, origin: torch.Tensor | None = None) -> None:
         """New episodes in slots ``idx``: their grids are cleared (and moved to ``origin [k, 2]`` when given), then
         their first scans marked."""
         rows = self.rows[idx]
         self.known[rows] = False
+        if self.visited is not None:
+            self.visited[rows] = False
         if origin is not None:
             self.origin[rows] = origin.to(self.origin)
         self.push(rows, pose, ranges)
 
-    def centres(self, idx) -> torch.Tensor:
+    def centres(self, idx, visited: bool = False) -> torch.Tensor:
         """[k, H W, 2] every cell's centre of slots ``idx``, ``inf`` where the cell is not marked (a reference
-        and a small-map form of :meth:`image`'s window)."""
+        and a small-map form of :meth:`image`'s window); with ``visited``, the cells the robot has been in."""
         h, w = self.shape
         rows = self.rows[idx]
+        marks = self.visited if visited else self.known
+        if marks is None:
+            raise ValueError("WallGrid.centres(visited=True): this grid keeps no visited cells (visited=False)")
         r, c = torch.meshgrid(torch.arange(h, device=rows.device), torch.arange(w, device=rows.device), indexing="ij")
         xy = (torch.stack([c, r], -1).reshape(-1, 2).to(self.origin) + 0.5) * self.cell + self.origin[rows][:, None]
-        return torch.where(self.known[rows, :-1, None], xy, math.inf)
+        return torch.where(marks[rows, :-1, None], xy, math.inf)
 
     def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
         """:func:`wall_image` [k, 2, cells, cells] of the marked cells' centres of slots ``idx``, seen from
-        ``pose [k, 3]`` with goals ``goal [k, 2]``: the same image as from every marked centre, drawn from the
-        square window of cells around the robot that holds every centre within the image's half-diagonal."""
+        ``pose [k, 3]`` with goals ``goal [k, 2]`` (and, with ``visited``, the visited cells' centres as a third
+        channel): the same image as from every marked centre, drawn from the square window of cells around the
+        robot that holds every centre within the image's half-diagonal."""
         check_wall_image(cells, cell)
         h, w = self.shape
         rows = self.rows[idx]
@@ -300,16 +325,24 @@ class WallGrid:
             from flashnav.sim.wall_numba import wall_squares
 
             heading = pose[:, 2]
-            walls = wall_squares(self.known.numpy(), rows.numpy(), base.numpy(), org.numpy(), pose.numpy(),
-                                 torch.cos(heading).numpy(), torch.sin(heading).numpy(), n, self.shape, self.cell,
-                                 cells, cell)
-            return torch.stack([torch.from_numpy(walls), _goal_square(goal, pose, cells, cell, pose.dtype)], dim=1)
+            args = (rows.numpy(), base.numpy(), org.numpy(), pose.numpy(), torch.cos(heading).numpy(),
+                    torch.sin(heading).numpy(), n, self.shape, self.cell, cells, cell)
+            channels = [torch.from_numpy(wall_squares(self.known.numpy(), *args)),
+                        _goal_square(goal, pose, cells, cell, pose.dtype)]
+            if self.visited is not None:
+                channels.append(torch.from_numpy(wall_squares(self.visited.numpy(), *args)))
+            return torch.stack(channels, dim=1)
         step = torch.arange(n, device=pose.device)
         c = (base[:, 0:1] + step)[:, None, :].expand(-1, n, -1)  # [k, n, n]: column varies along the last axis
         r = (base[:, 1:2] + step)[:, :, None].expand(-1, -1, n)
         flat = cell_index(r, c, h, w).reshape(len(rows), -1)
         inside = flat >= 0
         # off the grid: the spare cell, read as unmarked (it holds the dropped hits)
-        marked = torch.gather(self.known[rows], 1, torch.where(inside, flat, h * w)) & inside
+        at = torch.where(inside, flat, h * w)
         xy = (torch.stack([c, r], -1).reshape(len(rows), -1, 2).to(pose.dtype) + 0.5) * self.cell + org[:, None]
-        return wall_image(torch.where(marked[..., None], xy, math.inf), pose, goal, cells, cell)
+
+        def centres(marks: torch.Tensor) -> torch.Tensor:
+            return torch.where((torch.gather(marks[rows], 1, at) & inside)[..., None], xy, math.inf)
+
+        visited = centres(self.visited) if self.visited is not None else None
+        return wall_image(centres(self.known), pose, goal, cells, cell, visited)

@@ -23,7 +23,8 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     then, only with ``observation.wall_map`` C > 0, the wall map: an egocentric image of C x C squares of
     ``observation.wall_map_cell`` metres, 1 where a wall hit this episode lies (kept per slot in a grid of
     ``observation.wall_map_grid`` metres: :class:`flashnav.sim.memory.WallGrid`), then 1 in the goal's square
-    (:func:`flashnav.sim.memory.wall_image`); obs_dim += 2 C^2
+    (:func:`flashnav.sim.memory.wall_image`), then, with ``observation.wall_map_visited``, 1 in the squares the
+    robot's centre has passed this episode; obs_dim += 2 C^2 (3 C^2 with the visited squares)
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[n
     t_lo, t_hi = track_bounds(preset)
     trail = np.full(2 * preset.observation.pose_trail, trail_bound(preset), dtype=np.float32)
     mem = int(preset.observation.memory_frames > 0)  # the memory scan: LiDAR bounds, one frame
-    squares = 2 * preset.observation.wall_map ** 2
+    squares = preset.observation.wall_map_channels * preset.observation.wall_map ** 2
     return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m), -trail,
                             np.tile(low[:s], mem), np.zeros(squares, np.float32)]),
             np.concatenate([high, np.tile(high[:s], k), np.tile(np.array(t_hi, np.float32), m), trail,

@@ -50,7 +50,8 @@ def mark_walls(known, rows, base, origin, pose, cos_h, sin_h, n, h, w, coord, co
 def wall_squares(known: np.ndarray, rows: np.ndarray, base: np.ndarray, origin: np.ndarray, pose: np.ndarray,
                  cos_h: np.ndarray, sin_h: np.ndarray, n: int, shape: tuple[int, int], grid_cell: float,
                  cells: int, square: float) -> np.ndarray:
-    """The walls channel ``[k, cells, cells]`` (``pose``'s dtype) of :meth:`WallGrid.image`: see :func:`mark_walls`."""
+    """The walls channel ``[k, cells, cells]`` (``pose``'s dtype) of :meth:`WallGrid.image`, or its visited channel
+    given that grid as ``known``: see :func:`mark_walls`."""
     dtype = pose.dtype
     out = np.zeros((rows.shape[0], cells * cells), dtype=dtype)
     consts = np.array([grid_cell, cells * square / 2, square, 0.5], dtype=dtype)
