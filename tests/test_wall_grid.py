@@ -221,6 +221,22 @@ WALL_CASES = {
 }
 
 
+def step_pair(plain, env, ref: WallGrid, gen: torch.Generator, origins) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """One step of ``plain`` and ``env`` (the same task, ``env`` with a wall map) with the same seeded actions, their
+    rewards and ends equal; ``ref`` fed every slot's new pose and scan as the env's grid should be (a slot whose
+    episode ended starts afresh on ``origins()``, its map's origin). Returns both observations and the ends."""
+    every = torch.arange(env.num_envs)
+    action = forward_actions(gen, env.num_envs)
+    obs0, r0, term0, trunc0, _ = plain.step(action)
+    obs1, r1, term1, trunc1, info1 = env.step(action)
+    assert torch.equal(r0, r1) and torch.equal(term0, term1) and torch.equal(trunc0, trunc1)
+    done = info1["_final_obs"]
+    ref.push(every[~done], env.pose[~done], env.scan(every[~done]))
+    if done.any():
+        ref.start(every[done], env.pose[done], env.scan(every[done]), origins()[done])
+    return obs0, obs1, int(done.sum())
+
+
 @pytest.mark.parametrize("case", list(WALL_CASES))
 def test_the_envs_wall_map_columns_draw_every_hit_of_each_slots_episode(case):
     """The wall map's columns are the image of a grid fed from outside with every scan of each slot's episode (the
@@ -256,15 +272,8 @@ def test_the_envs_wall_map_columns_draw_every_hit_of_each_slots_episode(case):
         assert torch.equal(obs1[:, base:], want)
         assert env.single_observation_space.contains(obs1[0].numpy())
         walls += int(obs1[:, base: base + cells * cells].sum())
-        action = forward_actions(gen, n)
-        obs0, r0, term0, trunc0, info0 = plain.step(action)
-        obs1, r1, term1, trunc1, info1 = env.step(action)
-        assert torch.equal(r0, r1) and torch.equal(term0, term1) and torch.equal(trunc0, trunc1)
-        done = info1["_final_obs"]
-        ref.push(every[~done], env.pose[~done], env.scan(every[~done]))
-        if done.any():
-            ref.start(every[done], env.pose[done], env.scan(every[done]), origins()[done])
-            resets += int(done.sum())
+        obs0, obs1, ended = step_pair(plain, env, ref, gen, origins)
+        resets += ended
     assert resets >= 2 and walls > 200
     if grids:
         assert len(set(env.map_index.tolist())) == 2 and env.extras.walls.shape == (30, 45)  # the larger map's

@@ -11,8 +11,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from test_pose_trail import forward_actions  # seeded, forward-biased actions: episodes end, slots reset
-from test_wall_grid import random_grid, random_scans
+from test_wall_grid import random_grid, random_scans, step_pair
 
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
@@ -125,15 +124,8 @@ def test_the_env_appends_the_visited_squares_and_keeps_every_other_column():
         assert torch.equal(obs1[:, d:], want)
         assert env.single_observation_space.contains(obs1[0].numpy())
         been += int(obs1[:, d:].sum())
-        action = forward_actions(gen, n)
-        obs0, r0, term0, trunc0, info0 = plain.step(action)
-        obs1, r1, term1, trunc1, info1 = env.step(action)
-        assert torch.equal(r0, r1) and torch.equal(term0, term1) and torch.equal(trunc0, trunc1)
-        done = info1["_final_obs"]
-        ref.push(every[~done], env.pose[~done], env.scan(every[~done]))
-        if done.any():
-            ref.start(every[done], env.pose[done], env.scan(every[done]), origin[done])
-            resets += int(done.sum())
+        obs0, obs1, ended = step_pair(plain, env, ref, gen, lambda: origin)
+        resets += ended
     assert resets >= 2 and been > 200
 
 
