@@ -250,12 +250,16 @@ def test_bench_sim_times_the_wall_map_beside_the_static_step(tmp_path, capsys):
     from flashnav.cli import main
 
     out = tmp_path / "sim.json"
-    assert main(["bench", "sim", "--quick", "--raycasters", "exact", "--wall-map", "8", "--no-irsim",
+    assert main(["bench", "sim", "--quick", "--raycasters", "exact", "--wall-map", "8", "--visited", "--no-irsim",
                  "--max-steps", "4", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
-    assert [(r["raycaster"], r["wall_map"]) for r in rows] == [("exact", 0), ("exact", 8)]
+    assert [(r["raycaster"], r["wall_map"], r["visited"]) for r in rows] == [("exact", 0, False), ("exact", 8, False),
+                                                                           ("exact", 8, True)]
     assert all(r["steps"] >= 2 and r["env_steps_per_s"] > 0 for r in rows)
-    assert "wall map" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "wall map" in printed and "8+v" in printed
+    assert main(["bench", "sim", "--quick", "--visited", "--no-irsim"]) == 2
+    assert "--visited times the wall map's visited channel: it needs --wall-map C" in capsys.readouterr().err
     assert main(["bench", "sim", "--quick", "--wall-map", "1", "--no-irsim"]) == 2
     assert "--wall-map must be 0 (none) or at least 2 squares a side, got 1" in " ".join(capsys.readouterr().err.split())
 

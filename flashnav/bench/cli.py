@@ -45,6 +45,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--wall-map", type=int, default=0, metavar="C",
                    help="also time every row with the wall map of C x C squares (observation.wall_map, the other "
                         "wall-map keys at their defaults), interleaved with the static rows ('x static')")
+    p.add_argument("--visited", action="store_true",
+                   help="with --wall-map: also time every row with that wall map and its visited channel "
+                        "(observation.wall_map_visited), shown as 'C+v'")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -115,6 +118,8 @@ def run_sim(args) -> int:
                          f"{args.memory}")
     if args.wall_map < 0 or args.wall_map == 1:
         raise ValueError(f"--wall-map must be 0 (none) or at least 2 squares a side, got {args.wall_map}")
+    if args.visited and not args.wall_map:
+        raise ValueError("--visited times the wall map's visited channel: it needs --wall-map C")
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
     from flashnav.machine import learner_threads, machine_name
@@ -134,11 +139,11 @@ def run_sim(args) -> int:
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
                 for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many,
                                           agents=args.agents, tracks=args.tracks, memory=args.memory,
-                                          wall_map=args.wall_map):
+                                          wall_map=args.wall_map, visited=args.visited):
                     rows.append(row.to_dict(1080))
                     console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d} "
-                                  f"tracks={row.tracks:2d} memory={row.memory:2d} wall_map={row.wall_map:2d}: "
-                                  f"{row.env_steps_per_s:12,.0f} env-steps/s")
+                                  f"tracks={row.tracks:2d} memory={row.memory:2d} "
+                                  f"wall_map={_walls(row.wall_map, row.visited)}: {row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
                 accuracy.append(sim.accuracy(robot, rc, args.device))
@@ -169,9 +174,14 @@ def _many_maps(robot: str, spec: str | None):
     return resolve_maps(spec, robot)
 
 
+def _walls(cells: int, visited: bool) -> str:
+    """A row's wall map as the table shows it: its squares a side, '+v' with the visited channel."""
+    return f"{cells}+v" if visited else str(cells)
+
+
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
     key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"], r.get("tracks", 0), r.get("memory", 0),  # noqa: E731
-                     r.get("wall_map", 0))
+                     r.get("wall_map", 0), r.get("visited", False))
     base = {key(r): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
     # the static single-map row of the same robot, size and raycaster: the reference of both ratios
     one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows
@@ -194,7 +204,7 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         cells += [str(r["agents"])] if moving else []
         cells += [str(r.get("tracks", 0))] if tracked else []
         cells += [str(r.get("memory", 0))] if remembers else []
-        cells += [str(r.get("wall_map", 0))] if walls else []
+        cells += [_walls(r.get("wall_map", 0), r.get("visited", False))] if walls else []
         cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
         single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:

@@ -38,6 +38,7 @@ class StepRow:
     tracks: int = 0  # agent tracks in the observation (observation.agent_tracks)
     memory: int = 0  # stored scans of the memory scan (observation.memory_frames)
     wall_map: int = 0  # squares a side of the wall map (observation.wall_map)
+    visited: bool = False  # the wall map's visited channel (observation.wall_map_visited)
 
     @property
     def env_steps_per_s(self) -> float:
@@ -70,7 +71,8 @@ def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
 
 def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
                max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None,
-               agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0) -> list[StepRow]:
+               agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0,
+               visited: bool = False) -> list[StepRow]:
     """Step ``num_envs`` environments with random actions for at least ``min_seconds`` (at least 2
     steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches), on the robot's
     bundled map. With ``maps``, a second env of the same size on those maps (each slot drawing its
@@ -81,8 +83,9 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
     > 0, one more on the bundled map, static, with the memory scan of that many stored scans
     (``observation.memory_frames``, one stored every step); with ``wall_map`` > 0, one more on the bundled map,
     static, with the wall map of that many squares a side (``observation.wall_map``, the other wall-map keys at
-    their defaults). Returns the bundled-map row first, then the many-map row, then the agents row, then the
-    tracks row, then the memory row, then the wall-map row (those asked for)."""
+    their defaults), and with ``visited`` too, one more with that wall map and its visited channel
+    (``observation.wall_map_visited``). Returns the bundled-map row first, then the many-map row, then the agents
+    row, then the tracks row, then the memory row, then the wall-map rows (those asked for)."""
     envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
     if maps is not None:
         envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
@@ -96,8 +99,12 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
         preset = load_robot(robot, **{"observation.memory_frames": memory, "observation.memory_every": 1})
         envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
     if wall_map:
-        preset = load_robot(robot, **{"observation.wall_map": wall_map})
-        envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
+        for with_visited in (False, True) if visited else (False,):
+            preset = load_robot(robot, **{"observation.wall_map": wall_map,
+                                          "observation.wall_map_visited": with_visited})
+            envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
+    elif visited:
+        raise ValueError("the visited channel's row needs a wall map (wall_map > 0)")
     dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
     actions = [torch.rand(num_envs, 2, generator=gen, device=dev) * 2 - 1 for _ in range(16)]
@@ -117,7 +124,7 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
             seconds[k] += time.perf_counter() - start
     return [StepRow(robot, raycaster, num_envs, str(dev), steps[k], seconds[k], env.num_maps,
                     env.preset.agents.count, env.preset.observation.agent_tracks, env.preset.observation.memory_frames,
-                    env.preset.observation.wall_map)
+                    env.preset.observation.wall_map, env.preset.observation.wall_map_visited)
             for k, env in enumerate(envs)]
 
 
