@@ -119,7 +119,8 @@ def test_this_runs_optimiser_settings_and_env_count_apply(tmp_path):
     ({"robot.motion.v_bounds": [0.0, 0.7]}, "robot.motion.v_bounds"),
     ({"robot.observation.scan_history": 2}, "robot.observation.scan_history"),
     ({"robot.observation.wall_map": 4}, "robot.observation.wall_map"),
-    ({"robot.observation.wall_map": 4, "robot.observation.wall_map_visited": True}, "robot.observation.wall_map_visited"),
+    ({"robot.observation.wall_map": 4, "robot.observation.wall_map_visited": True},
+     "robot.observation.wall_map_visited"),
 ])
 def test_a_network_mismatch_is_refused_by_name(tmp_path, overrides, key):
     _, _, run = trained_checkpoint(tmp_path, updates=1)

@@ -143,7 +143,8 @@ def run_sim(args) -> int:
                     rows.append(row.to_dict(1080))
                     console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d} "
                                   f"tracks={row.tracks:2d} memory={row.memory:2d} "
-                                  f"wall_map={_walls(row.wall_map, row.visited)}: {row.env_steps_per_s:12,.0f} env-steps/s")
+                                  f"wall_map={_walls(row.wall_map, row.visited)}: "
+                                  f"{row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
                 accuracy.append(sim.accuracy(robot, rc, args.device))

@@ -86,6 +86,8 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
     their defaults), and with ``visited`` too, one more with that wall map and its visited channel
     (``observation.wall_map_visited``). Returns the bundled-map row first, then the many-map row, then the agents
     row, then the tracks row, then the memory row, then the wall-map rows (those asked for)."""
+    if visited and not wall_map:
+        raise ValueError("the visited channel's row needs a wall map (wall_map > 0)")
     envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
     if maps is not None:
         envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
@@ -103,8 +105,6 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
             preset = load_robot(robot, **{"observation.wall_map": wall_map,
                                           "observation.wall_map_visited": with_visited})
             envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
-    elif visited:
-        raise ValueError("the visited channel's row needs a wall map (wall_map > 0)")
     dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
     actions = [torch.rand(num_envs, 2, generator=gen, device=dev) * 2 - 1 for _ in range(16)]
