@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from pydantic_core import PydanticCustomError
 
 from flashnav.names import AGENT_BEHAVIOURS, GOAL_SAMPLINGS, PROGRESS_METRICS
+from flashnav.policy_meta import wall_map_channel_names
 
 
 class KnownKeys(BaseModel):
@@ -324,7 +325,7 @@ class Observation(Strict):
     def wall_map_channels(self) -> int:
         """The wall map's channels: 0 without one, else walls and goal, then the visited squares with
         ``wall_map_visited``."""
-        return (2 + int(self.wall_map_visited)) if self.wall_map else 0
+        return len(wall_map_channel_names(self.wall_map, self.wall_map_visited))
 
 
 class RobotPreset(Strict):

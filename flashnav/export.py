@@ -32,7 +32,7 @@ from flashnav.learn.networks import Actor, DeterministicActor
 from flashnav.names import POLICY_METADATA, POLICY_ONNX, POLICY_TORCHSCRIPT
 from flashnav.observation_samples import sample_observations
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, first_sentence, open_onnx  # noqa: F401
-from flashnav.policy_meta import WALL_MAP_CHANNEL_NAMES
+from flashnav.policy_meta import wall_map_channel_names
 from flashnav.policy_meta import parse_metadata as _parse_metadata
 from flashnav.sim.memory import HIT_BEYOND_M, points_per_frame
 
@@ -154,7 +154,8 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
             "wall_map": {"cells": preset.observation.wall_map, "cell_m": preset.observation.wall_map_cell,
                          "grid_m": preset.observation.wall_map_grid, "beyond_m": HIT_BEYOND_M,
                          "columns": [preset.memory_end, preset.obs_dim],
-                         "channels": list(WALL_MAP_CHANNEL_NAMES[:preset.observation.wall_map_channels]),
+                         "channels": list(wall_map_channel_names(preset.observation.wall_map,
+                                                                preset.observation.wall_map_visited)),
                          "order": "channel by channel, then row by row: square (row i, column j) spans "
                                   "[(i - cells / 2) cell_m, (i + 1 - cells / 2) cell_m) to the left of the robot "
                                   "(row 0 rightmost) and [(j - cells / 2) cell_m, (j + 1 - cells / 2) cell_m) ahead",

@@ -120,6 +120,13 @@ def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tu
 WALL_MAP_CHANNEL_NAMES = ("walls", "goal", "visited")
 
 
+def wall_map_channel_names(cells: int, visited: bool = False) -> tuple[str, ...]:
+    """The wall map's channels in order, the one rule every reader of the layout uses (the preset's
+    ``observation.wall_map_channels``, the networks' ``ObsLayout.wall_channels``, the export and this module's
+    reader): none without a map (``cells`` 0), else walls and goal, then the visited squares with ``visited``."""
+    return WALL_MAP_CHANNEL_NAMES[:(2 + int(visited)) if cells else 0]
+
+
 def wall_map_channels(meta: dict[str, Any], path: str | Path = "<policy>") -> int:
     """The policy's wall-map channels: 0 without a wall map, 2 (walls, goal; also for a file written before the
     metadata listed them) or 3 (and visited). Raises ValueError naming ``path`` for any other list."""
@@ -128,11 +135,11 @@ def wall_map_channels(meta: dict[str, Any], path: str | Path = "<policy>") -> in
     names = _metadata_field(meta, "wall_map", "channels")
     if names is None:
         return 2
-    for n in (2, 3):
-        if names == list(WALL_MAP_CHANNEL_NAMES[:n]):
-            return n
+    known = [list(wall_map_channel_names(1, visited)) for visited in (False, True)]
+    if names in known:
+        return len(names)
     raise ValueError(f"{path}: the policy's metadata lists wall-map channels {names!r}; this runtime knows "
-                     f"{list(WALL_MAP_CHANNEL_NAMES[:2])} and {list(WALL_MAP_CHANNEL_NAMES)}")
+                     f"{' and '.join(map(str, known))}")
 
 
 def wall_map_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, float, float, float]:

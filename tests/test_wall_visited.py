@@ -136,6 +136,19 @@ def test_the_setting_needs_a_wall_map_and_names_itself():
     assert load_robot("turtlebot2").observation.wall_map_channels == 0
 
 
+@pytest.mark.parametrize("cells, visited", [(0, False), (4, False), (4, True)])
+def test_the_preset_the_networks_and_the_export_count_the_same_channels(cells, visited):
+    from flashnav.export import policy_metadata
+    from flashnav.learn.features import ObsLayout
+
+    given = {"observation.wall_map": cells, "observation.wall_map_visited": visited}
+    preset = load_robot("turtlebot2", **given)
+    names = policy_metadata(preset)["observation"]["wall_map"]["channels"]
+    n = {(0, False): 0, (4, False): 2, (4, True): 3}[cells, visited]
+    assert names == ["walls", "goal", "visited"][:n]
+    assert preset.observation.wall_map_channels == ObsLayout.from_robot(preset, 14.0).wall_channels == n
+
+
 def test_a_run_with_the_visited_channel_trains_keeps_it_as_bits_and_exports_three_channels(tmp_path):
     from flashnav import train
     from flashnav.deploy.runtime import PolicyRuntime

@@ -16,6 +16,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from flashnav.learn.wall_map import WALL_MAP_FEATURES
+from flashnav.policy_meta import wall_map_channel_names
 from flashnav.sim.tracks import track_scales
 from flashnav.sim.trail import trail_bound
 
@@ -124,7 +125,7 @@ class ObsLayout:
     @property
     def wall_channels(self) -> int:
         """The wall map's channels: 0 without one, else 2 (walls, goal), 3 with ``wall_visited``."""
-        return (2 + int(self.wall_visited)) if self.wall_map else 0
+        return len(wall_map_channel_names(self.wall_map, self.wall_visited))
 
     @property
     def vector_feature_dim(self) -> int:

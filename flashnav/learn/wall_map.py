@@ -32,12 +32,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from flashnav.policy_meta import wall_map_channel_names
+
 #: Output width of the wall-map encoder: the features it adds to the MLP's input.
 WALL_MAP_FEATURES = 256
 #: (out channels, stride) of the three 3 x 3 convolutions.
 WALL_MAP_CONVS = ((16, 1), (32, 2), (32, 2))
-#: Channels of the wall map: walls, goal (a third, the visited squares, with ``observation.wall_map_visited``).
-WALL_MAP_CHANNELS = 2
+#: Channels of a wall map without the visited squares (walls, goal): the default of the encoder and the shift.
+WALL_MAP_CHANNELS = len(wall_map_channel_names(1))
 
 
 def conv_side(cells: int) -> int:
