@@ -87,7 +87,8 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
             s = [100 * p["success_rate"] for p in r["curve"]]
             arm = r.get("arm")
             if arm:
-                label = None if arm in labelled else f"{arm} ({sum(m.get('arm') == arm for m in members)} runs)"
+                n = sum(m.get("arm") == arm for m in members)
+                label = None if arm in labelled else f"{arm} ({n} run{'s' * (n != 1)})"
                 labelled.add(arm)
                 (line,) = ax.plot(t, s, lw=0.9, alpha=0.75, color=arm_colour[arm], label=label)
             else:

@@ -145,10 +145,16 @@ def test_bench_plot_draws_arms_one_colour_each(tmp_path, capsys, monkeypatch):
         return real(runs_, out, title, **kw)
 
     monkeypatch.setattr(viz, "plot_training_runs", spy)
+    import matplotlib.axes
+
+    labels, plot = [], matplotlib.axes.Axes.plot
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot",
+                        lambda self, *a, **k: (labels.append(k.get("label")), plot(self, *a, **k))[1])
     png = tmp_path / "arms.png"
     assert cli_main(["bench", "plot", "--arm", "scratch", runs[0], runs[1], "--arm", "fine-tuned", runs[2],
                      "--ymin", "90", "--out", str(png)]) == 0
     assert seen["arms"] == ["scratch", "scratch", "fine-tuned"] and seen["ymin"] == 90.0
+    assert {"scratch (2 runs)", "fine-tuned (1 run)"} <= set(labels)  # one legend entry per arm, counted
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert cli_main(["bench", "plot", "--arm", "lonely", "--out", str(png)]) == 2
     assert "--arm lonely names no run" in capsys.readouterr().out
