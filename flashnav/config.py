@@ -221,8 +221,8 @@ class Reward(Strict):
                                             "below which agent_proximity applies")
     progress_metric: Literal[PROGRESS_METRICS] = Field(  # type: ignore[valid-type]
         "euclidean", description="the distance d of the shaping term: the straight line (euclidean, the "
-        "paper's) or the path length through the free space (geodesic: training only; with "
-        "episode.goal_sampling=euclidean on one map only; flashnav.sim.goal_fields)")
+        "paper's) or the path length through the free space (geodesic: training only; on many maps it needs "
+        "episode.goal_sampling=geodesic; flashnav.sim.goal_fields)")
     progress_discount: float = Field(1.0, ge=0, le=1, description="c in the shaping term progress * (d_old - "
                                      "c * d_new): 1 = the paper's; the learner's discount gamma makes it "
                                      "potential-based (Ng et al. 1999: the shaping changes no policy's ranking, "
