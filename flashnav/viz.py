@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+from collections import Counter
 from pathlib import Path
 
 import matplotlib
@@ -81,15 +82,14 @@ def plot_training_runs(runs: list[dict], out: str | Path, title: str = "",
         raise ValueError("no runs to plot")
     fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False, sharey=True)
     for ax, ((robot, algo), members) in zip(axes[0], groups.items()):
-        labelled = set()
+        legend_due = Counter(r["arm"] for r in members if r.get("arm"))   # arm -> its runs here, until its entry
         for r in members:
             t = [p[x] for p in r["curve"]]
             s = [100 * p["success_rate"] for p in r["curve"]]
             arm = r.get("arm")
             if arm:
-                n = sum(m.get("arm") == arm for m in members)
-                label = None if arm in labelled else f"{arm} ({n} run{'s' * (n != 1)})"
-                labelled.add(arm)
+                n = legend_due.pop(arm, 0)
+                label = f"{arm} ({n} run{'s' * (n != 1)})" if n else None
                 (line,) = ax.plot(t, s, lw=0.9, alpha=0.75, color=arm_colour[arm], label=label)
             else:
                 (line,) = ax.plot(t, s, lw=1.2, label=r.get("label") or f"seed {r.get('seed', '?')}")
