@@ -148,8 +148,12 @@ def test_bench_plot_draws_arms_one_colour_each(tmp_path, capsys, monkeypatch):
     import matplotlib.axes
 
     labels, plot = [], matplotlib.axes.Axes.plot
-    monkeypatch.setattr(matplotlib.axes.Axes, "plot",
-                        lambda self, *a, **k: (labels.append(k.get("label")), plot(self, *a, **k))[1])
+
+    def plot_and_keep_label(self, *a, **k):
+        labels.append(k.get("label"))
+        return plot(self, *a, **k)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", plot_and_keep_label)
     png = tmp_path / "arms.png"
     assert cli_main(["bench", "plot", "--arm", "scratch", runs[0], runs[1], "--arm", "fine-tuned", runs[2],
                      "--ymin", "90", "--out", str(png)]) == 0
