@@ -1,13 +1,13 @@
-"""Several trained policies as one: the mean of their deterministic actions, on issue 13's agent scenarios or on a
-map suite (a probe).
+"""Several trained policies as one: the mean (or the medoid) of their deterministic actions, on issue 13's agent
+scenarios or on a map suite (a probe).
 
     .venv/bin/python scripts/ensemble_eval.py POLICY POLICY [...] [--scenario wander-8,crossing]
         [--episodes 512] [--seed 2026] [--json FILE]
     .venv/bin/python scripts/ensemble_eval.py POLICY POLICY [...] --maps heldout [--episodes 128] [--ensemble-only]
 
 Every POLICY (an exported policy.onnx / policy.pt or a run folder) acts on the same observation and the robot
-takes the mean of their actions (each in [-1, 1]). The episodes are those of ``flashnav eval POLICY --scenario
-NAME --episodes E --seed S`` (or ``flashnav eval POLICY --maps SUITE --episodes E --seed S``, geodesic goals) on
+takes the mean of their actions (each in [-1, 1]; ``--combine medoid``: per row, the member's action nearest
+the others'). The episodes are those of ``flashnav eval POLICY --scenario NAME --episodes E --seed S`` (or ``flashnav eval POLICY --maps SUITE --episodes E --seed S``, geodesic goals) on
 the first policy's recorded robot, so each member's own row is comparable with the ensemble's. The members must
 share the robot preset and observation (as seeds of one recipe do), and on maps the goal-distance scale too; a
 member that does not is refused by name. Prints one row per scenario (or per map suite: mean success, worst map,
@@ -38,6 +38,23 @@ def mean_policy(members: Sequence[Callable[[torch.Tensor], torch.Tensor]]) -> Ca
     if not members:
         raise ValueError("an ensemble needs at least one member policy")
     return lambda obs: torch.stack([m(obs) for m in members]).mean(dim=0)
+
+
+def medoid_policy(members: Sequence[Callable[[torch.Tensor], torch.Tensor]]) -> Callable[[torch.Tensor], torch.Tensor]:
+    """One policy that takes, row by row, the member action nearest to the others (least summed distance; the first
+    of equals): a vote that never averages two ways round an obstacle into a third."""
+    if not members:
+        raise ValueError("an ensemble needs at least one member policy")
+
+    def act(obs: torch.Tensor) -> torch.Tensor:
+        actions = torch.stack([m(obs) for m in members], dim=1)  # [N, M, 2]
+        pick = torch.cdist(actions, actions).sum(dim=2).argmin(dim=1)
+        return actions[torch.arange(actions.shape[0], device=actions.device), pick]
+
+    return act
+
+
+COMBINE = {"mean": mean_policy, "medoid": medoid_policy}
 
 
 def load_members(paths: Sequence[str]):
@@ -107,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--maps", default=None, help="a map suite (heldout, real, validation, ...) or folder instead")
     ap.add_argument("--episodes", type=int, default=None, help="per scenario (default 512) or per map (default 128)")
     ap.add_argument("--seed", type=int, default=EVAL_SEED)
+    ap.add_argument("--combine", choices=sorted(COMBINE), default="mean",
+                    help="mean: the members' mean action; medoid: per row, the member action nearest the others")
     ap.add_argument("--ensemble-only", action="store_true", help="skip the members' own rows")
     ap.add_argument("--json", metavar="FILE", help="also write every row as JSON")
     args = ap.parse_args(argv)
@@ -114,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--maps and --scenario: give one (an ensemble is scored on map suites or on agent scenarios)")
     members, robot, metas = load_members(args.policies)
     labelled = [] if args.ensemble_only else list(zip(args.policies, members))
-    labelled.append(("ensemble (mean action)", mean_policy(members)))
+    labelled.append((f"ensemble ({args.combine} action)", COMBINE[args.combine](members)))
     if args.maps is not None:
         episodes = args.episodes or 128
         scale = goal_distance_scale(args.policies, metas, robot)

@@ -28,6 +28,16 @@ def test_the_mean_action_is_the_members_mean():
         ens.mean_policy([])
 
 
+def test_the_medoid_action_is_the_member_nearest_the_others_row_by_row():
+    acts = [torch.tensor([[1.0, 0.0], [0.0, 0.0]]), torch.tensor([[0.9, 0.1], [0.0, 1.0]]),
+            torch.tensor([[-1.0, 0.0], [0.0, 0.9]])]
+    members = [lambda o, a=a: a for a in acts]
+    # row 0: two agree on ahead, one says back -> the one between them; row 1: two say left -> the one nearer both
+    assert torch.equal(ens.medoid_policy(members)(torch.zeros(2, 5)), torch.tensor([[0.9, 0.1], [0.0, 0.9]]))
+    with pytest.raises(ValueError, match="at least one member"):
+        ens.medoid_policy([])
+
+
 def test_an_ensemble_of_one_policy_twice_plays_as_that_policy(tmp_path):
     members, robot, _ = ens.load_members([POLICY, POLICY])
     alone = ens.score(members[0], robot, ["wander-4"], 12, 5)
@@ -54,12 +64,12 @@ def test_on_maps_an_ensemble_of_one_policy_twice_scores_as_flashnav_eval(tmp_pat
                           "--json", str(ref)]) == 0
     out = tmp_path / "rows.json"
     assert ens.main([POLICY, POLICY, "--maps", str(maps), "--episodes", "6", "--seed", "3", "--ensemble-only",
-                     "--json", str(out)]) == 0
+                     "--combine", "medoid", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     want = {r["map"]: r["outcomes"] for r in json.loads(ref.read_text())["maps"]}
     doc = json.loads(out.read_text())
-    assert list(doc["rows"]) == ["ensemble (mean action)"]  # --ensemble-only: no member rows
-    got = {r["map"]: r["outcomes"] for r in doc["rows"]["ensemble (mean action)"]["maps"]}
+    assert list(doc["rows"]) == ["ensemble (medoid action)"]  # --ensemble-only: no member rows
+    got = {r["map"]: r["outcomes"] for r in doc["rows"]["ensemble (medoid action)"]["maps"]}
     assert got == want and len(want) == len(SMALL)
     worst = min(json.loads(ref.read_text())["maps"], key=lambda r: r["success_rate"])
     assert f"{worst['map']} {100 * worst['success_rate']:.1f} %" in text
