@@ -6,12 +6,13 @@ scenarios or on a map suite (a probe).
     .venv/bin/python scripts/ensemble_eval.py POLICY POLICY [...] --maps heldout [--episodes 128] [--ensemble-only]
 
 Every POLICY (an exported policy.onnx / policy.pt or a run folder) acts on the same observation and the robot
-takes the mean of their actions (each in [-1, 1]; ``--combine medoid``: per row, the member's action nearest
-the others'). The episodes are those of ``flashnav eval POLICY --scenario NAME --episodes E --seed S`` (or ``flashnav eval POLICY --maps SUITE --episodes E --seed S``, geodesic goals) on
-the first policy's recorded robot, so each member's own row is comparable with the ensemble's. The members must
-share the robot preset and observation (as seeds of one recipe do), and on maps the goal-distance scale too; a
-member that does not is refused by name. Prints one row per scenario (or per map suite: mean success, worst map,
-maps under 95 %) for each member alone (unless ``--ensemble-only``) and for the ensemble.
+takes the mean of their actions (each in [-1, 1]; ``--combine medoid``: per row, the member's action nearest the
+others'). The episodes are those of ``flashnav eval POLICY --scenario NAME --episodes E --seed S`` (or ``flashnav
+eval POLICY --maps SUITE --episodes E --seed S``, geodesic goals) on the first policy's recorded robot, so each
+member's own row is comparable with the ensemble's. The members must share the robot preset and observation (as
+seeds of one recipe do), and on maps the goal-distance scale too; a member that does not is refused by name. Prints
+one row per scenario (or per map suite: mean success, worst map, maps under 95 %) for each member alone (unless
+``--ensemble-only``) and for the ensemble.
 """
 
 from __future__ import annotations
