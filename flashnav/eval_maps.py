@@ -55,6 +55,17 @@ def suite_path(maps: str) -> str:
     return maps
 
 
+def suite_maps(maps: str, preset) -> list[OccupancyMap]:
+    """The maps ``--maps`` names (a committed benchmark suite, a folder, a glob or one map YAML), loaded as ``preset``'s
+    map would be; naming nothing is a ValueError that also lists the committed suites."""
+    from flashnav.maps.bundled import MapsNotFound, resolve_maps
+
+    try:
+        return resolve_maps(suite_path(maps), preset.map)
+    except MapsNotFound as exc:  # naming nothing: `eval --maps` also takes the committed suites
+        raise ValueError(f"--maps: {exc}; or a committed benchmark suite: {', '.join(BENCHMARK_SUITES)}") from None
+
+
 def fixed_episodes(env, m: int, count: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
     """The ``count`` episodes of map ``m`` of ``env``: exactly those that a one-map env on that map (same
     preset and device) draws with ``reset(seed=seed)``. Returns world ``pose`` [count, 3] and ``goal``
@@ -203,6 +214,12 @@ def aggregate(rows: list[dict]) -> dict:
             "episodes_beyond_scale": sum(r["episodes_beyond_scale"] for r in rows)}
 
 
+def policy_goal_scale(meta: dict, preset) -> float:
+    """The goal-distance scale a loaded policy reads its goal distance with (its run's ``goal_distance_max``), else,
+    for files written before it was recorded, the diagonal of ``preset``'s map."""
+    return float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))
+
+
 def default_label(policy: str | Path) -> str:
     """``<folder>/<file>`` of a policy path (``runs/main/policy.onnx`` -> ``main/policy.onnx``)."""
     p = Path(policy)
@@ -221,16 +238,12 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     """``flashnav eval POLICY --maps ...``: parsed arguments and the loaded policy, its metadata, robot and
     device from :mod:`flashnav.policy_cli` (which checks the arguments and the output file first)."""
     from flashnav.machine import machine_name
-    from flashnav.maps.bundled import MapsNotFound, resolve_maps
     from flashnav.presets import load_robot
 
     sampling = args.goal_sampling or "geodesic"
     preset = load_robot(robot, **{"episode.goal_sampling": sampling})
-    scale = float(meta.get("goal_distance_max") or math.hypot(*preset.map_size))
-    try:
-        grids = resolve_maps(suite_path(args.maps), preset.map)
-    except MapsNotFound as exc:  # naming nothing: `eval --maps` also takes the committed suites
-        raise ValueError(f"--maps: {exc}; or a committed benchmark suite: {', '.join(BENCHMARK_SUITES)}") from None
+    scale = policy_goal_scale(meta, preset)
+    grids = suite_maps(args.maps, preset)
     start = time.perf_counter()
     guide = getattr(args, "guide", None)
     guide_from = getattr(args, "guide_from", None) or "map"

@@ -2,16 +2,19 @@
 
     .venv/bin/python scripts/command_speed.py POLICY [POLICY ...] [--episodes 1024] [--seed 12345]
         [--scales 1,1.05,1.1,1.15] [--json OUT]
+    .venv/bin/python scripts/command_speed.py POLICY [...] --maps heldout [--episodes 128] [--scales 1,1.1,1.2]
 
 For each exported POLICY, on the fixed evaluation set ``flashnav train`` evaluates on (``--episodes`` start/goal
-pairs, evaluation seed ``--seed``, the policy's robot and bundled map):
+pairs, evaluation seed ``--seed``, the policy's robot and bundled map; with ``--maps SUITE``, the episodes of
+``flashnav eval POLICY --maps SUITE --episodes E --seed S`` instead, ``--episodes`` a map):
 
 1. the distribution of its deterministic forward command ``a_v`` (the action in [-1, 1]; -1 = stand still, 1 = top
    speed) over every step of every episode: what share of steps reach 0.9, 0.95, 0.99 of the action range, and its
    percentiles;
 2. its evaluation with the forward speed scaled by each factor k of ``--scales`` (speed ``min(k v, v_max)``: the
    action ``clamp(k (a_v + 1) - 1, -1, 1)`` where the lower speed bound is 0), the rest of the policy untouched:
-   success, collision and mean episode steps. k = 1 is the policy as it is. A policy whose failures are timeouts
+   success, collision and mean episode steps (on a suite: means over its maps, and the maps under 95 % with the
+   worst). k = 1 is the policy as it is. A policy whose failures are timeouts
    that a faster drive turns into successes, without new collisions, is held back by its speed.
 
 A diagnostic, not a policy: an exported policy is evaluated as it is (``flashnav eval``); ``algo.action_headroom``
@@ -47,8 +50,8 @@ def faster(policy, k: float, v_lo: float):
 
 
 def forward_commands(policy, env, seed: int) -> tuple[np.ndarray, dict]:
-    """``policy`` evaluated as it is on ``env``'s episode set for ``seed`` (:func:`flashnav.evaluate.evaluate_episodes`),
-    and every deterministic forward action ``a_v`` it took over those episodes (each slot's first)."""
+    """``policy`` evaluated as it is on ``env``'s episode set for ``seed``
+    (:func:`flashnav.evaluate.evaluate_episodes`), and every deterministic forward action ``a_v`` it took over those episodes (each slot's first)."""
     taken = []
 
     def record(obs: torch.Tensor) -> torch.Tensor:   # evaluate_episodes asks for the running slots' actions only
@@ -59,41 +62,88 @@ def forward_commands(policy, env, seed: int) -> tuple[np.ndarray, dict]:
     return np.concatenate(taken), evaluation
 
 
-def main() -> None:
+def forward_commands_on_maps(policy, meta: dict, maps: str, episodes: int,
+                             seed: int) -> tuple[np.ndarray, dict, tuple]:
+    """As :func:`forward_commands` on the suite or folder ``maps`` (:func:`flashnav.eval_maps.evaluate_maps`, as
+    ``flashnav eval --maps`` plays it); also returns the (preset, maps, goal-distance scale) it played, for the
+    scaled runs."""
+    from flashnav.eval_maps import evaluate_maps, policy_goal_scale, suite_maps
+    from flashnav.presets import load_robot
+
+    preset = load_robot(evaluated_robot(meta), **{"episode.goal_sampling": "geodesic"})
+    grids, scale = suite_maps(maps, preset), policy_goal_scale(meta, preset)
+    taken = []
+
+    def record(obs: torch.Tensor) -> torch.Tensor:
+        action = policy(obs)
+        taken.append(action[:, 0].cpu().numpy())
+        return action
+    report = evaluate_maps(record, preset, grids, episodes, seed, goal_distance_scale=scale)
+    return np.concatenate(taken), report, (preset, grids, scale)
+
+
+def suite_row(k: float, report: dict) -> dict:
+    """One speed factor's row from an ``evaluate_maps`` report: means over the maps, maps under 95 %, the worst."""
+    maps = report["maps"]
+    mean = report["aggregate"]["mean"]
+    return {"scale": k, "success": mean["success_rate"], "collision": mean["collision_rate"],
+            "mean_steps": sum(r["mean_steps"] for r in maps) / len(maps),
+            "maps_under_95": [r["map"] for r in maps if r["success_rate"] < 0.95],
+            "worst": report["aggregate"]["worst"]}
+
+
+def main(argv: list[str] | None = None) -> None:
+    from flashnav.eval_maps import evaluate_maps
+
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("policies", nargs="+", metavar="POLICY")
-    p.add_argument("--episodes", type=int, default=EVAL_EPISODES)
+    p.add_argument("--maps", default=None, help="a map suite (heldout, real, ...) or folder instead of the bundled map")
+    p.add_argument("--episodes", type=int, default=None,
+                   help=f"episodes (default {EVAL_EPISODES}; with --maps a map, default 128)")
     p.add_argument("--seed", type=int, default=EVAL_SEED, help="evaluation seed (flashnav train's eval.seed)")
     p.add_argument("--scales", default="1,1.05,1.1,1.15", help="forward-speed factors, comma-separated")
     p.add_argument("--json", help="write every policy's numbers here")
-    args = p.parse_args()
+    args = p.parse_args(argv)
     scales = [float(x) for x in args.scales.split(",")]
     if any(k <= 0 for k in scales):
         raise SystemExit(f"--scales must be positive, got {args.scales}")
+    episodes = args.episodes or (128 if args.maps else EVAL_EPISODES)
     report = {}
     for path in args.policies:
         policy, meta = load_policy(path)
-        preset = evaluated_robot(meta)
-        env = make_env(preset, args.episodes, seed=args.seed)   # evaluate_episodes resets it to the same episodes
-        a_v, as_is = forward_commands(policy, env, args.seed)
+        if args.maps:
+            a_v, as_is, (preset, grids, scale) = forward_commands_on_maps(policy, meta, args.maps, episodes, args.seed)
+        else:
+            preset = evaluated_robot(meta)
+            env = make_env(preset, episodes, seed=args.seed)   # evaluate_episodes resets it to the same episodes
+            a_v, as_is = forward_commands(policy, env, args.seed)
         share = {f"{q:g}": float((a_v >= q).mean()) for q in LEVELS}
         pct = np.percentile(a_v, [5, 25, 50, 75, 95]).round(3).tolist()
         print(f"{path}: forward action over {len(a_v):,} steps: percentiles 5/25/50/75/95 {pct}, max {a_v.max():.3f}; "
               "share of steps at or above " + ", ".join(f"{q}: {v:.1%}" for q, v in share.items()))
         rows = []
         for k in scales:
-            e = as_is if k == 1 else evaluate_episodes(faster(policy, k, preset.motion.v_bounds[0]), env, args.seed)
-            row = {"scale": k, "success": float(e["success"].float().mean()),
-                   "collision": float(e["collision"].float().mean()),
-                   "mean_steps": float(e["episode_steps"].float().mean())}
+            fast = faster(policy, k, preset.motion.v_bounds[0])
+            if args.maps:
+                e = as_is if k == 1 else evaluate_maps(fast, preset, grids, episodes, args.seed,
+                                                       goal_distance_scale=scale)
+                row = suite_row(k, e)
+            else:
+                e = as_is if k == 1 else evaluate_episodes(fast, env, args.seed)
+                row = {"scale": k, "success": float(e["success"].float().mean()),
+                       "collision": float(e["collision"].float().mean()),
+                       "mean_steps": float(e["episode_steps"].float().mean())}
             rows.append(row)
+            under = (f"  maps < 95 %: {len(row['maps_under_95'])}, worst {row['worst']['map']} "
+                     f"{row['worst']['success_rate']:.1%}" if args.maps else "")
             print(f"  speed x{k:<5g} success {row['success']:7.2%}  collision {row['collision']:6.2%}  "
-                  f"mean steps {row['mean_steps']:6.1f}")
+                  f"mean steps {row['mean_steps']:6.1f}{under}")
         report[path] = {"forward_action_percentiles": pct, "forward_action_max": float(a_v.max()),
                         "share_at_or_above": share, "speed_scaled": rows}
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(report, f, indent=1)
+            json.dump({"maps": args.maps, "episodes": episodes, "seed": args.seed, "policies": report}
+                      if args.maps else report, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -80,9 +80,9 @@ def score(policy, robot, names: Sequence[str], episodes: int, seed: int) -> dict
 def goal_distance_scale(paths: Sequence[str], metas: Sequence[dict], robot) -> float:
     """The members' common goal-distance scale (as ``flashnav eval --maps`` reads it); members that differ are a
     ValueError naming the first that does (their goal-distance inputs would mean different things)."""
-    import math
+    from flashnav.eval_maps import policy_goal_scale
 
-    scales = [float(meta.get("goal_distance_max") or math.hypot(*robot.map_size)) for meta in metas]
+    scales = [policy_goal_scale(meta, robot) for meta in metas]
     for path, s in zip(paths[1:], scales[1:]):
         if s != scales[0]:
             raise ValueError(f"{path}: goal-distance scale {s:.2f} m, but {paths[0]} has {scales[0]:.2f} m (an "
@@ -93,13 +93,11 @@ def goal_distance_scale(paths: Sequence[str], metas: Sequence[dict], robot) -> f
 def score_maps(policy, robot, maps: str, episodes: int, seed: int, scale: float) -> dict:
     """``evaluate_maps``' report (per map and aggregate) on the suite or folder ``maps``, as ``flashnav eval
     --maps`` plays it (geodesic goals)."""
-    from flashnav.eval_maps import evaluate_maps, suite_path
-    from flashnav.maps.bundled import resolve_maps
+    from flashnav.eval_maps import evaluate_maps, suite_maps
     from flashnav.presets import load_robot
 
     preset = load_robot(robot, **{"episode.goal_sampling": "geodesic"})
-    grids = resolve_maps(suite_path(maps), preset.map)
-    return evaluate_maps(policy, preset, grids, episodes, seed, goal_distance_scale=scale)
+    return evaluate_maps(policy, preset, suite_maps(maps, preset), episodes, seed, goal_distance_scale=scale)
 
 
 def print_scenario_rows(rows: dict) -> None:

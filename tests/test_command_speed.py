@@ -38,3 +38,30 @@ def test_forward_commands_are_read_while_each_episode_runs():
     assert len(evaluation["episode_steps"]) == 6
     # one reading per slot and step until that slot's first episode ends: at least one per slot, at most the horizon
     assert 6 <= len(a_v) <= 6 * env.preset.episode.horizon and np.all(a_v == np.float32(0.6))
+
+
+def test_on_a_map_suite_the_unscaled_row_is_flashnav_eval_and_a_faster_cruise_changes_it(tmp_path):
+    import json
+
+    from flashnav.cli import main as flashnav_main
+    from flashnav.eval_maps import suite_path
+
+    policy = str(Path(__file__).resolve().parent / "fixtures" / "deploy_policy" / "policy.onnx")
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    for name in ("warehouses_900002", "rooms_900003"):  # the two smallest held-out maps
+        for suffix in (".yaml", ".png"):
+            (maps / f"{name}{suffix}").write_bytes((Path(suite_path("heldout")) / f"{name}{suffix}").read_bytes())
+    ref, out = tmp_path / "eval.json", tmp_path / "speed.json"
+    assert flashnav_main(["eval", policy, "--maps", str(maps), "--episodes", "6", "--seed", "3",
+                          "--json", str(ref)]) == 0
+    command_speed.main([policy, "--maps", str(maps), "--episodes", "6", "--seed", "3", "--scales", "1,2",
+                        "--json", str(out)])
+    want = json.loads(ref.read_text())
+    doc = json.loads(out.read_text())
+    assert doc["maps"] == str(maps) and doc["episodes"] == 6
+    (x1, x2), = [p["speed_scaled"] for p in doc["policies"].values()]
+    assert x1["success"] == pytest.approx(want["aggregate"]["mean"]["success_rate"])
+    assert x1["maps_under_95"] == [r["map"] for r in want["maps"] if r["success_rate"] < 0.95]
+    assert x1["mean_steps"] == pytest.approx(sum(r["mean_steps"] for r in want["maps"]) / 2)
+    assert x2["scale"] == 2 and x2 != {**x1, "scale": 2}  # twice the speed plays other episodes
