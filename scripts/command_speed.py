@@ -50,8 +50,8 @@ def faster(policy, k: float, v_lo: float):
 
 
 def forward_commands(policy, env, seed: int) -> tuple[np.ndarray, dict]:
-    """``policy`` evaluated as it is on ``env``'s episode set for ``seed``
-    (:func:`flashnav.evaluate.evaluate_episodes`), and every deterministic forward action ``a_v`` it took over those episodes (each slot's first)."""
+    """``policy`` evaluated as it is on ``env``'s episode set for ``seed`` (:func:`flashnav.evaluate.evaluate_episodes`),
+    and every deterministic forward action ``a_v`` it took over those episodes (each slot's first)."""
     taken = []
 
     def record(obs: torch.Tensor) -> torch.Tensor:   # evaluate_episodes asks for the running slots' actions only
