@@ -1,4 +1,5 @@
-"""Shared test set-up: one private local Ray cluster for the whole session.
+"""Shared test set-up: one private local Ray cluster for the whole session, and a folder of two small
+held-out maps (``small_heldout_maps``) for the tests that play a map suite as a user's folder.
 
 The cluster runs in a temp dir of its own and with an explicit ``RAY_AUTH_MODE=disabled`` (it listens on
 127.0.0.1 only). Both matter on Ray >= 2.59:
@@ -50,6 +51,25 @@ def ray_session():
                 os.environ.pop(AUTH, None)
             else:
                 os.environ[AUTH] = previous
+
+
+#: the two smallest maps of the committed held-out suite (9 x 10 m, 7 x 12 m at 0.1 m)
+SMALL_HELDOUT = ("rooms_900003", "warehouses_900002")
+
+
+@pytest.fixture
+def small_heldout_maps(tmp_path):
+    """A folder holding copies of ``SMALL_HELDOUT`` (YAML and image): a user's own map folder for ``--maps``."""
+    from pathlib import Path
+
+    from flashnav.eval_maps import suite_path
+
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    for name in SMALL_HELDOUT:
+        for suffix in (".yaml", ".png"):
+            (maps / f"{name}{suffix}").write_bytes((Path(suite_path("heldout")) / f"{name}{suffix}").read_bytes())
+    return maps
 
 
 def ship_by_value(module_name: str) -> None:

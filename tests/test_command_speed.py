@@ -40,18 +40,13 @@ def test_forward_commands_are_read_while_each_episode_runs():
     assert 6 <= len(a_v) <= 6 * env.preset.episode.horizon and np.all(a_v == np.float32(0.6))
 
 
-def test_on_a_map_suite_the_unscaled_row_is_flashnav_eval_and_a_faster_cruise_changes_it(tmp_path):
+def test_on_a_map_suite_the_unscaled_row_is_flashnav_eval_and_a_faster_cruise_changes_it(tmp_path, small_heldout_maps):
     import json
 
     from flashnav.cli import main as flashnav_main
-    from flashnav.eval_maps import suite_path
 
     policy = str(Path(__file__).resolve().parent / "fixtures" / "deploy_policy" / "policy.onnx")
-    maps = tmp_path / "maps"
-    maps.mkdir()
-    for name in ("warehouses_900002", "rooms_900003"):  # the two smallest held-out maps
-        for suffix in (".yaml", ".png"):
-            (maps / f"{name}{suffix}").write_bytes((Path(suite_path("heldout")) / f"{name}{suffix}").read_bytes())
+    maps = small_heldout_maps
     ref, out = tmp_path / "eval.json", tmp_path / "speed.json"
     assert flashnav_main(["eval", policy, "--maps", str(maps), "--episodes", "6", "--seed", "3",
                           "--json", str(ref)]) == 0

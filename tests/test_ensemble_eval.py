@@ -11,14 +11,12 @@ import pytest
 import torch
 
 from flashnav.cli import main as flashnav_main
-from flashnav.eval_maps import suite_path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
 import ensemble_eval as ens  # noqa: E402
 
 POLICY = str(Path(__file__).resolve().parent / "fixtures" / "deploy_policy" / "policy.onnx")
-SMALL = ["warehouses_900002", "rooms_900003"]  # the two smallest held-out maps
 
 
 def test_the_mean_action_is_the_members_mean():
@@ -48,17 +46,8 @@ def test_an_ensemble_of_one_policy_twice_plays_as_that_policy(tmp_path):
     assert out.is_file()
 
 
-def _small_suite(tmp_path: Path) -> Path:
-    maps = tmp_path / "maps"
-    maps.mkdir()
-    for name in SMALL:
-        for suffix in (".yaml", ".png"):
-            (maps / f"{name}{suffix}").write_bytes((Path(suite_path("heldout")) / f"{name}{suffix}").read_bytes())
-    return maps
-
-
-def test_on_maps_an_ensemble_of_one_policy_twice_scores_as_flashnav_eval(tmp_path, capsys):
-    maps = _small_suite(tmp_path)
+def test_on_maps_an_ensemble_of_one_policy_twice_scores_as_flashnav_eval(tmp_path, capsys, small_heldout_maps):
+    maps = small_heldout_maps
     ref = tmp_path / "eval.json"
     assert flashnav_main(["eval", POLICY, "--maps", str(maps), "--episodes", "6", "--seed", "3",
                           "--json", str(ref)]) == 0
@@ -70,7 +59,7 @@ def test_on_maps_an_ensemble_of_one_policy_twice_scores_as_flashnav_eval(tmp_pat
     doc = json.loads(out.read_text())
     assert list(doc["rows"]) == ["ensemble (medoid action)"]  # --ensemble-only: no member rows
     got = {r["map"]: r["outcomes"] for r in doc["rows"]["ensemble (medoid action)"]["maps"]}
-    assert got == want and len(want) == len(SMALL)
+    assert got == want and len(want) == 2
     worst = min(json.loads(ref.read_text())["maps"], key=lambda r: r["success_rate"])
     assert f"{worst['map']} {100 * worst['success_rate']:.1f} %" in text
 

@@ -103,13 +103,9 @@ def test_aggregate_by_hand():
     assert (a["maps"], a["episodes"], a["maps_beyond_scale"], a["episodes_beyond_scale"]) == (2, 40, 1, 2)
 
 
-def test_command_line_table_and_json(tmp_path, capsys):
+def test_command_line_table_and_json(tmp_path, capsys, small_heldout_maps):
     pytest.importorskip("onnxruntime")  # the `export` extra runs policy.onnx
-    maps = tmp_path / "maps"
-    maps.mkdir()
-    for name in SMALL:
-        for suffix in (".yaml", ".png"):
-            (maps / f"{name}{suffix}").write_bytes((HELDOUT / f"{name}{suffix}").read_bytes())
+    maps = small_heldout_maps
     out = tmp_path / "eval.json"
     assert main(["eval", str(FIXTURE_POLICY), "--maps", str(maps), "--episodes", "6", "--seed", "3",
                  "--json", str(out)]) == 0
