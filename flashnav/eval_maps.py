@@ -55,6 +55,18 @@ def suite_path(maps: str) -> str:
     return maps
 
 
+#: how ``flashnav eval --maps`` draws its episodes unless told otherwise: goals by path length, solvable on any map
+SUITE_GOAL_SAMPLING = "geodesic"
+
+
+def suite_preset(robot, goal_sampling: str | None = None):
+    """``robot`` (a preset, its name or YAML) with the episode draws a map suite is played with: ``goal_sampling``,
+    else :data:`SUITE_GOAL_SAMPLING`."""
+    from flashnav.presets import load_robot
+
+    return load_robot(robot, **{"episode.goal_sampling": goal_sampling or SUITE_GOAL_SAMPLING})
+
+
 def suite_maps(maps: str, preset) -> list[OccupancyMap]:
     """The maps ``--maps`` names (a committed benchmark suite, a folder, a glob or one map YAML), loaded as ``preset``'s
     map would be; naming nothing is a ValueError that also lists the committed suites."""
@@ -238,10 +250,9 @@ def run_eval_maps(args, policy, meta: dict, robot, device) -> int:
     """``flashnav eval POLICY --maps ...``: parsed arguments and the loaded policy, its metadata, robot and
     device from :mod:`flashnav.policy_cli` (which checks the arguments and the output file first)."""
     from flashnav.machine import machine_name
-    from flashnav.presets import load_robot
 
-    sampling = args.goal_sampling or "geodesic"
-    preset = load_robot(robot, **{"episode.goal_sampling": sampling})
+    sampling = args.goal_sampling or SUITE_GOAL_SAMPLING
+    preset = suite_preset(robot, sampling)
     scale = policy_goal_scale(meta, preset)
     grids = suite_maps(args.maps, preset)
     start = time.perf_counter()

@@ -67,10 +67,9 @@ def forward_commands_on_maps(policy, meta: dict, maps: str, episodes: int,
     """As :func:`forward_commands` on the suite or folder ``maps`` (:func:`flashnav.eval_maps.evaluate_maps`, as
     ``flashnav eval --maps`` plays it); also returns the (preset, maps, goal-distance scale) it played, for the
     scaled runs."""
-    from flashnav.eval_maps import evaluate_maps, policy_goal_scale, suite_maps
-    from flashnav.presets import load_robot
+    from flashnav.eval_maps import evaluate_maps, policy_goal_scale, suite_maps, suite_preset
 
-    preset = load_robot(evaluated_robot(meta), **{"episode.goal_sampling": "geodesic"})
+    preset = suite_preset(evaluated_robot(meta))
     grids, scale = suite_maps(maps, preset), policy_goal_scale(meta, preset)
     taken = []
 

@@ -93,10 +93,9 @@ def goal_distance_scale(paths: Sequence[str], metas: Sequence[dict], robot) -> f
 def score_maps(policy, robot, maps: str, episodes: int, seed: int, scale: float) -> dict:
     """``evaluate_maps``' report (per map and aggregate) on the suite or folder ``maps``, as ``flashnav eval
     --maps`` plays it (geodesic goals)."""
-    from flashnav.eval_maps import evaluate_maps, suite_maps
-    from flashnav.presets import load_robot
+    from flashnav.eval_maps import evaluate_maps, suite_maps, suite_preset
 
-    preset = load_robot(robot, **{"episode.goal_sampling": "geodesic"})
+    preset = suite_preset(robot)
     return evaluate_maps(policy, preset, suite_maps(maps, preset), episodes, seed, goal_distance_scale=scale)
 
 
