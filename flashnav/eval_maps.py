@@ -213,6 +213,15 @@ def _play_scans_guided(policy, preset, grids, episodes: int, seed: int, device, 
     return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
 
 
+#: issue 15's per-map bar: a policy for buildings it never saw succeeds on at least this share of every map's episodes
+MAP_BAR = 0.95
+
+
+def maps_under(rows: list[dict], bar: float = MAP_BAR) -> list[str]:
+    """The labels of the per-map rows (``evaluate_maps``' ``maps``) whose success rate is under ``bar``, in order."""
+    return [r["map"] for r in rows if r["success_rate"] < bar]
+
+
 def aggregate(rows: list[dict]) -> dict:
     """``mean``: each rate averaged over maps; ``pooled``: over all episodes (the two agree when every map
     has as many episodes); ``worst``: the map with the lowest success rate (the first of equals)."""

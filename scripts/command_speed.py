@@ -49,16 +49,22 @@ def faster(policy, k: float, v_lo: float):
     return scaled
 
 
-def forward_commands(policy, env, seed: int) -> tuple[np.ndarray, dict]:
-    """``policy`` evaluated as it is on ``env``'s episode set for ``seed`` (:func:`flashnav.evaluate.evaluate_episodes`),
-    and every deterministic forward action ``a_v`` it took over those episodes (each slot's first)."""
+def recorder(policy):
+    """(``policy`` that also keeps every forward action it returns, the list they are kept in)."""
     taken = []
 
-    def record(obs: torch.Tensor) -> torch.Tensor:   # evaluate_episodes asks for the running slots' actions only
+    def record(obs: torch.Tensor) -> torch.Tensor:
         action = policy(obs)
         taken.append(action[:, 0].cpu().numpy())
         return action
-    evaluation = evaluate_episodes(record, env, seed)
+    return record, taken
+
+
+def forward_commands(policy, env, seed: int) -> tuple[np.ndarray, dict]:
+    """``policy`` evaluated as it is on ``env``'s episode set for ``seed`` (:func:`flashnav.evaluate.evaluate_episodes`),
+    and every deterministic forward action ``a_v`` it took over those episodes (each slot's first)."""
+    record, taken = recorder(policy)
+    evaluation = evaluate_episodes(record, env, seed)   # it asks for the running slots' actions only
     return np.concatenate(taken), evaluation
 
 
@@ -71,23 +77,20 @@ def forward_commands_on_maps(policy, meta: dict, maps: str, episodes: int,
 
     preset = suite_preset(evaluated_robot(meta))
     grids, scale = suite_maps(maps, preset), policy_goal_scale(meta, preset)
-    taken = []
-
-    def record(obs: torch.Tensor) -> torch.Tensor:
-        action = policy(obs)
-        taken.append(action[:, 0].cpu().numpy())
-        return action
+    record, taken = recorder(policy)
     report = evaluate_maps(record, preset, grids, episodes, seed, goal_distance_scale=scale)
     return np.concatenate(taken), report, (preset, grids, scale)
 
 
 def suite_row(k: float, report: dict) -> dict:
     """One speed factor's row from an ``evaluate_maps`` report: means over the maps, maps under 95 %, the worst."""
+    from flashnav.eval_maps import maps_under
+
     maps = report["maps"]
     mean = report["aggregate"]["mean"]
     return {"scale": k, "success": mean["success_rate"], "collision": mean["collision_rate"],
             "mean_steps": sum(r["mean_steps"] for r in maps) / len(maps),
-            "maps_under_95": [r["map"] for r in maps if r["success_rate"] < 0.95],
+            "maps_under_95": maps_under(maps),
             "worst": report["aggregate"]["worst"]}
 
 
