@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import SMALL_HELDOUT
 
 from flashnav.cli import main
 from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, aggregate, evaluate_maps, suite_path
@@ -19,7 +20,6 @@ from flashnav.sim.env import make_env
 
 HELDOUT = Path(suite_path("heldout"))
 FIXTURE_POLICY = Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx"
-SMALL = ["warehouses_900002", "rooms_900003"]  # the two smallest held-out maps (9 x 10 m, 7 x 12 m at 0.1 m)
 
 
 def heading_controller(obs: torch.Tensor) -> torch.Tensor:
@@ -33,7 +33,7 @@ def heading_controller(obs: torch.Tensor) -> torch.Tensor:
 
 
 def _grids():
-    return [bundled_map("turtlebot2")] + [load_ros_map(HELDOUT / f"{name}.yaml") for name in SMALL]
+    return [bundled_map("turtlebot2")] + [load_ros_map(HELDOUT / f"{name}.yaml") for name in SMALL_HELDOUT]
 
 
 @pytest.mark.parametrize("sampling", ["geodesic", "euclidean"])
@@ -115,7 +115,7 @@ def test_command_line_table_and_json(tmp_path, capsys, small_heldout_maps):
     assert doc["goal_sampling"] == "geodesic" and doc["suite"] == "maps" and doc["episodes_per_map"] == 6
     meta = json.loads((FIXTURE_POLICY.parent / "policy.json").read_text())
     assert doc["goal_distance_scale"] == pytest.approx(meta["goal_distance_max"])
-    assert [r["map"] for r in doc["maps"]] == sorted(SMALL)
+    assert [r["map"] for r in doc["maps"]] == sorted(SMALL_HELDOUT)
     for r in doc["maps"]:
         assert r["episodes"] == 6 and r["success_rate"] + r["collision_rate"] + r["timeout_rate"] == pytest.approx(1)
         assert r["beyond_scale"] == (r["diagonal_m"] > doc["goal_distance_scale"])
