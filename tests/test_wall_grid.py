@@ -280,6 +280,29 @@ def test_the_envs_wall_map_columns_draw_every_hit_of_each_slots_episode(case):
         assert env.frame_maps[1].origin == (1.5, -0.7)
 
 
+def test_a_retried_slot_keeps_its_map_and_starts_its_wall_map_afresh():
+    """``episode.retry_failed`` on many maps with the wall map (measured on the generalist, session 64): a failed
+    slot restarts on the map it failed on, and its wall map holds its new first scan alone, not the walls it saw in
+    the failed attempt - its observation is the episode's first one again, bit for bit."""
+    grids = [generate_map(8.0, 8.0, 0.1, seed=1, robot_radius=0.3, name="a"),
+             generate_map(10.0, 6.0, 0.1, seed=2, robot_radius=0.3, name="b")]
+    preset = load_robot("turtlebot2", **{"episode.retry_failed": 1.0, "observation.wall_map": 8})
+    env = make_env(preset, 6, maps=grids, seed=3)
+    first, _ = env.reset(seed=3)
+    maps = env.map_index.clone()
+    slots = torch.stack([(maps == m).nonzero()[0, 0] for m in (0, 1)])   # one slot on each map
+    gen = torch.Generator().manual_seed(0)
+    known = env.extras.walls.known[slots].sum()
+    for _ in range(3):
+        env.step(forward_actions(gen, 6) * 0.2)
+    assert (env.steps[slots] == 3).all() and env.extras.walls.known[slots].sum() > known   # the attempt saw more
+    env.pose[slots, 0] = 100.0                            # off every map: both collide in the next step
+    _, _, terminated, _, info = env.step(forward_actions(gen, 6) * 0.2)
+    assert info["collision"][slots].all()
+    assert torch.equal(env.map_index[slots], maps[slots]) and (env.steps[slots] == 0).all()
+    assert torch.equal(env.obs[slots], first[slots])
+
+
 def test_a_partial_reset_keeps_the_other_slots_wall_grids_and_new_maps_rebuild_them():
     preset = load_robot("turtlebot2", **{"observation.wall_map": 8})
     env = make_env(preset, 4, seed=0)
