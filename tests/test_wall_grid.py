@@ -297,7 +297,7 @@ def test_a_retried_slot_keeps_its_map_and_starts_its_wall_map_afresh():
         env.step(forward_actions(gen, 6) * 0.2)
     assert (env.steps[slots] == 3).all() and env.extras.walls.known[slots].sum() > known   # the attempt saw more
     env.pose[slots, 0] = 100.0                            # off every map: both collide in the next step
-    _, _, terminated, _, info = env.step(forward_actions(gen, 6) * 0.2)
+    info = env.step(forward_actions(gen, 6) * 0.2)[4]
     assert info["collision"][slots].all()
     assert torch.equal(env.map_index[slots], maps[slots]) and (env.steps[slots] == 0).all()
     assert torch.equal(env.obs[slots], first[slots])
