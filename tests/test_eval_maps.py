@@ -12,7 +12,8 @@ import torch
 from conftest import SMALL_HELDOUT
 
 from flashnav.cli import main
-from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, aggregate, evaluate_maps, suite_path
+from flashnav.eval_maps import (EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, aggregate, evaluate_maps, maps_surely_under,
+                                maps_under, success_interval, suite_path)
 from flashnav.evaluate import evaluate_episodes
 from flashnav.maps import bundled_map, load_ros_map
 from flashnav.presets import load_robot
@@ -49,6 +50,7 @@ def test_each_maps_row_equals_that_map_evaluated_alone(sampling):
         success, collision = ref["success"], ref["collision"]
         assert row["map"] == grid.name and row["episodes"] == episodes
         assert row["success_rate"] == success.float().mean().item()
+        assert row["success_interval"] == success_interval(int(success.sum()), episodes)
         assert row["collision_rate"] == collision.float().mean().item()
         assert row["timeout_rate"] == (~success & ~collision).float().mean().item()
         assert row["outcomes"] == "".join("s" if a else "c" if b else "t" for a, b in zip(success.tolist(),
@@ -103,6 +105,25 @@ def test_aggregate_by_hand():
     assert (a["maps"], a["episodes"], a["maps_beyond_scale"], a["episodes_beyond_scale"]) == (2, 40, 1, 2)
 
 
+def test_success_interval_is_wilsons_score_interval_by_hand():
+    z = 1.959963984540054  # the normal quantile of 0.975
+
+    def wilson(k, n):
+        p = k / n
+        centre, half = p + z * z / (2 * n), z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+        return (centre - half) / (1 + z * z / n), (centre + half) / (1 + z * z / n)
+
+    for k, n in [(121, 128), (128, 128), (0, 5), (3, 7), (500, 512)]:
+        low, high = success_interval(k, n)
+        assert (low, high) == pytest.approx(wilson(k, n), abs=1e-12) and low <= k / n <= high
+    assert success_interval(121, 128)[1] > 0.95 > success_interval(110, 128)[1]   # 94.5 % may be a 95 % map, 85.9 % is not
+    rows = [{"map": "a", "success_rate": 121 / 128, "success_interval": success_interval(121, 128)},
+            {"map": "b", "success_rate": 110 / 128, "success_interval": success_interval(110, 128)},
+            {"map": "c", "success_rate": 1.0, "success_interval": success_interval(128, 128)},
+            {"map": "d", "success_rate": 0.9}]                         # a row from before the interval: its rate
+    assert maps_under(rows) == ["a", "b", "d"] and maps_surely_under(rows) == ["b", "d"]
+
+
 def test_command_line_table_and_json(tmp_path, capsys, small_heldout_maps):
     pytest.importorskip("onnxruntime")  # the `export` extra runs policy.onnx
     maps = small_heldout_maps
@@ -121,6 +142,10 @@ def test_command_line_table_and_json(tmp_path, capsys, small_heldout_maps):
         assert r["beyond_scale"] == (r["diagonal_m"] > doc["goal_distance_scale"])
         assert r["map"] in text
     assert "goal sampling geodesic" in " ".join(text.split())
+    assert "95 % interval" in text and f"maps under 95 % success: {len(maps_under(doc['maps']))} of 2" in text
+    for r in doc["maps"]:
+        low, high = r["success_interval"]
+        assert f"{100 * low:.1f}-{100 * high:.1f}" in text
 
 
 def test_command_line_refuses_map_with_maps_and_sampling_without_maps(capsys):
