@@ -4,9 +4,10 @@ Input: the JSON files written by ``flashnav eval POLICY --maps SUITE --json FILE
 kind ``flashnav.eval_maps``), one per policy and suite. Two tables, pure pandas (and, drawn from the second by
 services.report_figures.plot_per_map, a figure of every map's success per policy):
 
-- :func:`summary_table`: one row per file (policy x suite): mean / pooled / worst-map success, mean
-  collision and timeout, maps and episodes, goal sampling, how many maps exceed the policy's goal-distance
-  scale and how many episodes went beyond it, where and when it was measured.
+- :func:`summary_table`: one row per file (policy x suite): mean / pooled / worst-map success, the maps under
+  issue 15's 95 % bar (and those whose whole 95 % success interval lies under it), mean collision and timeout,
+  maps and episodes, goal sampling, how many maps exceed the policy's goal-distance scale and how many episodes
+  went beyond it, where and when it was measured.
 - :func:`per_map_table`: one row per (suite, map), one success column per policy, and a mean row per suite;
   a policy not evaluated on a map leaves its cell empty.
 """
@@ -23,8 +24,10 @@ import pandas as pd
 KIND = "flashnav.eval_maps"
 FORMAT = 1
 MEAN_ROW = "mean over maps"  # the per-map table's closing row of each suite
+BAR = 0.95  # flashnav/eval_maps.py's MAP_BAR (the test checks that they agree)
 SUMMARY_COLUMNS = ["policy", "suite", "robot", "goal_sampling", "maps", "episodes_per_map", "success_mean",
-                   "success_pooled", "success_worst", "worst_map", "collision_mean", "timeout_mean",
+                   "success_pooled", "success_worst", "worst_map", "maps_under_bar", "maps_surely_under_bar",
+                   "collision_mean", "timeout_mean",
                    "maps_beyond_scale", "episodes_beyond_scale", "goal_distance_scale", "machine", "date"]
 
 
@@ -62,10 +65,17 @@ def summary_table(docs: list[dict]) -> pd.DataFrame:
             "maps": a["maps"], "episodes_per_map": d["episodes_per_map"],
             "success_mean": a["mean"]["success_rate"], "success_pooled": a["pooled"]["success_rate"],
             "success_worst": a["worst"]["success_rate"], "worst_map": a["worst"]["map"],
+            "maps_under_bar": sum(r["success_rate"] < BAR for r in d["maps"]),
+            "maps_surely_under_bar": sum(_high(r) < BAR for r in d["maps"]),
             "collision_mean": a["mean"]["collision_rate"], "timeout_mean": a["mean"]["timeout_rate"],
             "maps_beyond_scale": a["maps_beyond_scale"], "episodes_beyond_scale": a["episodes_beyond_scale"],
             "goal_distance_scale": d["goal_distance_scale"], "machine": d["machine"], "date": d["date"]})
     return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+
+
+def _high(row: dict) -> float:
+    """The top of a map row's success interval (``success_interval``; files written before it: the rate)."""
+    return (row.get("success_interval") or [row["success_rate"]] * 2)[1]
 
 
 def per_map_table(docs: list[dict]) -> pd.DataFrame:
@@ -95,15 +105,16 @@ def _pct(x) -> str:
 
 def summary_markdown(table: pd.DataFrame) -> str:
     head = ["Policy", "Suite", "Robot", "Goals", "Maps x episodes", "Success mean %", "Pooled %", "Worst map %",
-            "Collision %", "Timeout %", "Beyond goal scale", "Machine", "Date"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 5 + "--:|" * 6 + "---|" * 2]
+            f"Maps < {100 * BAR:g} % (wholly)", "Collision %", "Timeout %", "Beyond goal scale", "Machine", "Date"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 5 + "--:|" * 7 + "---|" * 2]
     for r in table.to_dict("records"):
         beyond = (f"{r['maps_beyond_scale']}/{r['maps']} maps, {r['episodes_beyond_scale']} ep"
                   if r["maps_beyond_scale"] else "-")
         lines.append("| " + " | ".join([
             r["policy"], r["suite"], r["robot"], r["goal_sampling"], f"{r['maps']} x {r['episodes_per_map']}",
             _pct(r["success_mean"]), _pct(r["success_pooled"]), f"{_pct(r['success_worst'])} ({r['worst_map']})",
-            _pct(r["collision_mean"]), _pct(r["timeout_mean"]), beyond, r["machine"], r["date"]]) + " |")
+            f"{r['maps_under_bar']} ({r['maps_surely_under_bar']})", _pct(r["collision_mean"]),
+            _pct(r["timeout_mean"]), beyond, r["machine"], r["date"]]) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -128,7 +139,9 @@ def markdown(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = Non
         "# Generalisation", "",
         "Success of each policy on map suites it was not trained on (`flashnav eval POLICY --maps SUITE`): the "
         "same fixed episodes per map for every policy, deterministic policy. Mean: over maps; pooled: over all "
-        "episodes; worst: the map with the lowest success. 'Beyond goal scale': maps whose diagonal exceeds the "
+        "episodes; worst: the map with the lowest success. Maps < 95 %: the maps under the bar, in brackets "
+        "those whose whole 95 % success interval (Wilson) lies under it, so that another draw of as many episodes "
+        "would not lift them over it. 'Beyond goal scale': maps whose diagonal exceeds the "
         "policy's goal-distance scale (its training map's diagonal), and the episodes whose goal-distance input "
         "went beyond it (passed unclipped).", "",
         summary_markdown(summary), "## Success per map", "", *shown, per_map_markdown(maps)])

@@ -8,15 +8,16 @@ import json
 import pandas as pd
 import pytest
 
-from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, aggregate
-from services.report_generalisation import (FORMAT, KIND, MEAN_ROW, html, load_evals, markdown, per_map_markdown,
+from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, MAP_BAR, aggregate, success_interval
+from services.report_generalisation import (BAR, FORMAT, KIND, MEAN_ROW, html, load_evals, markdown, per_map_markdown,
                                             per_map_table, summary_markdown, summary_table, write_generalisation)
 
 
 def _doc(label, suite, rates):
     rows = [{"map": m, "source": None, "width_m": 10.0, "height_m": 10.0, "resolution": 0.05,
              "diagonal_m": 14.1, "beyond_scale": m == "big", "episodes_beyond_scale": 3 if m == "big" else 0,
-             "episodes": 8, "success_rate": s, "collision_rate": c, "timeout_rate": 1 - s - c,
+             "episodes": 8, "success_rate": s, "success_interval": success_interval(round(8 * s), 8),
+             "collision_rate": c, "timeout_rate": 1 - s - c,
              "mean_steps": 50.0, "mean_return": 10.0} for m, s, c in rates]
     return {"kind": KIND, "format_version": FORMAT, "label": label, "policy": f"{label}.onnx", "suite": suite,
             "maps_arg": suite, "robot": "turtlebot2", "goal_sampling": "geodesic", "goal_band_m": [1.0, 5.0],
@@ -30,7 +31,7 @@ DOCS = [_doc("single", "heldout", [("a", 1.0, 0.0), ("big", 0.5, 0.25)]),
 
 
 def test_kind_and_format_agree_with_the_writer():
-    assert (KIND, FORMAT) == (EVAL_MAPS_KIND, EVAL_MAPS_FORMAT)
+    assert (KIND, FORMAT, BAR) == (EVAL_MAPS_KIND, EVAL_MAPS_FORMAT, MAP_BAR)
 
 
 def test_summary_rows_per_policy_and_suite():
@@ -40,9 +41,14 @@ def test_summary_rows_per_policy_and_suite():
     assert first["success_mean"] == pytest.approx(0.75) and first["success_worst"] == 0.5
     assert first["worst_map"] == "big" and first["maps_beyond_scale"] == 1 and first["episodes_beyond_scale"] == 3
     assert first["collision_mean"] == pytest.approx(0.125) and first["timeout_mean"] == pytest.approx(0.125)
+    # 4 of 8 is under 95 % on any draw; 7 of 8 (87.5 %) only on this one: its interval reaches 97.8 %
+    assert list(t["maps_under_bar"]) == [1, 1, 1] and list(t["maps_surely_under_bar"]) == [1, 0, 1]
     md = summary_markdown(t)
-    assert "| single | heldout | turtlebot2 | geodesic | 2 x 8 | 75.0 | 75.0 | 50.0 (big) | 12.5 | 12.5 | " \
+    assert "| single | heldout | turtlebot2 | geodesic | 2 x 8 | 75.0 | 75.0 | 50.0 (big) | 1 (1) | 12.5 | 12.5 | " \
            "1/2 maps, 3 ep |" in md
+    assert "| general | heldout | turtlebot2 | geodesic | 1 x 8 | 87.5 | 87.5 | 87.5 (a) | 1 (0) |" in md
+    old = [{**d, "maps": [{k: v for k, v in r.items() if k != "success_interval"} for r in d["maps"]]} for d in DOCS]
+    assert list(summary_table(old)["maps_surely_under_bar"]) == [1, 1, 1]   # files from before the interval
 
 
 def test_per_map_cells_and_suite_means():
