@@ -236,7 +236,7 @@ def success_interval(successes: int, episodes: int, confidence: float = 0.95) ->
 
 def maps_surely_under(rows: list[dict], bar: float = MAP_BAR) -> list[str]:
     """The labels of the rows whose whole success interval lies under ``bar`` (rows without one: their rate)."""
-    return [r["map"] for r in rows if r.get("success_interval", [r["success_rate"]] * 2)[1] < bar]
+    return [r["map"] for r in rows if (r.get("success_interval") or [r["success_rate"]] * 2)[1] < bar]
 
 
 def aggregate(rows: list[dict]) -> dict:
@@ -349,9 +349,12 @@ def print_report(report: dict) -> None:
     table.add_row(f"worst map: {agg['worst']['map']}", "", "", pct(agg["worst"]["success_rate"]), "", "", "", "", "")
     console.print(table)
     under, surely = maps_under(report["maps"]), maps_surely_under(report["maps"])
-    console.print(f"maps under {100 * MAP_BAR:g} % success: {len(under)} of {agg['maps']}"
-                  + (f" ({', '.join(under)}); with the whole 95 % interval under it: {len(surely)}"
-                     + (f" ({', '.join(surely)})" if surely else "") if under else ""))
+    line = f"maps under {100 * MAP_BAR:g} % success: {len(under)} of {agg['maps']}"
+    if under:
+        line += f" ({', '.join(under)}); with the whole 95 % interval under it: {len(surely)}"
+        if surely:
+            line += f" ({', '.join(surely)})"
+    console.print(line)
     if agg["maps_beyond_scale"]:
         console.print(f"{agg['maps_beyond_scale']} of {agg['maps']} maps have a diagonal beyond the policy's "
                       f"goal-distance scale ({scale:.2f} m, its training map's diagonal): 'beyond scale' counts the "
