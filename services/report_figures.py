@@ -174,15 +174,21 @@ def write_figures(runs: pd.DataFrame, curves: pd.DataFrame, out_dir: str | Path,
     return paths
 
 
-def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False) -> list[Path]:
+def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False, intervals: pd.DataFrame | None = None,
+                 bar: float | None = None) -> list[Path]:
     """One panel per suite: each map's success (per cent) for every policy, side by side, and each policy's mean
     over the maps it was evaluated on as a dashed line of its colour. ``maps``: one row per (suite, map), columns
     suite, map and one per policy (fractions; NaN where not evaluated): services.report_generalisation's per-map
-    table without its mean rows."""
+    table without its mean rows. ``intervals`` (its per_map_intervals: suite, map, policy, success_low,
+    success_high): each known interval as a vertical bar through its marker; ``bar``: a dotted line there."""
     policies = list(maps.columns[2:])
     suites = list(dict.fromkeys(maps["suite"]))
+    known = {} if intervals is None else {
+        (r["suite"], r["map"], r["policy"]): (r["success_low"], r["success_high"])
+        for r in intervals.to_dict("records") if np.isfinite([r["success_low"], r["success_high"]]).all()}
     widest = max((int((maps["suite"] == s).sum()) for s in suites), default=1)
-    fig, axes = plt.subplots(len(suites), 1, figsize=(max(6.0, 0.45 * widest + 2.5), 3.4 * len(suites)),
+    legend_in = 0.8 + 0.065 * max((len(str(p)) for p in policies), default=0)   # the legend beside the panel
+    fig, axes = plt.subplots(len(suites), 1, figsize=(max(6.0, 0.45 * widest + 2.5) + legend_in, 3.4 * len(suites)),
                              squeeze=False, constrained_layout=True)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     markers = "osD^vP*Xh<>"
@@ -190,16 +196,23 @@ def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False) -> lis
         rows = maps[maps["suite"] == suite]
         x = np.arange(len(rows))
         spread = 0.6 / max(len(policies), 1)
+        if bar is not None:
+            ax.axhline(100 * bar, color="0.3", linestyle=":", linewidth=1, label=f"{100 * bar:g} % bar")
         for i, policy in enumerate(policies):
             values = 100 * rows[policy].to_numpy(dtype=float)
             color, offset = colors[i % len(colors)], (i - (len(policies) - 1) / 2) * spread
             ax.plot(x + offset, values, linestyle="none", marker=markers[i % len(markers)], color=color,
                     label=policy)
+            spans = [(xi + offset, known[(suite, m, policy)]) for xi, m in zip(x, rows["map"])
+                     if (suite, m, policy) in known]
+            if spans:
+                ax.vlines([s for s, _ in spans], [100 * lo for _, (lo, _) in spans],
+                          [100 * hi for _, (_, hi) in spans], color=color, linewidth=1, alpha=0.7)
             if np.isfinite(values).any():
                 ax.axhline(np.nanmean(values), color=color, linestyle="--", linewidth=1, alpha=0.8)
         ax.set_xticks(x, rows["map"], rotation=60, ha="right", fontsize=8)
         ax.set_ylabel("success [%]")
-        ax.set_title(f"{suite} (dashed: mean over maps)")
+        ax.set_title(f"{suite} (dashed: mean over maps" + ("; bars: 95 % interval)" if known else ")"))
         ax.grid(axis="y", alpha=0.3)
-        ax.legend(fontsize=8, loc="lower left")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))   # beside: no marker hidden
     return _save(fig, Path(path), svg)

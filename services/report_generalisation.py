@@ -1,8 +1,8 @@
 """The generalisation tables of `flashnav report --generalisation EVAL_JSON...`: policies on map suites.
 
 Input: the JSON files written by ``flashnav eval POLICY --maps SUITE --json FILE`` (``flashnav/eval_maps.py``,
-kind ``flashnav.eval_maps``), one per policy and suite. Two tables, pure pandas (and, drawn from the second by
-services.report_figures.plot_per_map, a figure of every map's success per policy):
+kind ``flashnav.eval_maps``), one per policy and suite. Three tables, pure pandas (and, drawn from the second and
+third by services.report_figures.plot_per_map, a figure of every map's success per policy):
 
 - :func:`summary_table`: one row per file (policy x suite): mean / pooled / worst-map success, the maps under
   issue 15's 95 % bar (and those whose whole 95 % success interval lies under it), mean collision and timeout,
@@ -10,6 +10,9 @@ services.report_figures.plot_per_map, a figure of every map's success per policy
   went beyond it, where and when it was measured.
 - :func:`per_map_table`: one row per (suite, map), one success column per policy, and a mean row per suite;
   a policy not evaluated on a map leaves its cell empty.
+- :func:`per_map_intervals`: one row per (suite, map, policy) with the success's 95 % interval (Wilson, as
+  ``flashnav eval --maps`` wrote it), which the pages print beside each rate and the figure draws as a vertical
+  line.
 """
 from __future__ import annotations
 
@@ -99,8 +102,37 @@ def per_map_table(docs: list[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["suite", "map", *policies])
 
 
+INTERVAL_COLUMNS = ["suite", "map", "policy", "episodes", "success", "success_low", "success_high"]
+
+
+def per_map_intervals(docs: list[dict]) -> pd.DataFrame:
+    """One row per (suite, map, policy): columns :data:`INTERVAL_COLUMNS`, fractions; the interval NaN in files
+    written before ``flashnav eval --maps`` recorded it."""
+    rows = []
+    for d in docs:
+        for r in d["maps"]:
+            low, high = r.get("success_interval") or (float("nan"), float("nan"))
+            rows.append({"suite": d["suite"], "map": r["map"], "policy": d["label"], "episodes": r["episodes"],
+                         "success": r["success_rate"], "success_low": low, "success_high": high})
+    return pd.DataFrame(rows, columns=INTERVAL_COLUMNS)
+
+
 def _pct(x) -> str:
     return "" if pd.isna(x) else f"{100 * x:.1f}"
+
+
+def _cell(rate, interval) -> str:
+    """A per-map cell in per cent: the rate, and its interval in brackets where one is known."""
+    if pd.isna(rate) or interval is None or pd.isna(interval[0]):
+        return _pct(rate)
+    return f"{_pct(rate)} ({_pct(interval[0])}-{_pct(interval[1])})"
+
+
+def _interval_lookup(intervals: pd.DataFrame | None) -> dict[tuple[str, str, str], tuple[float, float]]:
+    if intervals is None:
+        return {}
+    return {(r["suite"], r["map"], r["policy"]): (r["success_low"], r["success_high"])
+            for r in intervals.to_dict("records")}
 
 
 def summary_markdown(table: pd.DataFrame) -> str:
@@ -118,22 +150,27 @@ def summary_markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def per_map_markdown(table: pd.DataFrame) -> str:
+def per_map_markdown(table: pd.DataFrame, intervals: pd.DataFrame | None = None) -> str:
+    """:func:`per_map_table` in per cent; with ``intervals`` (:func:`per_map_intervals`) each map's rate is
+    followed by its 95 % interval in brackets."""
     policies = list(table.columns[2:])
+    known = _interval_lookup(intervals)
     lines = ["| Suite | Map | " + " | ".join(f"{p} success %" for p in policies) + " |",
              "|---|---|" + "--:|" * len(policies)]
     for r in table.to_dict("records"):
         bold = r["map"] == MEAN_ROW
-        cells = [_pct(r[p]) for p in policies]
+        cells = [_cell(r[p], known.get((r["suite"], r["map"], p))) for p in policies]
         if bold:
             cells = [f"**{c}**" if c else c for c in cells]
         lines.append("| " + " | ".join([r["suite"], f"**{r['map']}**" if bold else r["map"], *cells]) + " |")
     return "\n".join(lines) + "\n"
 
 
-def markdown(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None) -> str:
-    """The page: :func:`summary_table` and :func:`per_map_table` as Markdown, with what they mean, and the per-map
-    figure's file (``figure``, relative to the page) where one was drawn."""
+def markdown(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None,
+             intervals: pd.DataFrame | None = None) -> str:
+    """The page: :func:`summary_table` and :func:`per_map_table` (with ``intervals``: each rate's interval) as
+    Markdown, with what they mean, and the per-map figure's file (``figure``, relative to the page) where one
+    was drawn."""
     shown = [f"![success per map]({figure})", ""] if figure else []
     return "\n".join([
         "# Generalisation", "",
@@ -143,32 +180,41 @@ def markdown(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = Non
         "those whose whole 95 % success interval (Wilson) lies under it, so that another draw of as many episodes "
         "would not lift them over it. 'Beyond goal scale': maps whose diagonal exceeds the "
         "policy's goal-distance scale (its training map's diagonal), and the episodes whose goal-distance input "
-        "went beyond it (passed unclipped).", "",
-        summary_markdown(summary), "## Success per map", "", *shown, per_map_markdown(maps)])
+        "went beyond it (passed unclipped). Per map: the success and, in brackets, its 95 % interval (the "
+        "figure's vertical lines; its dotted line is the 95 % bar).", "",
+        summary_markdown(summary), "## Success per map", "", *shown, per_map_markdown(maps, intervals)])
 
 
-def html(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None) -> str:
-    """A page with :func:`summary_table` and :func:`per_map_table` (escaped cells; the tables given are left as
-    they are) and the per-map figure's file (``figure``, relative to the page) where one was drawn."""
+def html(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None,
+         intervals: pd.DataFrame | None = None) -> str:
+    """A page with :func:`summary_table` and :func:`per_map_table` (with ``intervals``: each rate's interval;
+    escaped cells; the tables given are left as they are) and the per-map figure's file (``figure``, relative
+    to the page) where one was drawn."""
     shown = f"<img src='{escape(figure, quote=True)}' alt='success per map'>" if figure else ""
     summary = summary.assign(**{c: summary[c].map(_pct) for c in
                                 ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean")})
-    maps = maps.assign(**{c: maps[c].map(_pct) for c in maps.columns[2:]})
+    known = _interval_lookup(intervals)
+    maps = maps.assign(**{p: [_cell(rate, known.get((suite, name, p)))
+                              for suite, name, rate in zip(maps["suite"], maps["map"], maps[p])]
+                          for p in maps.columns[2:]})
     style = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;margin-bottom:2em}"
              "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:nth-child(-n+2){text-align:left}")
     return ("<!doctype html><html><head><meta charset='utf-8'><title>FlashNav generalisation</title>"
             f"<style>{style}</style></head><body><h1>Generalisation</h1>"
-            "<p>Success rates in per cent; see report.md for the columns.</p><h2>Policies x suites</h2>"
+            "<p>Success rates in per cent, per map with the 95 % interval in brackets; see generalisation.md for "
+            "the columns.</p><h2>Policies x suites</h2>"
             + summary.to_html(index=False, escape=True) + "<h2>Success per map (%)</h2>" + shown
             + maps.to_html(index=False, escape=True, na_rep="") + "</body></html>\n")
 
 
 def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[str, Path]:
-    """Write generalisation.md / generalisation.csv + generalisation_maps.csv / generalisation.html (the
-    formats among ``formats``) into ``out_dir``, and the per-map figure generalisation.png (with "html", "png"
-    or "svg"; .svg too with "svg"), which the pages show; returns {name: Path}."""
+    """Write generalisation.md / generalisation.csv + generalisation_maps.csv + generalisation_intervals.csv /
+    generalisation.html (the formats among ``formats``) into ``out_dir``, and the per-map figure
+    generalisation.png (with "html", "png" or "svg"; .svg too with "svg"), which the pages show; returns
+    {name: Path}."""
     docs = load_evals(paths)
-    summary, maps = summary_table(docs), per_map_table(docs)  # the rows, once; each format below formats them
+    # the rows, once; each format below formats them
+    summary, maps, intervals = summary_table(docs), per_map_table(docs), per_map_intervals(docs)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written, figure = {}, None
@@ -176,7 +222,7 @@ def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[
         from services.report_figures import plot_per_map  # matplotlib only when a figure is asked for
 
         written["generalisation_png"] = plot_per_map(maps[maps["map"] != MEAN_ROW], out / "generalisation.png",
-                                                     svg="svg" in formats)[0]
+                                                     svg="svg" in formats, intervals=intervals, bar=BAR)[0]
         figure = written["generalisation_png"].name
 
     def put(name, filename, text):
@@ -184,12 +230,14 @@ def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[
         written[name] = out / filename
 
     if "md" in formats:
-        put("generalisation_md", "generalisation.md", markdown(summary, maps, figure))
+        put("generalisation_md", "generalisation.md", markdown(summary, maps, figure, intervals))
     if "csv" in formats:
         put("generalisation_csv", "generalisation.csv",
             summary.to_csv(index=False, float_format="%.4f", lineterminator="\n"))
         put("generalisation_maps_csv", "generalisation_maps.csv",
             maps.to_csv(index=False, float_format="%.4f", lineterminator="\n"))
+        put("generalisation_intervals_csv", "generalisation_intervals.csv",
+            intervals.to_csv(index=False, float_format="%.4f", lineterminator="\n"))
     if "html" in formats:
-        put("generalisation_html", "generalisation.html", html(summary, maps, figure))
+        put("generalisation_html", "generalisation.html", html(summary, maps, figure, intervals))
     return written

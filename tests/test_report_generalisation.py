@@ -9,8 +9,9 @@ import pandas as pd
 import pytest
 
 from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, MAP_BAR, aggregate, success_interval
-from services.report_generalisation import (BAR, FORMAT, KIND, MEAN_ROW, html, load_evals, markdown, per_map_markdown,
-                                            per_map_table, summary_markdown, summary_table, write_generalisation)
+from services.report_generalisation import (BAR, FORMAT, KIND, MEAN_ROW, html, load_evals, markdown, per_map_intervals,
+                                            per_map_markdown, per_map_table, summary_markdown, summary_table,
+                                            write_generalisation)
 
 
 def _doc(label, suite, rates):
@@ -64,6 +65,26 @@ def test_per_map_cells_and_suite_means():
     assert "| heldout | big | 50.0 |  |" in md and "| heldout | **mean over maps** | **75.0** | **87.5** |" in md
 
 
+def test_per_map_intervals_beside_each_rate():
+    """Each (suite, map, policy) keeps the interval its file recorded; the page prints it in brackets after the
+    rate (4 of 8 by the Wilson score formula by hand: 0.5 +- 1.96 sqrt(1/32 + 1.96^2/256) / (1 + 1.96^2/8), that
+    is 21.5-78.5 %), never on a mean row, and a file from before the interval prints its rate alone."""
+    t = per_map_intervals(DOCS)
+    assert list(t.columns) == ["suite", "map", "policy", "episodes", "success", "success_low", "success_high"]
+    big = t[(t["map"] == "big")].iloc[0]
+    assert (big["policy"], big["episodes"], big["success"]) == ("single", 8, 0.5)
+    assert (big["success_low"], big["success_high"]) == pytest.approx((0.2152, 0.7848), abs=1e-4)
+    md = per_map_markdown(per_map_table(DOCS), t)
+    assert "| heldout | big | 50.0 (21.5-78.5) |  |" in md
+    assert "| heldout | **mean over maps** | **75.0** | **87.5** |" in md
+    old = [{**d, "maps": [{k: v for k, v in r.items() if k != "success_interval"} for r in d["maps"]]} for d in DOCS]
+    without = per_map_intervals(old)
+    assert without["success_low"].isna().all() and without["success_high"].isna().all()
+    assert "| heldout | big | 50.0 |  |" in per_map_markdown(per_map_table(old), without)
+    page = html(summary_table(DOCS), per_map_table(DOCS), intervals=t)
+    assert "<td>50.0 (21.5-78.5)</td>" in page
+
+
 def test_page_formats_read_the_tables_once_built_and_leave_them_as_they_are():
     summary, maps = summary_table(DOCS), per_map_table(DOCS)
     page, md = html(summary, maps), markdown(summary, maps)
@@ -79,8 +100,8 @@ def test_files_in_every_format_and_bad_input_named(tmp_path):
         paths.append(tmp_path / f"e{i}.json")
         paths[-1].write_text(json.dumps(d))
     written = write_generalisation(paths, tmp_path / "out")
-    assert sorted(written) == ["generalisation_csv", "generalisation_html", "generalisation_maps_csv",
-                               "generalisation_md", "generalisation_png"]
+    assert sorted(written) == ["generalisation_csv", "generalisation_html", "generalisation_intervals_csv",
+                               "generalisation_maps_csv", "generalisation_md", "generalisation_png"]
     assert written["generalisation_png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "![success per map](generalisation.png)" in written["generalisation_md"].read_text()
     assert "<img src='generalisation.png'" in written["generalisation_html"].read_text()
@@ -89,6 +110,10 @@ def test_files_in_every_format_and_bad_input_named(tmp_path):
     assert "generalisation.png" not in only_tables["generalisation_md"].read_text()
     csv = written["generalisation_maps_csv"].read_text().splitlines()
     assert csv[0] == "suite,map,single,general" and "heldout,a,1.0000,0.8750" in csv
+    spans = written["generalisation_intervals_csv"].read_text().splitlines()
+    assert spans[0] == "suite,map,policy,episodes,success,success_low,success_high"
+    assert "heldout,big,single,8,0.5000,0.2152,0.7848" in spans
+    assert "| heldout | big | 50.0 (21.5-78.5) |  |" in written["generalisation_md"].read_text()
     html = written["generalisation_html"].read_text()
     assert "<table" in html and "87.5" in html
     bad = tmp_path / "bad.json"
@@ -131,3 +156,30 @@ def test_per_map_figure_one_panel_per_suite_every_policy_its_mean(monkeypatch, t
     real_means = [line.get_ydata()[0] for line in real.lines if line.get_linestyle() == "--"]
     assert real_means == [75.0]    # general was not evaluated on the real suite: no line of its own
     plt.close(kept["fig"])
+
+
+def test_per_map_figure_draws_each_known_interval_and_the_bar(monkeypatch, tmp_path):
+    """With the intervals, one vertical line per (policy, map) whose file recorded one, from its low to its high
+    end in per cent at that policy's marker; the bar as a dotted line; no interval, no line."""
+    from services import report_figures
+
+    kept = {}
+    monkeypatch.setattr(report_figures, "_save", lambda fig, path, svg: kept.setdefault("fig", fig) and [path])
+    maps = per_map_table(DOCS)
+    old = DOCS[1] | {"maps": [{k: v for k, v in r.items() if k != "success_interval"} for r in DOCS[1]["maps"]]}
+    spans = per_map_intervals([DOCS[0], old, DOCS[2]])   # general's map a: no interval recorded
+    report_figures.plot_per_map(maps[maps["map"] != MEAN_ROW], tmp_path / "f.png", intervals=spans, bar=BAR)
+    heldout, real = kept["fig"].axes
+    segments = [seg for c in heldout.collections for seg in c.get_segments()]
+    marker_x = {line.get_label(): line.get_xdata() for line in heldout.lines if line.get_linestyle() == "None"}
+    expected = [(x, 100 * r["success_interval"][0], 100 * r["success_interval"][1])
+                for x, r in zip(marker_x["single"], DOCS[0]["maps"])]
+    assert len(segments) == 2   # single on a and big; general's one map has none
+    for seg, (x, low, high) in zip(segments, expected):
+        assert seg[:, 0] == pytest.approx([x, x]) and seg[:, 1] == pytest.approx([low, high])
+    dotted = [line for line in heldout.lines if line.get_linestyle() == ":"]
+    assert len(dotted) == 1 and list(dotted[0].get_ydata()) == [95.0, 95.0]
+    assert "bars: 95 % interval" in heldout.get_title()
+    kept.clear()
+    report_figures.plot_per_map(maps[maps["map"] != MEAN_ROW], tmp_path / "g.png")
+    assert not kept["fig"].axes[0].collections and "bars" not in kept["fig"].axes[0].get_title()
