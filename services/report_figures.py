@@ -180,7 +180,7 @@ def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False, interv
     over the maps it was evaluated on as a dashed line of its colour. ``maps``: one row per (suite, map), columns
     suite, map and one per policy (fractions; NaN where not evaluated): services.report_generalisation's per-map
     table without its mean rows. ``intervals`` (its per_map_intervals: suite, map, policy, success_low,
-    success_high): each known interval as a vertical bar through its marker; ``bar``: a dotted line there."""
+    success_high): each known interval as a vertical line through its marker; ``bar``: a dotted line there."""
     policies = list(maps.columns[2:])
     suites = list(dict.fromkeys(maps["suite"]))
     known = {} if intervals is None else {
@@ -212,7 +212,7 @@ def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False, interv
                 ax.axhline(np.nanmean(values), color=color, linestyle="--", linewidth=1, alpha=0.8)
         ax.set_xticks(x, rows["map"], rotation=60, ha="right", fontsize=8)
         ax.set_ylabel("success [%]")
-        ax.set_title(f"{suite} (dashed: mean over maps" + ("; bars: 95 % interval)" if known else ")"))
+        ax.set_title(f"{suite} (dashed: mean over maps" + ("; vertical lines: 95 % interval)" if known else ")"))
         ax.grid(axis="y", alpha=0.3)
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))   # beside: no marker hidden
     return _save(fig, Path(path), svg)

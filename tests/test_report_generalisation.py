@@ -179,7 +179,7 @@ def test_per_map_figure_draws_each_known_interval_and_the_bar(monkeypatch, tmp_p
         assert seg[:, 0] == pytest.approx([x, x]) and seg[:, 1] == pytest.approx([low, high])
     dotted = [line for line in heldout.lines if line.get_linestyle() == ":"]
     assert len(dotted) == 1 and list(dotted[0].get_ydata()) == [95.0, 95.0]
-    assert "bars: 95 % interval" in heldout.get_title()
+    assert "vertical lines: 95 % interval" in heldout.get_title()
     kept.clear()
     report_figures.plot_per_map(maps[maps["map"] != MEAN_ROW], tmp_path / "g.png")
-    assert not kept["fig"].axes[0].collections and "bars" not in kept["fig"].axes[0].get_title()
+    assert not kept["fig"].axes[0].collections and "interval" not in kept["fig"].axes[0].get_title()
