@@ -174,18 +174,17 @@ def write_figures(runs: pd.DataFrame, curves: pd.DataFrame, out_dir: str | Path,
     return paths
 
 
-def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False, intervals: pd.DataFrame | None = None,
+def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False,
+                 intervals: dict[tuple[str, str, str], tuple[float, float]] | None = None,
                  bar: float | None = None) -> list[Path]:
     """One panel per suite: each map's success (per cent) for every policy, side by side, and each policy's mean
     over the maps it was evaluated on as a dashed line of its colour. ``maps``: one row per (suite, map), columns
     suite, map and one per policy (fractions; NaN where not evaluated): services.report_generalisation's per-map
-    table without its mean rows. ``intervals`` (its per_map_intervals: suite, map, policy, success_low,
-    success_high): each known interval as a vertical line through its marker; ``bar``: a dotted line there."""
+    table without its mean rows. ``intervals`` ({(suite, map, policy): (low, high)}, its interval_lookup): each
+    interval as a vertical line through its marker; ``bar``: a dotted line there."""
     policies = list(maps.columns[2:])
     suites = list(dict.fromkeys(maps["suite"]))
-    known = {} if intervals is None else {
-        (r["suite"], r["map"], r["policy"]): (r["success_low"], r["success_high"])
-        for r in intervals.to_dict("records") if np.isfinite([r["success_low"], r["success_high"]]).all()}
+    known = intervals or {}
     widest = max((int((maps["suite"] == s).sum()) for s in suites), default=1)
     legend_in = 0.8 + 0.065 * max((len(str(p)) for p in policies), default=0)   # the legend beside the panel
     fig, axes = plt.subplots(len(suites), 1, figsize=(max(6.0, 0.45 * widest + 2.5) + legend_in, 3.4 * len(suites)),
@@ -203,11 +202,11 @@ def plot_per_map(maps: pd.DataFrame, path: str | Path, svg: bool = False, interv
             color, offset = colors[i % len(colors)], (i - (len(policies) - 1) / 2) * spread
             ax.plot(x + offset, values, linestyle="none", marker=markers[i % len(markers)], color=color,
                     label=policy)
-            spans = [(xi + offset, known[(suite, m, policy)]) for xi, m in zip(x, rows["map"])
+            spans = [(xi + offset, *known[(suite, m, policy)]) for xi, m in zip(x, rows["map"])
                      if (suite, m, policy) in known]
             if spans:
-                ax.vlines([s for s, _ in spans], [100 * lo for _, (lo, _) in spans],
-                          [100 * hi for _, (_, hi) in spans], color=color, linewidth=1, alpha=0.7)
+                at, low, high = np.array(spans).T
+                ax.vlines(at, 100 * low, 100 * high, color=color, linewidth=1, alpha=0.7)
             if np.isfinite(values).any():
                 ax.axhline(np.nanmean(values), color=color, linestyle="--", linewidth=1, alpha=0.8)
         ax.set_xticks(x, rows["map"], rotation=60, ha="right", fontsize=8)

@@ -123,16 +123,18 @@ def _pct(x) -> str:
 
 def _cell(rate, interval) -> str:
     """A per-map cell in per cent: the rate, and its interval in brackets where one is known."""
-    if pd.isna(rate) or interval is None or pd.isna(interval[0]):
+    if pd.isna(rate) or interval is None:
         return _pct(rate)
     return f"{_pct(rate)} ({_pct(interval[0])}-{_pct(interval[1])})"
 
 
-def _interval_lookup(intervals: pd.DataFrame | None) -> dict[tuple[str, str, str], tuple[float, float]]:
+def interval_lookup(intervals: pd.DataFrame | None) -> dict[tuple[str, str, str], tuple[float, float]]:
+    """:func:`per_map_intervals` as {(suite, map, policy): (low, high)}, the known intervals only (the pages'
+    cells and services.report_figures.plot_per_map read it)."""
     if intervals is None:
         return {}
     return {(r["suite"], r["map"], r["policy"]): (r["success_low"], r["success_high"])
-            for r in intervals.to_dict("records")}
+            for r in intervals.to_dict("records") if pd.notna(r["success_low"]) and pd.notna(r["success_high"])}
 
 
 def summary_markdown(table: pd.DataFrame) -> str:
@@ -154,7 +156,7 @@ def per_map_markdown(table: pd.DataFrame, intervals: pd.DataFrame | None = None)
     """:func:`per_map_table` in per cent; with ``intervals`` (:func:`per_map_intervals`) each map's rate is
     followed by its 95 % interval in brackets."""
     policies = list(table.columns[2:])
-    known = _interval_lookup(intervals)
+    known = interval_lookup(intervals)
     lines = ["| Suite | Map | " + " | ".join(f"{p} success %" for p in policies) + " |",
              "|---|---|" + "--:|" * len(policies)]
     for r in table.to_dict("records"):
@@ -193,7 +195,7 @@ def html(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None,
     shown = f"<img src='{escape(figure, quote=True)}' alt='success per map'>" if figure else ""
     summary = summary.assign(**{c: summary[c].map(_pct) for c in
                                 ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean")})
-    known = _interval_lookup(intervals)
+    known = interval_lookup(intervals)
     maps = maps.assign(**{p: [_cell(rate, known.get((suite, name, p)))
                               for suite, name, rate in zip(maps["suite"], maps["map"], maps[p])]
                           for p in maps.columns[2:]})
@@ -222,7 +224,8 @@ def write_generalisation(paths, out_dir, formats=("md", "csv", "html")) -> dict[
         from services.report_figures import plot_per_map  # matplotlib only when a figure is asked for
 
         written["generalisation_png"] = plot_per_map(maps[maps["map"] != MEAN_ROW], out / "generalisation.png",
-                                                     svg="svg" in formats, intervals=intervals, bar=BAR)[0]
+                                                     svg="svg" in formats, intervals=interval_lookup(intervals),
+                                                     bar=BAR)[0]
         figure = written["generalisation_png"].name
 
     def put(name, filename, text):

@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 
 from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, MAP_BAR, aggregate, success_interval
-from services.report_generalisation import (BAR, FORMAT, KIND, MEAN_ROW, html, load_evals, markdown, per_map_intervals,
-                                            per_map_markdown, per_map_table, summary_markdown, summary_table,
-                                            write_generalisation)
+from services.report_generalisation import (BAR, FORMAT, KIND, MEAN_ROW, html, interval_lookup, load_evals, markdown,
+                                            per_map_intervals, per_map_markdown, per_map_table, summary_markdown,
+                                            summary_table, write_generalisation)
 
 
 def _doc(label, suite, rates):
@@ -168,7 +168,8 @@ def test_per_map_figure_draws_each_known_interval_and_the_bar(monkeypatch, tmp_p
     maps = per_map_table(DOCS)
     old = DOCS[1] | {"maps": [{k: v for k, v in r.items() if k != "success_interval"} for r in DOCS[1]["maps"]]}
     spans = per_map_intervals([DOCS[0], old, DOCS[2]])   # general's map a: no interval recorded
-    report_figures.plot_per_map(maps[maps["map"] != MEAN_ROW], tmp_path / "f.png", intervals=spans, bar=BAR)
+    report_figures.plot_per_map(maps[maps["map"] != MEAN_ROW], tmp_path / "f.png", intervals=interval_lookup(spans),
+                                bar=BAR)
     heldout, real = kept["fig"].axes
     segments = [seg for c in heldout.collections for seg in c.get_segments()]
     marker_x = {line.get_label(): line.get_xdata() for line in heldout.lines if line.get_linestyle() == "None"}
