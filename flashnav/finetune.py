@@ -158,6 +158,9 @@ def check_compatible(checkpoint_spec, algorithm: str, hp, robot, source: str) ->
     from the checkpoint's (``checkpoint_spec``: its RunSpec); nothing when they match."""
     ours = {**_shape_keys(algorithm, hp), **_layout_keys(robot)}
     theirs = {**_shape_keys(checkpoint_spec.algorithm, checkpoint_spec.hparams), **_layout_keys(checkpoint_spec.robot)}
+    if robot.observation.wall_map or checkpoint_spec.robot.observation.wall_map:  # the map's CNN, where one reads it
+        ours["algo.wall_map_convs"] = tuple(tuple(c) for c in hp.wall_map_convs)
+        theirs["algo.wall_map_convs"] = tuple(tuple(c) for c in checkpoint_spec.hparams.wall_map_convs)
     bad = [f"{key}: checkpoint {theirs.get(key)!r}, this run {value!r}" for key, value in ours.items()
            if theirs.get(key) != value]
     if bad:

@@ -121,11 +121,23 @@ def test_this_runs_optimiser_settings_and_env_count_apply(tmp_path):
     ({"robot.observation.wall_map": 4}, "robot.observation.wall_map"),
     ({"robot.observation.wall_map": 4, "robot.observation.wall_map_visited": True},
      "robot.observation.wall_map_visited"),
+    ({"robot.observation.wall_map": 4, "algo.wall_map_convs": [[8, 2]]}, "algo.wall_map_convs"),
 ])
 def test_a_network_mismatch_is_refused_by_name(tmp_path, overrides, key):
     _, _, run = trained_checkpoint(tmp_path, updates=1)
     with pytest.raises(ValueError, match=rf"init_from .*{key.replace('.', '[.]')}[^:;]*: checkpoint"):
         resolve(config(init_from=str(run), **overrides))
+
+
+def test_the_wall_maps_cnn_must_match_where_a_map_is_read(tmp_path):
+    wall = {"robot.observation.wall_map": 4, "algo.wall_map_convs": [[8, 1], [8, 2]]}
+    _, _, run = trained_checkpoint(tmp_path, updates=1, **wall)
+    with pytest.raises(ValueError, match=r"networks do not match the checkpoint's .*: algo[.]wall_map_convs: checkpoint "
+                                         r"\(\(8, 1\), \(8, 2\)\), this run \(\(8, 2\),\) \(set them"):
+        resolve(config(init_from=str(run), **{**wall, "algo.wall_map_convs": [[8, 2]]}))
+    assert resolve(config(init_from=str(run), **wall)).init is not None  # the same layers: accepted
+    _, _, plain = trained_checkpoint(tmp_path / "plain", updates=1)  # no map: the CNN's layers are not compared
+    assert resolve(config(init_from=str(plain), **{"algo.wall_map_convs": [[8, 2]]})).init is not None
 
 
 def test_another_algorithm_or_robot_is_refused_by_name(tmp_path):

@@ -14,7 +14,8 @@ import torch
 
 from flashnav.observation_samples import sample_observations
 from flashnav.learn.networks import Actor, IPAPRec, ObsLayout, TwinCritic
-from flashnav.learn.wall_map import WALL_MAP_FEATURES, WallMapEncoder, conv_side, with_features
+from flashnav.learn.hparams import WALL_MAP_CONVS
+from flashnav.learn.wall_map import WALL_MAP_FEATURES, WallMapEncoder, conv_side, receptive_field, with_features
 from flashnav.presets import load_robot
 
 CELLS = 10
@@ -68,6 +69,40 @@ def test_one_encoder_serves_the_actor_and_the_critics_and_the_critic_loss_trains
     assert encoder <= in_critic_opt and not encoder & in_actor_opt
     assert {id(p) for p in actor_own_params(state.actor)} == in_actor_opt
     assert len(in_actor_opt) == len(list(state.actor.parameters())) - len(encoder)
+
+
+def test_the_encoder_is_built_from_the_learners_wall_map_convs():
+    convs = ((8, 1), (16, 2), (16, 2), (16, 1))
+    state = learner("fastdsac", wall_map_convs=[list(c) for c in convs]).state
+    enc = state.actor.walls
+    assert enc is state.critic.walls and enc.convs == convs == state.critic_target.walls.convs
+    assert [tuple(w.shape[:2]) for w in enc.conv_weights] == [(8, 2), (16, 8), (16, 16), (16, 16)]
+    assert enc.flat == 16 * conv_side(CELLS, convs) ** 2 == 16 * 9
+    obs = observations(4, seed=3)
+    assert state.actor(obs).shape[0] == 4  # the actor reads the map through those layers
+    assert learner("fastdsac").state.actor.walls.convs == WALL_MAP_CONVS == ((16, 1), (32, 2), (32, 2))
+    from flashnav.learn.hparams import load_hparams
+    for bad, said in (([[16, 1], [0, 2]], r"\[\[0, 2\]\]"), ([[16, 3]], r"\[\[16, 3\]\]")):
+        with pytest.raises(ValueError, match=rf"algo.wall_map_convs: every layer is \[out channels > 0, stride 1 or 2\], "
+                                             rf"got {said}"):
+            load_hparams("fastdsac", "turtlebot2", "cpu", {"wall_map_convs": bad})
+    with pytest.raises(ValueError, match="at least one"):
+        WallMapEncoder(6, convs=())
+
+
+@pytest.mark.parametrize("convs, field", [(WALL_MAP_CONVS, 9), (((16, 1), (32, 2), (32, 2), (32, 1)), 17),
+                                          (((4, 2), (4, 1), (4, 2)), 11)])
+def test_receptive_field_is_what_one_output_of_the_convolutions_sees(convs, field):
+    """Found by the gradient of one output in the middle of a 48 x 48 map: the squares it depends on."""
+    enc = WallMapEncoder(48, generator=torch.Generator().manual_seed(1), convs=convs)
+    image = torch.zeros(1, 2, 48, 48, requires_grad=True)
+    grid = enc.conv_grid(image + 0.5)
+    mid = grid.shape[-1] // 2
+    grid[0, :, mid, mid].sum().backward()
+    seen = image.grad[0].abs().sum(0) > 0
+    rows, cols = seen.any(1).nonzero().flatten(), seen.any(0).nonzero().flatten()
+    assert 0 < rows[0] and rows[-1] < 47 and 0 < cols[0] and cols[-1] < 47  # inside the map: not cut by its edge
+    assert rows[-1] - rows[0] + 1 == cols[-1] - cols[0] + 1 == receptive_field(convs) == field
 
 
 def test_the_networks_read_encoded_features_as_they_read_the_squares():

@@ -236,7 +236,7 @@ def build_state(hp: Any, layout: Any, action_dim: int, actor_heads: int, critic_
     init_seed, collect_seed, update_seed = derive_seeds(seed, 3)
     init_gen = torch.Generator().manual_seed(init_seed)
     norms = dict(layer_norm=hp.layer_norm, obs_norm=hp.obs_norm)
-    layout = dataclasses.replace(layout, goal_sincos=hp.goal_sincos)
+    layout = dataclasses.replace(layout, goal_sincos=hp.goal_sincos, wall_convs=hp.wall_map_convs)
     actor = Actor(layout, action_dim, hp.actor_hidden, actor_heads, init_gen, out_init_std=hp.actor_out_init_std,
                   headroom=hp.action_headroom, **norms).to(device)
     # a wall map's one encoder (drawn after the actor's layers) is the critics', shared with the actor: the critic

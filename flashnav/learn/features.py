@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from flashnav.learn.hparams import WALL_MAP_CONVS
 from flashnav.learn.wall_map import WALL_MAP_FEATURES
 from flashnav.policy_meta import wall_map_channel_names
 from flashnav.sim.tracks import track_scales
@@ -48,6 +49,8 @@ class ObsLayout:
     ``wall_map``: the wall map's squares a side C after the memory scan (2 C^2 columns of 0 / 1, an image read by
     :class:`flashnav.learn.wall_map.WallMapEncoder`, not by IPAPRec; 0 = none).
     ``wall_visited``: the wall map has a third channel, the squares the robot has been in (3 C^2 columns).
+    ``wall_convs``: the wall-map encoder's convolutions, ``(out channels, stride)`` each (the learners set it from
+    their ``wall_map_convs``).
     ``goal_sincos``: the networks see the goal angle as (sin, cos) instead of angle / pi (one feature more than
     the observation's columns: :attr:`feature_dim`); the observation itself is unchanged.
     """
@@ -66,6 +69,7 @@ class ObsLayout:
     goal_sincos: bool = False
     wall_map: int = 0
     wall_visited: bool = False
+    wall_convs: tuple[tuple[int, int], ...] = WALL_MAP_CONVS
 
     def __post_init__(self) -> None:
         goal = self.goal_scale

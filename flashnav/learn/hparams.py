@@ -10,12 +10,16 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from flashnav.config import Strict, error_lines
 from flashnav.names import ALGORITHMS, PRECISIONS, RECIPES, check_name
 from flashnav.presets import load_preset_file
 from flashnav.yamlio import set_dotted
+
+#: The wall-map encoder's 3 x 3 convolutions, (out channels, stride) each: the default of ``wall_map_convs`` (16, 32
+#: and 32 channels, the last two with stride 2: each output sees 9 x 9 squares; flashnav/learn/wall_map.py).
+WALL_MAP_CONVS: tuple[tuple[int, int], ...] = ((16, 1), (32, 2), (32, 2))
 
 
 class LearnerHParams(Strict):
@@ -49,6 +53,7 @@ class LearnerHParams(Strict):
     late_from: float = Field(0.5, ge=0, le=1, description="with late_batch_size: the fraction of the run's env-step budget (budget.max_env_steps) from which updates draw late_batch_size transitions")
     mirror: float = Field(0.0, ge=0, le=1, description="share of each replay batch reflected left-right (the scan reversed, goal angle, turn rates and robot-frame y negated; the twin transition of the mirrored map: flashnav/learn/mirror.py); 0 = off, the paper and the references")
     wall_shift: int = Field(0, ge=0, description="random shift of the wall map (observation.wall_map) in each replay batch, as in DrQ: every row's map, observation and next observation each, moves by up to this many squares along each axis, uncovered squares 0 (flashnav/learn/wall_shift.py); 0 = off")
+    wall_map_convs: tuple[tuple[int, int], ...] = Field(WALL_MAP_CONVS, min_length=1, description="the wall map's CNN (observation.wall_map; flashnav/learn/wall_map.py): its 3 x 3 convolutions in order, [out channels, stride] each, stride 1 or 2 (padding 1); more layers see farther across the map (each layer adds 2 x the product of the strides before it to the squares one output sees a side); the default [[16, 1], [32, 2], [32, 2]] sees 9 x 9 squares")
     noise_color: float | tuple[float, ...] = Field(0.0, description="exponent beta of the collection noise's power spectrum 1/f^beta along the steps, one for every action or a list of one per action (e.g. [0, 1]: white forward speed, pink turn rate); each in [0, 2] (0 = white: independent draws, the paper and the references; 1 = pink; 2 = red); each draw stays N(0, 1), only successive draws are correlated (flashnav/learn/noise.py, docs/learners.md S14)")
     goal_sincos: bool = Field(False, description="the actor and critics see the goal angle as (sin, cos) instead of angle / pi: continuous where the angle wraps from pi to -pi (the goal straight behind); the observation and the exported policy's input are unchanged; False = the paper's feature (docs/learners.md S18)")
     action_headroom: float = Field(1.0, ge=1, le=2, description="the robot's action is clamp(k tanh(mu), -1, 1) with this k, in training, evaluation and the exported policy: the action bounds (top speed, top turn rate) are reached at |tanh| = 1/k instead of only in the limit; the critics see the clamped action; 1 = the paper's tanh(mu) (docs/learners.md S19)")
@@ -69,6 +74,15 @@ class LearnerHParams(Strict):
         if min(self.actor_hidden + self.critic_hidden) <= 0:
             raise ValueError("hidden layer widths must be > 0")
         return self
+
+    @field_validator("wall_map_convs")
+    @classmethod
+    def _check_convs(cls, convs):
+        bad = [list(c) for c in convs if c[0] <= 0 or c[1] not in (1, 2)]
+        if bad:
+            raise ValueError(f"every layer is [out channels > 0, stride 1 or 2], got {bad} in "
+                             f"{[list(c) for c in convs]}")
+        return convs
 
     def batch_size_at(self, progress: float) -> int:
         """Transitions per update at ``progress`` (the fraction of the run's env-step budget done):

@@ -8,9 +8,9 @@ behaviour-cloning probe (``scripts/bc_memory_probe.py``, docs/benchmarks.md) fou
 teacher's memory through this encoder imitates a planner on fresh mazes better than with the usual input alone,
 while one dense layer over the same squares, or a smaller CNN, gained little (drawn from a grid of every hit, as
 the simulator keeps it, the same student reached less than from the teacher's memory: docs/benchmarks.md, "A dense
-grid of every hit"); the encoder here is that probe's ``cnn``: three 3 x 3 convolutions of 16, 32 and 32 channels
-(the last two with stride 2; each output sees 9 x 9 squares), LeakyReLU after each (the networks' activation), then
-one layer of :data:`WALL_MAP_FEATURES` units whose output joins the IPAPRec features ahead of the actor's or
+grid of every hit"); the encoder here is by default that probe's ``cnn``: three 3 x 3 convolutions of 16, 32 and 32
+channels (the last two with stride 2; each output sees 9 x 9 squares; the learners' ``wall_map_convs`` sets other
+layers), LeakyReLU after each (the networks' activation), then one layer of :data:`WALL_MAP_FEATURES` units whose output joins the IPAPRec features ahead of the actor's or
 critic's MLP.
 
 One encoder serves the actor and both critics, as in pixel-based off-policy learners (SAC-AE, DrQ: the critic's
@@ -32,40 +32,54 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from flashnav.learn.hparams import WALL_MAP_CONVS
 from flashnav.policy_meta import wall_map_channel_names
 
 #: Output width of the wall-map encoder: the features it adds to the MLP's input.
 WALL_MAP_FEATURES = 256
-#: (out channels, stride) of the three 3 x 3 convolutions.
-WALL_MAP_CONVS = ((16, 1), (32, 2), (32, 2))
 #: Channels of a wall map without the visited squares (walls, goal): the default of the encoder and the shift.
 WALL_MAP_CHANNELS = len(wall_map_channel_names(1))
 
 
-def conv_side(cells: int) -> int:
+def conv_side(cells: int, convs=WALL_MAP_CONVS) -> int:
     """Side of the convolutions' output grid for a C x C map (padding 1: a stride-2 layer halves, rounding up)."""
     side = cells
-    for _, stride in WALL_MAP_CONVS:
+    for _, stride in convs:
         side = (side - 1) // stride + 1
     return side
 
 
+def receptive_field(convs=WALL_MAP_CONVS) -> int:
+    """Squares a side that one output of the convolutions sees (3 x 3 kernels: each layer adds 2 x the product of
+    the strides before it)."""
+    field, jump = 1, 1
+    for _, stride in convs:
+        field, jump = field + 2 * jump, jump * stride
+    return field
+
+
 class WallMapEncoder(nn.Module):
     """The wall map's columns ``[..., channels C^2]`` -> features ``[..., F]``, F = :data:`WALL_MAP_FEATURES`. Every
-    weight is drawn from ``generator`` (PyTorch's default uniform bounds)."""
+    weight is drawn from ``generator`` (PyTorch's default uniform bounds); ``convs`` the 3 x 3 convolutions,
+    ``(out channels, stride)`` each."""
 
-    def __init__(self, cells: int, generator: torch.Generator | None = None, channels: int = WALL_MAP_CHANNELS):
+    def __init__(self, cells: int, generator: torch.Generator | None = None, channels: int = WALL_MAP_CHANNELS,
+                 convs=WALL_MAP_CONVS):
         super().__init__()
         if cells < 2:
             raise ValueError(f"a wall-map encoder needs at least 2 x 2 squares, got {cells}")
         if channels not in (2, 3):
             raise ValueError(f"a wall-map encoder reads 2 channels (walls, goal) or 3 (and visited), got {channels}")
         self.cells, self.channels = cells, channels
+        self.convs = tuple((int(c), int(s)) for c, s in convs)
+        if not self.convs or any(c <= 0 or s not in (1, 2) for c, s in self.convs):
+            raise ValueError(f"a wall-map encoder's convolutions are (out channels > 0, stride 1 or 2), at least "
+                             f"one, got {convs}")
         #: the columns it reads: channels x cells^2
         self.squares = channels * cells * cells
         self.conv_weights, self.conv_biases = nn.ParameterList(), nn.ParameterList()
         c_in = channels
-        for c_out, _ in WALL_MAP_CONVS:
+        for c_out, _ in self.convs:
             w, b = torch.empty(c_out, c_in, 3, 3), torch.empty(c_out)
             bound = 1.0 / math.sqrt(c_in * 9)
             with torch.no_grad():
@@ -74,7 +88,7 @@ class WallMapEncoder(nn.Module):
             self.conv_weights.append(nn.Parameter(w))
             self.conv_biases.append(nn.Parameter(b))
             c_in = c_out
-        self.flat = c_in * conv_side(cells) ** 2
+        self.flat = c_in * conv_side(cells, self.convs) ** 2
         bound = 1.0 / math.sqrt(self.flat)
         w, b = torch.empty(WALL_MAP_FEATURES, self.flat), torch.empty(WALL_MAP_FEATURES)
         with torch.no_grad():
@@ -82,11 +96,16 @@ class WallMapEncoder(nn.Module):
             b.uniform_(-bound, bound, generator=generator)
         self.out_weight, self.out_bias = nn.Parameter(w), nn.Parameter(b)
 
+    def conv_grid(self, image: torch.Tensor) -> torch.Tensor:
+        """The convolutions' output ``[N, channels, side, side]`` of images ``[N, self.channels, C, C]``."""
+        x = image
+        for w, b, (_, stride) in zip(self.conv_weights, self.conv_biases, self.convs):
+            x = F.leaky_relu(F.conv2d(x, w, b, stride=stride, padding=1))
+        return x
+
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         lead = image.shape[:-1]
-        x = image.reshape(-1, self.channels, self.cells, self.cells)
-        for w, b, (_, stride) in zip(self.conv_weights, self.conv_biases, WALL_MAP_CONVS):
-            x = F.leaky_relu(F.conv2d(x, w, b, stride=stride, padding=1))
+        x = self.conv_grid(image.reshape(-1, self.channels, self.cells, self.cells))
         x = F.leaky_relu(F.linear(x.reshape(x.shape[0], self.flat), self.out_weight, self.out_bias))
         return x.reshape(*lead, WALL_MAP_FEATURES)
 
@@ -96,7 +115,8 @@ def network_encoder(layout, given: WallMapEncoder | None,
     """A network's encoder: ``given`` (a learner's one, shared by its networks), else the network's own for the wall
     map of ``layout`` (a :class:`flashnav.learn.features.ObsLayout`) drawn from ``generator`` (None without a map)."""
     if given is None and layout.wall_map:
-        return WallMapEncoder(layout.wall_map, generator=generator, channels=layout.wall_channels)
+        return WallMapEncoder(layout.wall_map, generator=generator, channels=layout.wall_channels,
+                              convs=layout.wall_convs)
     return given
 
 
