@@ -132,8 +132,9 @@ def test_a_network_mismatch_is_refused_by_name(tmp_path, overrides, key):
 def test_the_wall_maps_cnn_must_match_where_a_map_is_read(tmp_path):
     wall = {"robot.observation.wall_map": 4, "algo.wall_map_convs": [[8, 1], [8, 2]]}
     _, _, run = trained_checkpoint(tmp_path, updates=1, **wall)
-    with pytest.raises(ValueError, match=r"networks do not match the checkpoint's .*: algo[.]wall_map_convs: checkpoint "
-                                         r"\(\(8, 1\), \(8, 2\)\), this run \(\(8, 2\),\) \(set them"):
+    with pytest.raises(ValueError, match=r"networks do not match the checkpoint's .*: "
+                                         r"algo[.]wall_map_convs: checkpoint \(\(8, 1\), \(8, 2\)\), "
+                                         r"this run \(\(8, 2\),\) \(set them"):
         resolve(config(init_from=str(run), **{**wall, "algo.wall_map_convs": [[8, 2]]}))
     assert resolve(config(init_from=str(run), **wall)).init is not None  # the same layers: accepted
     _, _, plain = trained_checkpoint(tmp_path / "plain", updates=1)  # no map: the CNN's layers are not compared

@@ -83,8 +83,8 @@ def test_the_encoder_is_built_from_the_learners_wall_map_convs():
     assert learner("fastdsac").state.actor.walls.convs == WALL_MAP_CONVS == ((16, 1), (32, 2), (32, 2))
     from flashnav.learn.hparams import load_hparams
     for bad, said in (([[16, 1], [0, 2]], r"\[\[0, 2\]\]"), ([[16, 3]], r"\[\[16, 3\]\]")):
-        with pytest.raises(ValueError, match=rf"algo.wall_map_convs: every layer is \[out channels > 0, stride 1 or 2\], "
-                                             rf"got {said}"):
+        with pytest.raises(ValueError, match=rf"algo.wall_map_convs: every layer is \[out channels > 0, "
+                                             rf"stride 1 or 2\], got {said}"):
             load_hparams("fastdsac", "turtlebot2", "cpu", {"wall_map_convs": bad})
     with pytest.raises(ValueError, match="at least one"):
         WallMapEncoder(6, convs=())

@@ -10,8 +10,8 @@ while one dense layer over the same squares, or a smaller CNN, gained little (dr
 the simulator keeps it, the same student reached less than from the teacher's memory: docs/benchmarks.md, "A dense
 grid of every hit"); the encoder here is by default that probe's ``cnn``: three 3 x 3 convolutions of 16, 32 and 32
 channels (the last two with stride 2; each output sees 9 x 9 squares; the learners' ``wall_map_convs`` sets other
-layers), LeakyReLU after each (the networks' activation), then one layer of :data:`WALL_MAP_FEATURES` units whose output joins the IPAPRec features ahead of the actor's or
-critic's MLP.
+layers), LeakyReLU after each (the networks' activation), then one layer of :data:`WALL_MAP_FEATURES` units whose
+output joins the IPAPRec features ahead of the actor's or critic's MLP.
 
 One encoder serves the actor and both critics, as in pixel-based off-policy learners (SAC-AE, DrQ: the critic's
 loss trains it, the actor reads its features detached, the target critics read the map through their own Polyak
