@@ -22,6 +22,12 @@ from flashnav.yamlio import set_dotted
 WALL_MAP_CONVS: tuple[tuple[int, int], ...] = ((16, 1), (32, 2), (32, 2))
 
 
+def bad_conv_layers(convs) -> list[list[int]]:
+    """The layers of a wall-map CNN's ``(out channels, stride)`` list that are not (channels > 0, stride 1 or 2):
+    the one rule of ``wall_map_convs`` and of :class:`flashnav.learn.wall_map.WallMapEncoder`."""
+    return [list(c) for c in convs if c[0] <= 0 or c[1] not in (1, 2)]
+
+
 class LearnerHParams(Strict):
     """Shared training-pipeline parameters (paper table "Shared off-policy training-pipeline
     parameters" and the per-algorithm tables' common rows)."""
@@ -78,7 +84,7 @@ class LearnerHParams(Strict):
     @field_validator("wall_map_convs")
     @classmethod
     def _check_convs(cls, convs):
-        bad = [list(c) for c in convs if c[0] <= 0 or c[1] not in (1, 2)]
+        bad = bad_conv_layers(convs)
         if bad:
             raise ValueError(f"every layer is [out channels > 0, stride 1 or 2], got {bad} in "
                              f"{[list(c) for c in convs]}")

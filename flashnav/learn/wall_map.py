@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from flashnav.learn.hparams import WALL_MAP_CONVS
+from flashnav.learn.hparams import WALL_MAP_CONVS, bad_conv_layers
 from flashnav.policy_meta import wall_map_channel_names
 
 #: Output width of the wall-map encoder: the features it adds to the MLP's input.
@@ -72,7 +72,7 @@ class WallMapEncoder(nn.Module):
             raise ValueError(f"a wall-map encoder reads 2 channels (walls, goal) or 3 (and visited), got {channels}")
         self.cells, self.channels = cells, channels
         self.convs = tuple((int(c), int(s)) for c, s in convs)
-        if not self.convs or any(c <= 0 or s not in (1, 2) for c, s in self.convs):
+        if not self.convs or bad_conv_layers(self.convs):
             raise ValueError(f"a wall-map encoder's convolutions are (out channels > 0, stride 1 or 2), at least "
                              f"one, got {convs}")
         #: the columns it reads: channels x cells^2
