@@ -56,11 +56,26 @@ def check_output_dir(path: str | Path, flag: str) -> Path:
     return path
 
 
-def check_output_file(path: str | Path, flag: str) -> Path:
-    """A file that can be (over)written. Raises ValueError naming ``flag`` and ``path``."""
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether paths ``a`` and ``b`` name one file (the same inode where both exist, else the same resolved path)."""
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
+
+
+def check_output_file(path: str | Path, flag: str, inputs=()) -> Path:
+    """A file that can be (over)written and is none of the command's ``inputs`` (paths: the files it reads, which an
+    output written over them would destroy). Raises ValueError naming ``flag`` and ``path``."""
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"{flag} {path}: is a folder; give a file name")
+    for source in inputs:
+        if source is not None and _same_file(path, Path(source)):
+            raise ValueError(f"{flag} {path}: is one of the command's inputs ({source}); writing it would destroy "
+                             f"it: give another file name")
     if path.exists():
         if not os.access(path, os.W_OK):
             raise ValueError(f"{flag} {path}: no permission to overwrite this file")
@@ -69,17 +84,19 @@ def check_output_file(path: str | Path, flag: str) -> Path:
     return path
 
 
-def check_figure_file(path: str | Path, flag: str) -> Path:
+def check_figure_file(path: str | Path, flag: str, inputs=()) -> Path:
     """A picture file to be written (``.png`` added when ``path`` has no suffix): a suffix that matplotlib writes
     (:data:`FIGURE_SUFFIXES`) and a path that :func:`check_output_file` accepts. Returns the path that will be
     written; raises ValueError naming ``flag`` and ``path``."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{flag} {path}: is a folder; give a file name (e.g. {path / 'figure.png'})")
     if not path.suffix:
         path = path.with_suffix(".png")
     if path.suffix.lower() not in FIGURE_SUFFIXES:
         raise ValueError(f"{flag} {path}: a picture is written as {', '.join(FIGURE_SUFFIXES)}; got "
                          f"{path.suffix!r}")
-    return check_output_file(path, flag)
+    return check_output_file(path, flag, inputs)
 
 
 def write_json_report(path: str | Path, report: dict) -> Path:

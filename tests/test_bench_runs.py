@@ -63,14 +63,14 @@ def test_bad_sources_and_options_are_named(tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
     assert cli_main(["bench", "runs", str(empty)]) == 2
-    assert "empty: not a flashnav train run folder" in capsys.readouterr().out
+    assert "empty: not a flashnav train run folder" in capsys.readouterr().err
     sim = tmp_path / "sim.json"
     sim.write_text(json.dumps({"rows": []}))
     assert cli_main(["bench", "runs", str(sim)]) == 2
-    assert "sim.json: not a flashnav train run folder" in capsys.readouterr().out
+    assert "sim.json: not a flashnav train run folder" in capsys.readouterr().err
     a = _run(tmp_path, "a", _metrics(0, [1.0], to100=5120))
     assert cli_main(["bench", "runs", str(a), "--last", "0"]) == 2
-    assert "--last must be >= 1" in capsys.readouterr().out
+    assert "--last must be >= 1" in capsys.readouterr().err
 
 
 def _trial(root, name: str, checkpoints: dict[int, list[dict]]):
@@ -123,3 +123,53 @@ def test_bench_plot_reads_a_sweep_output_and_one_trial_folder(tmp_path):
     assert [r["label"] for r in runs] == ["train_trial_aa_1 seed 0", "train_trial_bb_2 seed 0"] and when[:2] == "20"
     one, _ = load_curves(sweep / "train_trial_bb_2_algorithm=fastdsac")
     assert [r["curve"][-1]["success_rate"] for r in one] == [0.95]
+
+
+@pytest.mark.parametrize("edit, named", [
+    (lambda m: m.update(curve=[1, 2, 3]), "evaluation 0 of its curve is 1, not a JSON object"),
+    (lambda m: m["curve"][1].update(success_rate="high"), "evaluation 1 of its curve has success_rate 'high'"),
+    (lambda m: m["curve"][0].update(success_rate=1.7), "success_rate 1.7, not a number in [0, 1]"),
+    (lambda m: m["curve"][0].update(env_steps="many"), "evaluation 0 of its curve has env_steps 'many'"),
+    (lambda m: m.pop("curve"), "its curve is None, not a list of evaluations"),
+    (lambda m: m["config"].update(seed="2"), "its seed is '2', not an integer"),
+    (lambda m: m.update(config=[1]), "its config is [1], not an object"),
+    (lambda m: m.update(env_steps_to_threshold=[0.9]), "its env_steps_to_threshold is [0.9], not a JSON object"),
+])
+def test_a_malformed_record_is_refused_naming_its_folder(tmp_path, capsys, edit, named):
+    """A metrics.json edited by hand or cut short: both commands name the folder and what is wrong, no traceback,
+    nothing drawn."""
+    m = _metrics(0, [0.5, 0.9])
+    edit(m)
+    bad = _run(tmp_path, "badrun", m)
+    assert cli_main(["bench", "runs", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "badrun" in err and named in err, err
+    png = tmp_path / "p.png"
+    assert cli_main(["bench", "plot", str(bad), "--out", str(png)]) == 2
+    err = capsys.readouterr().err
+    assert "badrun" in err and named in err and not png.exists(), err
+
+
+def test_runs_json_is_checked_first_and_never_overwrites_a_source(tmp_path, capsys):
+    a = _run(tmp_path, "a", _metrics(0, [1.0], to100=5120))
+    before = (a / "metrics.json").read_text()
+    assert cli_main(["bench", "runs", str(a), "--json", str(a / "metrics.json")]) == 2
+    captured = capsys.readouterr()
+    assert "--json" in captured.err and "is one of the command's inputs" in captured.err
+    assert (a / "metrics.json").read_text() == before and "finished runs" not in captured.out  # no table first
+    assert cli_main(["bench", "runs", str(a), "--json", str(tmp_path)]) == 2
+    assert "--json" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.json"))
+
+
+def test_plot_refuses_an_empty_curve_and_a_bad_ymin(tmp_path, capsys):
+    ok = _run(tmp_path, "ok", _metrics(0, [0.5, 1.0], to100=10240))
+    empty = _run(tmp_path, "none", {**_metrics(1, [0.5]), "curve": []})
+    png = tmp_path / "p.png"
+    assert cli_main(["bench", "plot", str(empty), "--out", str(png)]) == 2
+    assert "none: 1 of its runs have no evaluations" in capsys.readouterr().err
+    for ymin in ("150", "-50", "nan", "100"):
+        assert cli_main(["bench", "plot", str(ok), "--ymin", ymin, "--out", str(png)]) == 2
+        assert "--ymin is the success (%) the axis starts at, in [0, 100)" in capsys.readouterr().err
+    assert not png.exists()
+    assert cli_main(["bench", "plot", str(ok), "--ymin", "95", "--out", str(png)]) == 0

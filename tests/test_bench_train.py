@@ -107,14 +107,14 @@ def test_bench_plot_draws_run_folders_and_bench_files_together(tmp_path, capsys)
     empty = tmp_path / "empty"
     empty.mkdir()
     assert cli_main(["bench", "plot", str(empty), "--out", str(tmp_path / "x.png")]) == 2
-    assert "empty is not a `flashnav bench train --json` file or a `flashnav train` run folder" in capsys.readouterr().out
+    assert "empty is not a `flashnav bench train --json` file or a `flashnav train` run folder" in capsys.readouterr().err
 
 
 def test_bench_plot_names_a_bad_file(tmp_path, capsys):
     bad = tmp_path / "sim.json"
     bad.write_text(json.dumps({"rows": []}))
     assert cli_main(["bench", "plot", str(bad), "--out", str(tmp_path / "x.png")]) == 2
-    assert "sim.json is not a `flashnav bench train --json` file" in capsys.readouterr().out
+    assert "sim.json is not a `flashnav bench train --json` file" in capsys.readouterr().err
     assert not (tmp_path / "x.png").exists()
     old = tmp_path / "old.json"  # curves without env steps: drawable against seconds only
     run = _curve_run(0, [0.0, 0.5])
@@ -122,7 +122,7 @@ def test_bench_plot_names_a_bad_file(tmp_path, capsys):
         del point["env_steps"]
     old.write_text(json.dumps({"runs": [run]}))
     assert cli_main(["bench", "plot", str(old), "--out", str(tmp_path / "y.png")]) == 2
-    assert "old.json: its curves have no env_steps; use --x seconds" in capsys.readouterr().out
+    assert "old.json: its curves have no env_steps; use --x seconds" in capsys.readouterr().err
     assert cli_main(["bench", "plot", str(old), "--x", "seconds", "--out", str(tmp_path / "y.png")]) == 0
 
 
@@ -161,6 +161,6 @@ def test_bench_plot_draws_arms_one_colour_each(tmp_path, capsys, monkeypatch):
     assert {"scratch (2 runs)", "fine-tuned (1 run)"} <= set(labels)  # one legend entry per arm, counted
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert cli_main(["bench", "plot", "--arm", "lonely", "--out", str(png)]) == 2
-    assert "--arm lonely names no run" in capsys.readouterr().out
+    assert "--arm lonely names no run" in capsys.readouterr().err
     assert cli_main(["bench", "plot", "--out", str(png)]) == 2
-    assert "give run folders or bench files" in capsys.readouterr().out
+    assert "give run folders or bench files" in capsys.readouterr().err

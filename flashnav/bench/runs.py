@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from rich.console import Console
@@ -40,6 +41,8 @@ def register_cli(bsub: argparse._SubParsersAction) -> None:
 
 def _record(result: dict, label: str) -> dict:
     c = result["config"]
+    if not isinstance(c, dict):
+        raise TypeError(f"its config is {c!r:.40}, not an object")
     return {**result, "label": label, "robot": c["robot"], "algorithm": c["algorithm"], "seed": c["seed"]}
 
 
@@ -66,25 +69,68 @@ def _trial_records(found: list[Path]) -> list[dict]:
     return [r for _, r in sorted(records, key=lambda x: (x[0], x[1]["seed"]))]
 
 
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def record_problem(r) -> str | None:
+    """What makes ``r`` no run record (None: nothing): ``robot`` and ``algorithm`` names, an integer ``seed``, a
+    ``curve`` of evaluations (objects with a ``success_rate`` in [0, 1]; ``env_steps`` and ``train_seconds``
+    numbers where given) and, where given, an ``env_steps_to_threshold`` object, as ``flashnav train`` writes them."""
+    if not isinstance(r, dict):
+        return f"a run is {type(r).__name__} {r!r:.40}, not a JSON object"
+    for key in ("robot", "algorithm"):
+        if not isinstance(r.get(key), str):
+            return f"its {key} is {r.get(key)!r}, not a name"
+    if not isinstance(r.get("seed"), int) or isinstance(r.get("seed"), bool):
+        return f"its seed is {r.get('seed')!r}, not an integer"
+    curve = r.get("curve")
+    if not isinstance(curve, list):
+        return f"its curve is {curve!r:.40}, not a list of evaluations"
+    for i, point in enumerate(curve):
+        if not isinstance(point, dict):
+            return f"evaluation {i} of its curve is {point!r:.40}, not a JSON object"
+        rate = point.get("success_rate")
+        if not (_number(rate) and 0 <= rate <= 1):
+            return f"evaluation {i} of its curve has success_rate {rate!r}, not a number in [0, 1]"
+        for key in ("env_steps", "train_seconds"):
+            if key in point and not _number(point[key]):
+                return f"evaluation {i} of its curve has {key} {point[key]!r}, not a number"
+    if not isinstance(r.get("env_steps_to_threshold", {}), dict):
+        return f"its env_steps_to_threshold is {r['env_steps_to_threshold']!r:.40}, not a JSON object"
+    return None
+
+
 def load_runs(source: Path) -> list[dict]:
     """The run records of a run folder (``label``: the folder's name), of a sweep's output folder (``label``:
     the trial's name - Tune's ``train_trial_<id>_<n>`` - and seed) or of a ``bench train --json`` file
     (``source``: the file's stem), each with ``robot``, ``algorithm``, ``seed``, ``curve``, the threshold records
-    and, from run folders and sweeps, ``config``; a ValueError names the source."""
+    and, from run folders and sweeps, ``config`` (:func:`record_problem`); a ValueError names the source."""
     try:
         if source.is_dir():
             if not (source / METRICS_FILE).exists() and (found := sweep_results(source)):
-                return _trial_records(found)
-            return [_record(json.loads((source / METRICS_FILE).read_text(encoding="utf-8")), source.name)]
-        data = json.loads(source.read_text(encoding="utf-8"))
-        runs = data["runs"]
-        if not isinstance(runs, list):
-            raise TypeError("its runs are not a list")
-        return [{**r, "source": source.stem} for r in runs]
+                runs = _trial_records(found)
+            else:
+                runs = [_record(json.loads((source / METRICS_FILE).read_text(encoding="utf-8")), source.name)]
+        else:
+            runs = json.loads(source.read_text(encoding="utf-8"))["runs"]
+            if not isinstance(runs, list):
+                raise TypeError("its runs are not a list")
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
         raise ValueError(f"{source}: not a flashnav train run folder with {METRICS_FILE}, a flashnav sweep run output "
                          f"(trial checkpoints with {TRIAL_RESULT_FILE}) or a flashnav bench train --json file "
                          f"({type(e).__name__}: {e})") from None
+    for i, r in enumerate(runs):
+        if problem := record_problem(r):
+            which = "" if len(runs) == 1 else f"run {i}: "
+            raise ValueError(f"{source}: {which}{problem}")
+    return runs if source.is_dir() else [{**r, "source": source.stem} for r in runs]
+
+
+def sources_files(sources) -> list[Path]:
+    """The files that ``sources`` (run folders, sweep outputs, bench files) are read from, that an output must not
+    overwrite: each folder's metrics.json, each file itself (a sweep's result files are under its folder)."""
+    return [Path(s) / METRICS_FILE if Path(s).is_dir() else Path(s) for s in sources]
 
 
 def run_label(r: dict) -> str:
@@ -101,6 +147,8 @@ def run_row(r: dict, last: int = LAST) -> dict:
     curve = r["curve"]
     if not curve:
         raise ValueError(f"{label}: no evaluations in its curve")
+    if not isinstance(r.get("env_steps_to_threshold"), dict):
+        raise ValueError(f"{label}: its record has no env_steps_to_threshold (flashnav train's metrics.json has)")
     tail = [p["success_rate"] for p in curve[-last:]]
     train = (r.get("training_episodes_to_threshold") or {}).get("env_steps", {})
     return {"label": label, "robot": r["robot"], "algorithm": r["algorithm"], "seed": r["seed"],
@@ -141,14 +189,18 @@ def _steps(v) -> str:
 
 
 def run_bench_runs(args) -> int:
+    from flashnav.outputs import check_output_file
+
     console = Console()
     if not console.is_terminal:
         console = Console(width=200)
     try:
+        if args.json:  # before the table: a bad path, or one of the runs' own files, costs nothing
+            check_output_file(args.json, "--json", inputs=sources_files(args.sources))
         records = [r for source in args.sources for r in load_runs(Path(source))]
         rows = [run_row(r, args.last) for r in records]
     except ValueError as e:
-        console.print(f"flashnav bench runs: {e}", markup=False)
+        print(f"flashnav bench runs: {e}", file=sys.stderr)
         return 2
     groups = group_rows(rows)
     t = Table(title="finished runs: environment steps to success on the fixed evaluation set")

@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
+import math
 import statistics
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -135,26 +137,32 @@ def run_bench_plot(args) -> int:
     args.out = check_figure_file(args.out, "--out")
     x = "env_steps" if args.x == "env-steps" else "train_seconds"
     bad = [a[0] for a in args.arm if len(a) < 2]
+    if not (math.isfinite(args.ymin) and 0 <= args.ymin < 100):
+        return _plot_error(f"--ymin is the success (%) the axis starts at, in [0, 100); got {args.ymin}")
     if bad or not (args.sources or args.arm):
-        print(f"flashnav bench plot: --arm {bad[0]} names no run" if bad else
-              "flashnav bench plot: give run folders or bench files, or --arm NAME SOURCE...")
-        return 2
+        return _plot_error(f"--arm {bad[0]} names no run" if bad else
+                           "give run folders or bench files, or --arm NAME SOURCE...")
     runs, dates = [], []
     for arm, source in [(None, s) for s in args.sources] + [(a[0], s) for a in args.arm for s in a[1:]]:
         try:
             found, date = load_curves(Path(source))
         except (OSError, ValueError, KeyError) as e:
-            print(f"flashnav bench plot: {source} is not a `flashnav bench train --json` file or a "
-                  f"`flashnav train` run folder with metrics.json ({e})")
-            return 2
+            return _plot_error(f"{source} is not a `flashnav bench train --json` file or a `flashnav train` run "
+                               f"folder with metrics.json ({e})")
+        if empty := [r for r in found if not r["curve"]]:
+            return _plot_error(f"{source}: {len(empty)} of its runs have no evaluations in their curve")
         if not all(x in p for r in found for p in r["curve"]):
-            print(f"flashnav bench plot: {source}: its curves have no {x}; use --x seconds")
-            return 2
+            return _plot_error(f"{source}: its curves have no {x}; use --x seconds")
         runs += [dict(r, arm=arm) if arm else r for r in found]
         dates.append(date)
     title = f"success curves, {', '.join(sorted(set(dates)))}; dots: first 90/95/100 % crossing"
     print(f"success curves: {plot_training_runs(runs, args.out, title, x=x, ymin=args.ymin)}")
     return 0
+
+
+def _plot_error(message: str) -> int:
+    print(f"flashnav bench plot: {message}", file=sys.stderr)
+    return 2
 
 
 def load_curves(source: Path) -> tuple[list[dict], str]:

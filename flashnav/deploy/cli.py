@@ -61,7 +61,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     dsub = p.add_subparsers(dest="deploy_command", metavar="WHAT", required=True)
 
     q = dsub.add_parser("ros", help="the ROS 1 node: LaserScan + Odometry + goal -> Twist")
-    q.add_argument("policy", metavar="POLICY", help="policy.onnx")
+    q.add_argument("policy", metavar="POLICY", help="policy.onnx, or a run folder that holds one")
     _topics(q)
     _runtime_args(q)
     q.set_defaults(func=run_ros)
@@ -91,7 +91,7 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
 
     q = dsub.add_parser("replay", help="the commands a policy would have sent over a recorded ROS 1 bag")
     q.add_argument("bag", metavar="BAG", help="a ROS 1 bag with LaserScan and Odometry messages")
-    q.add_argument("--policy", required=True, help="policy.onnx")
+    q.add_argument("--policy", required=True, help="policy.onnx, or a run folder that holds one")
     q.add_argument("--out", required=True, metavar="FILE", help="CSV of the commands (t, v, w, state, distance)")
     q.add_argument("--goal-at", type=_floats(2, "--goal-at"), default=None, metavar="X,Y",
                    help="the goal (odom frame) when the bag has no goal messages")
@@ -105,16 +105,24 @@ def make_controller(args):
     from flashnav.deploy.controller import Controller
     from flashnav.deploy.runtime import PolicyRuntime
 
-    if args.rate is not None and not args.rate > 0:  # the flags first: loading the policy costs a session
-        raise ValueError(f"--rate must be > 0 Hz, got {args.rate}")
-    if not args.timeout > 0:
-        raise ValueError(f"--timeout must be > 0 s, got {args.timeout}")
+    # the flags first: loading the policy costs a session
+    if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
+        raise ValueError(f"--rate must be a finite number of Hz > 0, got {args.rate}")
+    if not (math.isfinite(args.timeout) and args.timeout > 0):  # inf would never stop a robot whose scans stop
+        raise ValueError(f"--timeout must be a finite number of seconds > 0, got {args.timeout}")
+    if args.fill is not None and not (math.isfinite(args.fill) and args.fill >= 0):
+        raise ValueError(f"--fill must be a range in metres >= 0 (at most the policy's max range), got {args.fill}")
     if args.guide is not None and not (math.isfinite(args.guide) and args.guide > 0):
         raise ValueError(f"--guide must be > 0 metres, got {args.guide}")
     if args.shield is not None and not (math.isfinite(args.shield) and args.shield > 0):
         raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
     x, y, yaw = args.lidar_pose
-    rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)
+    try:
+        rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)
+    except ValueError as exc:
+        if args.fill is not None and str(exc).startswith("fill must be"):
+            raise ValueError(f"--fill {args.fill}: {exc}") from None
+        raise
     guide = None
     if args.guide is not None:
         from flashnav.mapless import ScanGuide
@@ -173,7 +181,7 @@ def run_replay(args) -> int:
     from flashnav.deploy import replay
     from flashnav.outputs import check_output_file
 
-    check_output_file(args.out, "--out")
+    check_output_file(args.out, "--out", inputs=(args.bag, args.policy))
     n = replay.replay_bag(args.bag, make_controller(args), args.out, scan=args.scan, odom=args.odom,
                           goal=args.goal, goal_at=args.goal_at, people=args.people)
     print(f"flashnav deploy replay: {n} commands -> {args.out}")

@@ -114,11 +114,17 @@ class PolicyRuntime:
 
     @classmethod
     def load(cls, path: str | Path, *, mount: Mount = Mount(), fill: float | None = None) -> "PolicyRuntime":
-        """Load ``policy.onnx`` (the ONNX file ``flashnav train`` / ``flashnav.export`` writes).
+        """Load ``policy.onnx`` (the ONNX file ``flashnav train`` / ``flashnav.export`` writes; a run folder reads its
+        ``policy.onnx``).
 
         Raises FileNotFoundError for a missing file and ValueError naming ``path`` for another suffix,
         an unreadable file or missing FlashNav metadata."""
         path = Path(path)
+        if path.is_dir() and (path / "policy.onnx").is_file():  # a run folder: its exported policy
+            path = path / "policy.onnx"
+        if path.is_dir():
+            raise ValueError(f"{path}: a folder without policy.onnx; give the policy's .onnx file or a run folder "
+                             f"that holds one")
         if path.suffix != ".onnx":
             raise ValueError(f"{path}: the deploy runtime runs policy.onnx (numpy + onnxruntime, no torch); "
                              f"got {path.suffix or 'no suffix'!r}")

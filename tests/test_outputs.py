@@ -1,0 +1,73 @@
+"""flashnav.outputs: an output path is checked before the work, and never one of the command's own inputs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from flashnav.cli import main as cli_main
+from flashnav.outputs import check_figure_file, check_output_file
+
+POLICY_DIR = Path(__file__).parent / "fixtures" / "deploy_policy"
+
+
+def test_an_output_that_is_an_input_is_refused_by_any_name(tmp_path):
+    source = tmp_path / "in.bag"
+    source.write_bytes(b"data")
+    (tmp_path / "link.bag").symlink_to(source)
+    for same in (source, tmp_path / "link.bag", tmp_path / "sub" / ".." / "in.bag"):
+        (tmp_path / "sub").mkdir(exist_ok=True)
+        with pytest.raises(ValueError, match=r"--out .*is one of the command's inputs"):
+            check_output_file(same, "--out", inputs=(source,))
+    not_yet = tmp_path / "new.csv"  # neither exists: compared by path
+    with pytest.raises(ValueError, match="is one of the command's inputs"):
+        check_output_file(not_yet, "--out", inputs=(str(not_yet),))
+    assert check_output_file(tmp_path / "other.csv", "--out", inputs=(source, None)) == tmp_path / "other.csv"
+    assert source.read_bytes() == b"data"
+
+
+def test_a_figure_path_that_is_a_folder_is_refused_not_renamed(tmp_path):
+    (tmp_path / "figs").mkdir()
+    with pytest.raises(ValueError, match=r"--out .*figs: is a folder; give a file name"):
+        check_figure_file(tmp_path / "figs", "--out")
+    assert not (tmp_path / "figs.png").exists()
+    assert check_figure_file(tmp_path / "curves", "--out") == tmp_path / "curves.png"
+
+
+@pytest.mark.parametrize("which", ["bag", "policy"])
+def test_deploy_replay_never_writes_over_its_bag_or_policy(tmp_path, capsys, which):
+    bag = tmp_path / "in.bag"
+    bag.write_bytes(b"not read: refused first")
+    policy = tmp_path / "policy.onnx"
+    policy.write_bytes((POLICY_DIR / "policy.onnx").read_bytes())
+    out = bag if which == "bag" else policy
+    before = out.read_bytes()
+    assert cli_main(["deploy", "replay", str(bag), "--policy", str(policy), "--out", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert "--out" in err and "is one of the command's inputs" in err, err
+    assert out.read_bytes() == before
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--timeout", "inf"], "--timeout must be a finite number of seconds > 0"),
+    (["--rate", "inf"], "--rate must be a finite number of Hz > 0"),
+    (["--fill", "-5"], "--fill must be a range in metres >= 0"),
+    (["--fill", "99"], "--fill 99.0: fill must be in [0, max_range"),
+])
+def test_deploy_flags_are_named(tmp_path, capsys, flags, named):
+    bag = tmp_path / "in.bag"
+    bag.write_bytes(b"x")
+    code = cli_main(["deploy", "replay", str(bag), "--policy", str(POLICY_DIR / "policy.onnx"), "--out",
+                     str(tmp_path / "o.csv"), *flags])
+    err = capsys.readouterr().err
+    assert code != 0 and named in err, err
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_the_deploy_runtime_reads_a_run_folders_policy_and_names_a_folder_without_one(tmp_path):
+    from flashnav.deploy.runtime import PolicyRuntime
+
+    assert PolicyRuntime.load(POLICY_DIR).meta == PolicyRuntime.load(POLICY_DIR / "policy.onnx").meta
+    with pytest.raises(ValueError, match="a folder without policy.onnx"):
+        PolicyRuntime.load(tmp_path)
