@@ -325,6 +325,17 @@ def _cli(args) -> int:
         print(f"flashnav report: error: --format {args.format}: unknown format(s) {shown}; choose from "
               f"{', '.join(FORMATS)} (comma-separated)", file=sys.stderr)
         return 2
+    mlflow_asked = not args.generalisation or args.experiment or args.sweeps
+    if not mlflow_asked:  # the generalisation tables alone: flags that only the MLflow report reads are refused
+        gen_formats = ("md", "csv", "html", "png", "svg")
+        if args.invocation is not None:
+            print(f"flashnav report: error: --invocation {args.invocation} selects MLflow sweep runs; with "
+                  f"--generalisation alone there are none (add --sweep NAME or --experiment NAME)", file=sys.stderr)
+            return 2
+        if not set(formats) & set(gen_formats):
+            print(f"flashnav report: error: --format {args.format}: the generalisation tables are written as "
+                  f"{', '.join(gen_formats)}; nothing would be written", file=sys.stderr)
+            return 2
     for key, value in HTTP_ENV.items():  # a server that dies mid-report fails in seconds, not minutes
         os.environ.setdefault(key, value)
     try:
@@ -335,7 +346,7 @@ def _cli(args) -> int:
             from services.report_generalisation import write_generalisation
 
             written.update(write_generalisation(args.generalisation, args.out, formats))
-        if not args.generalisation or args.experiment or args.sweeps:  # MLflow runs asked for, or nothing else
+        if mlflow_asked:  # MLflow runs asked for, or nothing else
             written.update(write_report(uri, args.out, experiment=args.experiment, sweeps=args.sweeps,
                                         formats=formats, invocation=args.invocation,
                                         warn=lambda line: print(f"flashnav report: warning: {line}",

@@ -37,7 +37,7 @@ SUMMARY_COLUMNS = ["policy", "suite", "robot", "goal_sampling", "maps", "episode
 def load_evals(paths) -> list[dict]:
     """The eval JSON documents, in order. ValueError naming the file for a missing file, invalid JSON, another
     kind of document or a newer format."""
-    docs = []
+    docs, paths_seen = [], []
     for path in map(Path, paths):
         if not path.is_file():
             raise ValueError(f"--generalisation {path}: no such file (write one with flashnav eval POLICY --maps "
@@ -49,13 +49,69 @@ def load_evals(paths) -> list[dict]:
         if not isinstance(doc, dict) or doc.get("kind") != KIND:
             raise ValueError(f"--generalisation {path}: not a `flashnav eval --maps --json` result (kind "
                              f"{doc.get('kind') if isinstance(doc, dict) else None!r}, expected {KIND!r})")
-        if not isinstance(doc.get("format_version"), int) or doc["format_version"] > FORMAT:
-            raise ValueError(f"--generalisation {path}: format version {doc.get('format_version')!r} is newer "
-                             f"than this report reads ({FORMAT})")
+        version = doc.get("format_version")
+        if isinstance(version, int) and not isinstance(version, bool) and version > FORMAT:
+            raise ValueError(f"--generalisation {path}: format version {version} is newer than this report reads "
+                             f"({FORMAT}); update flashnav")
+        if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+            raise ValueError(f"--generalisation {path}: format version {version!r} is not one this report reads "
+                             f"(1 to {FORMAT})")
+        if problem := doc_problem(doc):
+            raise ValueError(f"--generalisation {path}: {problem}")
+        seen = [(p, d) for p, d in zip(paths_seen, docs) if (d["label"], d["suite"]) == (doc["label"], doc["suite"])]
+        if seen:
+            raise ValueError(f"--generalisation {path}: policy {doc['label']!r} on the {doc['suite']} suite is "
+                             f"already in {seen[0][0]}; the two would share one column: name them apart with "
+                             f"flashnav eval ... --label NAME (e.g. a guided and an unguided run of one policy)")
         docs.append(doc)
+        paths_seen.append(path)
     if not docs:
         raise ValueError("--generalisation needs at least one JSON file")
     return docs
+
+
+def _rate(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 1
+
+
+def doc_problem(doc: dict) -> str | None:
+    """What makes an eval document unreadable by these tables (None: nothing): the names, the per-map rows (a
+    ``map`` name, ``episodes`` >= 1, success / collision / timeout rates in [0, 1], an optional two-number
+    ``success_interval``) and the aggregate that :func:`summary_table` reads."""
+    for key in ("label", "suite", "robot"):
+        if not isinstance(doc.get(key), str) or not doc[key]:
+            return f"its {key} is {doc.get(key)!r}, not a name"
+    for key in ("goal_sampling", "episodes_per_map", "goal_distance_scale", "machine", "date"):
+        if key not in doc:
+            return f"it has no {key}"
+    rows = doc.get("maps")
+    if not isinstance(rows, list) or not rows:
+        return f"its maps are {rows!r:.40}, not a list of per-map results"
+    for i, r in enumerate(rows):
+        if not isinstance(r, dict) or not isinstance(r.get("map"), str):
+            return f"map row {i} is {r!r:.60}, not a per-map result with a map name"
+        for key in ("success_rate", "collision_rate", "timeout_rate"):
+            if not _rate(r.get(key)):
+                return f"map {r['map']}: its {key} is {r.get(key)!r}, not a fraction in [0, 1]"
+        if not isinstance(r.get("episodes"), int) or isinstance(r.get("episodes"), bool) or r["episodes"] < 1:
+            return f"map {r['map']}: its episodes are {r.get('episodes')!r}, not a count >= 1"
+        interval = r.get("success_interval")
+        if interval is not None and not (isinstance(interval, list) and len(interval) == 2
+                                         and all(_rate(x) for x in interval)):
+            return f"map {r['map']}: its success_interval is {interval!r}, not [low, high] fractions"
+    a = doc.get("aggregate")
+    if not isinstance(a, dict):
+        return f"its aggregate is {a!r:.40}, not an object"
+    for part, keys in (("mean", ("success_rate", "collision_rate", "timeout_rate")), ("pooled", ("success_rate",)),
+                       ("worst", ("success_rate",))):
+        if not isinstance(a.get(part), dict) or not all(_rate(a[part].get(k)) for k in keys):
+            return f"its aggregate's {part} is {a.get(part)!r:.60}, not {', '.join(keys)} fractions"
+    if not isinstance(a["worst"].get("map"), str):
+        return "its aggregate's worst names no map"
+    for key in ("maps", "maps_beyond_scale", "episodes_beyond_scale"):
+        if key not in a:
+            return f"its aggregate has no {key}"
+    return None
 
 
 def summary_table(docs: list[dict]) -> pd.DataFrame:

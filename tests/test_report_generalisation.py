@@ -184,3 +184,62 @@ def test_per_map_figure_draws_each_known_interval_and_the_bar(monkeypatch, tmp_p
     kept.clear()
     report_figures.plot_per_map(maps[maps["map"] != MEAN_ROW], tmp_path / "g.png")
     assert not kept["fig"].axes[0].collections and "interval" not in kept["fig"].axes[0].get_title()
+
+
+def _broken(edit):
+    doc = json.loads(json.dumps(DOCS[0]))
+    edit(doc)
+    return doc
+
+
+@pytest.mark.parametrize("edit, named", [
+    (lambda d: d.update(maps=None), "its maps are None, not a list of per-map results"),
+    (lambda d: d.update(maps=[]), "its maps are [], not a list of per-map results"),
+    (lambda d: d.update(maps=[1, 2]), "map row 0 is 1, not a per-map result with a map name"),
+    (lambda d: d["maps"][1].update(success_rate="0.5"), "map big: its success_rate is '0.5', not a fraction"),
+    (lambda d: d["maps"][0].update(success_rate=1.7), "map a: its success_rate is 1.7, not a fraction in [0, 1]"),
+    (lambda d: d["maps"][0].update(episodes=0), "map a: its episodes are 0, not a count >= 1"),
+    (lambda d: d["maps"][0].update(success_interval=[0.5]), "map a: its success_interval is [0.5]"),
+    (lambda d: d.update(label=None), "its label is None, not a name"),
+    (lambda d: d.pop("machine"), "it has no machine"),
+    (lambda d: d["aggregate"].pop("worst"), "its aggregate's worst is None"),
+    (lambda d: d.update(format_version="1"), "format version '1' is not one this report reads (1 to 1)"),
+    (lambda d: d.update(format_version=0), "format version 0 is not one this report reads"),
+    (lambda d: d.update(format_version=True), "format version True is not one this report reads"),
+    (lambda d: d.update(format_version=FORMAT + 1), f"format version {FORMAT + 1} is newer than this report reads"),
+])
+def test_a_malformed_eval_file_is_named_and_nothing_is_written(tmp_path, capsys, edit, named):
+    from flashnav.cli import main
+
+    path = tmp_path / "broken.json"
+    path.write_text(json.dumps(_broken(edit)))
+    out = tmp_path / "report"
+    assert main(["report", "--generalisation", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "broken.json" in err and named in err, err
+    assert not out.exists()
+
+
+def test_one_policy_twice_on_a_suite_is_refused_not_merged(tmp_path):
+    """A guided and an unguided eval of one policy file share the default label: one column would hold both."""
+    first, second = tmp_path / "unguided.json", tmp_path / "guided.json"
+    first.write_text(json.dumps(DOCS[0]))
+    second.write_text(json.dumps({**DOCS[0], "guide_lookahead_m": 0.5}))
+    with pytest.raises(ValueError, match=r"guided.json: policy 'single' on the heldout suite is already in "
+                                         r".*unguided.json.*--label NAME"):
+        load_evals([first, second])
+    second.write_text(json.dumps({**DOCS[0], "label": "single, guided"}))
+    assert [d["label"] for d in load_evals([first, second])] == ["single", "single, guided"]
+
+
+def test_flags_that_only_the_mlflow_report_reads_are_refused_with_generalisation_alone(tmp_path, capsys):
+    from flashnav.cli import main
+
+    path = tmp_path / "e.json"
+    path.write_text(json.dumps(DOCS[0]))
+    out = tmp_path / "report"
+    assert main(["report", "--generalisation", str(path), "--out", str(out), "--format", "tex"]) == 2
+    assert "--format tex: the generalisation tables are written as md, csv, html" in capsys.readouterr().err
+    assert main(["report", "--generalisation", str(path), "--out", str(out), "--invocation", "latest"]) == 2
+    assert "--invocation latest selects MLflow sweep runs" in capsys.readouterr().err
+    assert not out.exists()
