@@ -76,21 +76,25 @@ class InitSource:
         return cls(str(data.pop("path")), data, replay=data.pop("replay", None))
 
 
-def checkpoint_file(source: str | Path) -> Path:
-    """A run directory -> its ``checkpoint.pt``; a file -> itself. FileNotFoundError naming it otherwise."""
+def checkpoint_file(source: str | Path, name: str = "init_from") -> Path:
+    """A run directory -> its ``checkpoint.pt``; a file -> itself. FileNotFoundError or ValueError naming it, as
+    ``name`` (the option or argument that gave it), otherwise."""
     path = Path(source).expanduser()
     if path.is_dir():
         path = path / CHECKPOINT_NAME
         if not path.is_file():
-            raise FileNotFoundError(f"init_from {str(source)!r}: a folder without {CHECKPOINT_NAME} "
+            raise FileNotFoundError(f"{name} {str(source)!r}: a folder without {CHECKPOINT_NAME} "
                                     "(give a flashnav train run folder or a checkpoint file)")
         return path.resolve()
     if not path.is_file():
-        raise FileNotFoundError(f"init_from {str(source)!r}: no such run folder or checkpoint file")
+        raise FileNotFoundError(f"{name} {str(source)!r}: no such run folder or checkpoint file")
     from flashnav.checkpoint import is_torchscript
 
-    if path.suffix in (".onnx", ".json") or is_torchscript(path):
-        raise ValueError(f"init_from {str(source)!r}: an exported policy, which holds the actor only, not the "
+    if path.suffix == ".json":
+        raise ValueError(f"{name} {str(source)!r}: a JSON file (a policy's metadata or a run's metrics), not a "
+                         f"learner checkpoint: give its run folder or its {CHECKPOINT_NAME}")
+    if path.suffix == ".onnx" or is_torchscript(path):
+        raise ValueError(f"{name} {str(source)!r}: an exported policy, which holds the actor only, not the "
                          f"learner (critics, optimisers, temperature): give its run folder or its {CHECKPOINT_NAME}")
     return path.resolve()
 

@@ -21,6 +21,7 @@ from flashnav.export import export_policy
 from flashnav.finetune import checkpoint_file, load_init_source, load_learner
 from flashnav.learn.loop import run_learner
 from flashnav.names import POLICY_ONNX, POLICY_TORCHSCRIPT
+from flashnav.outputs import check_output_dir
 from flashnav.spec import RunSpec
 
 FINAL_DIR = "final"  # --out's default, inside the run folder
@@ -29,8 +30,8 @@ FINAL_DIR = "final"  # --out's default, inside the run folder
 def export_final(source: str | Path, out: str | Path | None = None) -> dict[str, Path]:
     """Write the final learner's policy of ``source`` (a run folder or its checkpoint.pt) to ``out`` (default the
     run folder's ``final/``); refuses an ``out`` that already holds a policy. Returns export_policy's paths."""
-    path = checkpoint_file(source)
-    out = Path(out) if out is not None else path.parent / FINAL_DIR
+    path = checkpoint_file(source, "RUN")
+    out = check_output_dir(Path(out) if out is not None else path.parent / FINAL_DIR, "--out")  # before the learner
     taken = [name for name in (POLICY_TORCHSCRIPT, POLICY_ONNX) if (out / name).exists()]
     if taken:
         raise FileExistsError(f"--out {out}: already holds {' and '.join(taken)}; give another folder or remove them")

@@ -41,3 +41,18 @@ def test_it_names_what_it_will_not_do(tmp_path, capsys):
     assert "an exported policy, which holds the actor only" in capsys.readouterr().err
     assert export_final.main([str(tmp_path / "nowhere")]) == 2
     assert "no such run folder or checkpoint file" in capsys.readouterr().err
+
+
+def test_a_bad_out_or_a_metrics_file_is_named_before_the_learner_is_read(tmp_path, capsys):
+    _, _, run = trained_checkpoint(tmp_path)
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    for out in (afile, afile / "sub"):
+        assert export_final.main([str(run), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert f"--out {out}" in err and "Traceback" not in err, err
+    (run / "policy.json").write_text("{}")  # the metadata flashnav train writes beside its policy
+    assert export_final.main([str(run / "policy.json")]) == 2
+    err = capsys.readouterr().err
+    assert "RUN " in err and "a JSON file (a policy's metadata or a run's metrics), not a learner checkpoint" in err
+    assert "init_from" not in err

@@ -138,6 +138,11 @@ def test_command_line_writes_a_ros_map(tmp_path, capsys):
     (["--width", "8", "--height", "6", "--density", "0.7", "--out", "d.yaml"], "--density 0.7: the occupied fraction"),
     (["--width", "8", "--height", "6", "--out", "c"], "--out c: the map's YAML file (NAME.yaml"),
     (["--family", "rooms", "--width", "-3", "--height", "5", "--out", "fam"], "--width -3: must be a positive number"),
+    # the rooms map would fit; the mazes one does not: nothing of either is written (rooms_0 was, once)
+    (["--family", "rooms,mazes", "--width", "2", "--height", "2", "--out", "fam"], "a 2 x 2 m mazes map is too small"),
+    (["--width", "8", "--height", "8", "--count", "0", "--out", "m.yaml"], "--count 0 goes with --family"),
+    (["--width", "8", "--height", "8", "--count", "3", "--out", "m.yaml"], "--count 3 goes with --family"),
+    (["--family", "", "--out", "fam"], "--family: no map family named in ''"),
 ])
 def test_command_line_errors_are_one_line(argv, said, tmp_path, monkeypatch, capsys):
     """Generator errors once ended in a traceback (exit 1), and an --out without .yaml wrote a map file that

@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
 
     p = argparse.ArgumentParser(prog="python -m flashnav.maps.generate", description=main.__doc__)
     p.add_argument("--family", help=f"map family, a comma-separated list of them, or 'all': {', '.join(MAP_FAMILIES)}")
-    p.add_argument("--count", type=int, default=1, help="maps per family (default 1)")
+    p.add_argument("--count", type=int, default=None, help="with --family: maps per family (default 1)")
     p.add_argument("--sheet", type=Path, help="with --family: also draw the maps into this contact sheet PNG")
     p.add_argument("--width", type=float, help="map width, metres (with --family: drawn in 6-30 m if omitted)")
     p.add_argument("--height", type=float, help="map height, metres (with --family: drawn if omitted)")
@@ -74,7 +74,7 @@ def _check_numbers(p: argparse.ArgumentParser, a: argparse.Namespace) -> None:
         p.error(f"--resolution {a.resolution:g}: a cell coarser than the robot's radius ({a.robot_radius:g} m, "
                 "--robot-radius) cannot draw the passages it must fit; the families use 0.025-0.1 m")
     if a.density is not None:
-        if a.family:
+        if a.family is not None:
             p.error("--density applies to the single cluttered map (without --family); each family draws its own")
         if bad(a.density, lambda x: 0 <= x < MAX_DENSITY):
             p.error(f"--density {a.density:g}: the occupied fraction must be in [0, {MAX_DENSITY:g})")
@@ -84,10 +84,13 @@ def _generate(p: argparse.ArgumentParser, a: argparse.Namespace, families: tuple
     from flashnav.outputs import check_figure_file, check_output_dir, check_output_file
 
     _check_numbers(p, a)
+    if a.family is None and a.count is not None:
+        p.error(f"--count {a.count} goes with --family (maps per family); without it one map is written to --out")
+    a.count = 1 if a.count is None else a.count
 
     # the paths first (ValueErrors naming the flag): a folder under a file, or a sheet matplotlib cannot write,
     # must not cost the maps
-    if a.family:
+    if a.family is not None:
         check_output_dir(a.out, "--out")
         if a.sheet:
             a.sheet = check_figure_file(a.sheet, "--sheet")
@@ -95,7 +98,7 @@ def _generate(p: argparse.ArgumentParser, a: argparse.Namespace, families: tuple
         p.error("--sheet needs --family (a contact sheet of the family maps)")
     else:
         check_output_file(a.out, "--out")
-    if a.family:
+    if a.family is not None:
         _write_families(p, a, families)
         return
     if a.width is None or a.height is None:
@@ -147,11 +150,17 @@ def _write_families(p: argparse.ArgumentParser, a: argparse.Namespace, known: tu
     if a.out.suffix in (".yaml", ".yml"):
         p.error(f"--out {a.out}: with --family, --out is a directory")
     size = None if a.width is None else (a.width, a.height)
+
+    def make(family: str, seed: int) -> OccupancyMap:
+        return generate_family(family, seed, size=size, resolution=a.resolution, robot_radius=a.robot_radius,
+                               margin=a.margin)
+
+    # each family's first map before any is written: a size one family cannot draw leaves no folder and no maps
+    first = {family: make(family, a.seed) for family in families}
     sheet: dict[str, list[OccupancyMap]] = {}
     for family in families:
         for seed in range(a.seed, a.seed + a.count):
-            grid = generate_family(family, seed, size=size, resolution=a.resolution, robot_radius=a.robot_radius,
-                                   margin=a.margin)
+            grid = first[family] if seed == a.seed else make(family, seed)
             args = ["python", "-m", "flashnav.maps.generate", "--family", family, "--seed", str(seed)]
             if size:
                 args += ["--width", f"{a.width:g}", "--height", f"{a.height:g}"]
@@ -159,7 +168,7 @@ def _write_families(p: argparse.ArgumentParser, a: argparse.Namespace, known: tu
                 args += ["--resolution", f"{a.resolution:g}"]
             args += ["--robot-radius", f"{a.robot_radius:g}", "--margin", f"{a.margin:g}", "--format", a.format,
                      "--out", str(a.out)]
-            a.out.mkdir(parents=True, exist_ok=True)  # once a map is made: a bad size leaves no folder
+            a.out.mkdir(parents=True, exist_ok=True)
             _save(grid, a.out / f"{grid.name}.yaml", a.format, a.robot_radius, shlex.join(args),
                   f"{grid.width_m:g} x {grid.height_m:g} m at {grid.resolution:g} m; occupied {grid.occupied.mean():.1%}")
             sheet.setdefault(family, []).append(grid)
