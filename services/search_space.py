@@ -74,7 +74,7 @@ class Search(Strict):
     unreached_penalty: float = Field(0.0, ge=0, description="added to a censored objective where not reached")
     study_name: str | None = Field(None, description="default: <sweep>-<robot>-<algorithm>-<invocation stamp>")
     storage: str | None = Field(None, description="Optuna RDB URL; default sqlite:///<runs>/optuna.db")
-    sampler_seed: int | None = None
+    sampler_seed: int | None = Field(None, ge=0, le=2**32 - 1, description="the TPE sampler's seed (numpy's range)")
     startup_trials: int | None = Field(
         None, gt=0, description="trials (start points included) drawn at random before TPE models the results "
         "(Optuna's n_startup_trials; default: Optuna's 10): a study of no more trials than this is a seeded random "
@@ -85,6 +85,21 @@ class Search(Strict):
     start_points: list[dict[str, Any]] = Field(
         default_factory=list, description="trials run first, in order (e.g. the current recipe, a baseline "
         "inside the study): config path -> value, each inside its distribution; unnamed paths are sampled")
+
+    @field_validator("storage")
+    @classmethod
+    def _storage(cls, value: str | None) -> str | None:
+        if value is None:
+            return value
+        from sqlalchemy.engine import make_url
+        from sqlalchemy.exc import ArgumentError
+
+        try:  # what optuna's RDB storage parses, only once Ray is up
+            make_url(value)
+        except ArgumentError:
+            raise ValueError(f"{value!r} is not a database URL (e.g. sqlite:///runs/optuna.db, "
+                             f"postgresql://user@host/db)") from None
+        return value
 
     @field_validator("objective")
     @classmethod

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import Field, ValidationError, field_serializer, field_validator, model_validator
+from pydantic import Field, StrictInt, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from flashnav.config import problems
@@ -73,7 +73,7 @@ class Sweep(Strict):
     description: str = ""
     robots: list[str] = Field(min_length=1)
     algorithms: list[str] = Field(min_length=1)
-    seeds: int | list[int] = Field(description="n (= seeds 0..n-1) or an explicit list")
+    seeds: StrictInt | list[StrictInt] = Field(description="n (= seeds 0..n-1) or an explicit list")
     base: TrainConfig = Field(default_factory=TrainConfig,
                               description="TrainConfig fields every trial shares (recipe, map, eval, raycaster, ...)")
     overrides: dict[str, Any] = Field(default_factory=dict, description="TrainConfig.overrides for every trial")
@@ -83,7 +83,7 @@ class Sweep(Strict):
     resources: Resources = Resources()
     max_concurrent_trials: int | None = Field(None, gt=0)
     tracking: Tracking = Tracking()
-    storage: str | None = Field(None, description="Ray storage path; default <runs>/ray")
+    storage: str | None = Field(None, min_length=1, description="Ray storage path; default <runs>/ray")
     retry: Retry = Retry()
     export_policy: bool = Field(True, description="write each run's policy.pt (TorchScript) as an MLflow artifact")
 
@@ -138,6 +138,14 @@ class Sweep(Strict):
         if negative:  # a training seed is >= 0 (flashnav.spec); the dry run resolves only the first seed
             raise ValueError(f"seeds must be >= 0, got {negative}")
         return seeds
+
+    @model_validator(mode="after")
+    def _overrides_apply(self) -> "Sweep":
+        unused = sorted(set(self.algorithm_overrides) - set(self.algorithms))
+        if unused:  # they would never reach a trial
+            raise ValueError(f"algorithm_overrides for {', '.join(unused)}, which the sweep does not run "
+                             f"(algorithms: {', '.join(self.algorithms)}); remove them or add the algorithm")
+        return self
 
     @model_validator(mode="after")
     def _search_fits(self) -> "Sweep":

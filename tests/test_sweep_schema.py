@@ -115,6 +115,24 @@ def test_seeds_forms():
     assert "seeds repeat" in error_of(minimal(seeds=[1, 1]))
     assert "need at least one seed" in error_of(minimal(seeds=0))
     assert "seeds must be >= 0, got [-3]" in error_of(minimal(seeds=[0, -3]))  # failed only in its own trial
+    for loose in (True, "2", 2.0, [0, "1"], [True]):  # once coerced: `seeds: true` ran one seed, "2" two
+        assert "seeds" in error_of(minimal(seeds=loose)), loose
+
+
+def test_storage_and_sampler_values_are_checked_before_ray_starts():
+    """An empty Ray storage once resolved to the project root; a bad Optuna URL or sampler seed failed only in
+    Optuna, the URL with a traceback even in a dry run."""
+    assert "storage: String should have at least 1 character" in error_of(minimal(storage=""))
+    space = {"algo.batch_size": {"choice": [256, 512]}}
+    for search, said in (({"storage": "notaurl"}, "search.storage: 'notaurl' is not a database URL"),
+                         ({"sampler_seed": -1}, "search.sampler_seed: Input should be greater than or equal to 0"),
+                         ({"sampler_seed": 2**32}, "search.sampler_seed: Input should be less than or equal to")):
+        assert said in error_of(minimal(search={"n_trials": 2, "parameters": space, **search}))
+    unused = minimal(algorithm_overrides={"fasttd3": {"algo.tau": 0.1}})
+    assert "algorithm_overrides for fasttd3, which the sweep does not run (algorithms: fastdsac)" in error_of(unused)
+    ok = parse_sweep(minimal(search={"n_trials": 2, "parameters": space, "sampler_seed": 2**32 - 1,
+                                     "storage": "sqlite:///runs/optuna.db"}))
+    assert ok.search.sampler_seed == 2**32 - 1
 
 
 def test_a_union_value_error_says_only_its_reason():
