@@ -120,21 +120,23 @@ def validate_train_configs(plan: Plan) -> None:
     """Resolve every (robot, algorithm) run in the driver, through the library's one resolver, so a bad
     key, a misspelt searched hyperparameter or a missing map fails before Ray starts."""
     from flashnav.machine import resolve_recipe
+    from flashnav.maps.families import reuse_generated_maps
     from flashnav.spec import config_from_data, resolve
 
     sweep = plan.sweep
-    for robot in sweep.robots:
-        for algorithm in sweep.algorithms:
-            for extra, what in _search_points(sweep, algorithm):
-                data = sweep.train_config(robot, algorithm, sweep.seed_list[0], "cpu", extra)
-                # the trials' recipe: their device is not known here, their resources say whether it is a GPU
-                data["recipe"] = resolve_recipe(data.get("recipe", "auto"),
-                                                "cuda" if sweep.resources.gpu > 0 else "cpu")
-                try:
-                    resolve(config_from_data(data, f"{robot}/{algorithm}"))
-                except ValueError as exc:
-                    raise SweepError(f"{plan.source}: {robot}/{algorithm}{what}: not a valid training config:"
-                                     f"\n{exc}") from None
+    with reuse_generated_maps():  # each searched point resolves the same generated maps: made once
+        for robot in sweep.robots:
+            for algorithm in sweep.algorithms:
+                for extra, what in _search_points(sweep, algorithm):
+                    data = sweep.train_config(robot, algorithm, sweep.seed_list[0], "cpu", extra)
+                    # the trials' recipe: their device is not known here, their resources say whether it is a GPU
+                    data["recipe"] = resolve_recipe(data.get("recipe", "auto"),
+                                                    "cuda" if sweep.resources.gpu > 0 else "cpu")
+                    try:
+                        resolve(config_from_data(data, f"{robot}/{algorithm}"))
+                    except ValueError as exc:
+                        raise SweepError(f"{plan.source}: {robot}/{algorithm}{what}: not a valid training "
+                                         f"config:\n{exc}") from None
 
 
 def _search_points(sweep: Sweep, algorithm: str) -> list[tuple[dict[str, Any], str]]:

@@ -64,3 +64,22 @@ def test_command_line_writes_k_maps_per_family_that_reload_bit_for_bit(tmp_path)
         assert command[command.index("--family") + 1] == family and command[command.index("--seed") + 1] == seed
     with pytest.raises(SystemExit):
         main(["--family", "caves", "--out", str(tmp_path / "x")])
+
+
+def test_reuse_generated_maps_gives_the_same_map_once_drawn_and_only_inside_the_block():
+    from flashnav.maps.families import generate_family, reuse_generated_maps
+
+    fresh = generate_family("mazes", 7, size=(8.0, 8.0))
+    assert generate_family("mazes", 7, size=(8.0, 8.0)) is not fresh  # outside: drawn every time
+    with reuse_generated_maps():
+        a = generate_family("mazes", 7, size=(8.0, 8.0))
+        with reuse_generated_maps():  # nested: the outer block's maps
+            assert generate_family("mazes", 7, size=(8.0, 8.0)) is a
+        assert generate_family("mazes", 7, size=[8.0, 8.0]) is a
+        assert generate_family("mazes", 8, size=(8.0, 8.0)) is not a  # other arguments, another map
+        assert generate_family("mazes", 7, size=(8.0, 8.0), robot_radius=0.25) is not a
+        with pytest.raises(ValueError, match="too small"):  # errors are not kept
+            generate_family("mazes", 7, size=(2.0, 2.0))
+    np.testing.assert_array_equal(a.occupied, fresh.occupied)
+    assert not a.occupied.flags.writeable  # shared safely: immutable
+    assert generate_family("mazes", 7, size=(8.0, 8.0)) is not a  # after the block: drawn again

@@ -25,6 +25,7 @@ drawn on a :class:`~flashnav.maps.canvas.Canvas`.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
 import zlib
@@ -53,10 +54,30 @@ def check_training_seed(seed: int) -> int:
     return seed
 
 
+#: within :func:`reuse_generated_maps`: the maps made so far, by their arguments (None outside it)
+_REUSED: dict[tuple, OccupancyMap] | None = None
+
+
+@contextlib.contextmanager
+def reuse_generated_maps():
+    """Within this block :func:`generate_family` gives the same map object again for the same arguments instead of
+    drawing it anew (an :class:`OccupancyMap` is immutable, its derived fields cached read-only), so a caller that
+    resolves one map set several times - a sweep checking each searched point's training config before Ray starts
+    - pays for each map once. Outside it every call draws its map. Nested blocks share the outer one's maps."""
+    global _REUSED
+    outer = _REUSED
+    _REUSED = {} if outer is None else outer
+    try:
+        yield
+    finally:
+        _REUSED = outer
+
+
 def generate_family(family: str, seed: int, *, size: tuple[float, float] | None = None,
                     resolution: float | None = None, robot_radius: float = 0.3, margin: float = 0.1,
                     name: str | None = None) -> OccupancyMap:
-    """A map of ``family``, reproducibly.
+    """A map of ``family``, reproducibly (the same object again for the same arguments inside
+    :func:`reuse_generated_maps`).
 
     Args:
         family: one of :data:`flashnav.names.MAP_FAMILIES`.
@@ -71,6 +92,17 @@ def generate_family(family: str, seed: int, *, size: tuple[float, float] | None 
     Returns:
         An ``OccupancyMap`` (origin (0, 0)) whose free space for ``robot_radius`` is one connected region.
     """
+    if _REUSED is None:
+        return _draw_family(family, seed, size, resolution, robot_radius, margin, name)
+    key = (family, seed, None if size is None else tuple(size), resolution, robot_radius, margin, name)
+    if key not in _REUSED:
+        _REUSED[key] = _draw_family(family, seed, size, resolution, robot_radius, margin, name)
+    return _REUSED[key]
+
+
+def _draw_family(family: str, seed: int, size, resolution, robot_radius: float, margin: float,
+                 name: str | None) -> OccupancyMap:
+    """:func:`generate_family`'s map, drawn."""
     check_name("map family", family, MAP_FAMILIES)
     if not (isinstance(seed, numbers.Integral) and seed >= 0):
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
