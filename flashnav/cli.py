@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from importlib.metadata import entry_points
 
 
@@ -67,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
 #: what a user can cause with a bad input or a bad environment (a wrong value, a missing or unwritable
 #: file, a misspelt key): one line on stderr and exit status 2. Anything else is a bug and keeps its
 #: traceback.
-USER_ERRORS = (ValueError, OSError, KeyError)
+USER_ERRORS = (ValueError, OSError, KeyError, MemoryError)
 
 
 def error_line(exc: BaseException) -> str:
@@ -79,7 +80,19 @@ def error_line(exc: BaseException) -> str:
 
         return f"invalid {exc.title}: " + "; ".join(error_lines(exc))
     text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    if isinstance(exc, MemoryError):  # numpy's says what it could not allocate
+        text = (f"out of memory ({text or 'MemoryError'}): fewer environments, evaluation episodes or replay "
+                "transitions, or a machine with more memory")
     return " ".join(text.split()) or type(exc).__name__
+
+
+def _command_parser(parser: argparse.ArgumentParser, args) -> argparse.ArgumentParser:
+    """The parser of the command (and subcommand) ``args`` ran, so that an error shows its usage; else ``parser``."""
+    for action in parser._subparsers._group_actions if parser._subparsers else ():
+        chosen = action.choices.get(getattr(args, action.dest, None) or "")
+        if chosen is not None:
+            return _command_parser(chosen, args)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,7 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     # is the usual error
     if extra:
         if not hasattr(args, "overrides") or any(a.startswith("-") or "=" not in a for a in extra):
-            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+            hint = ""
+            if any(Path(a).exists() for a in extra):  # the shell expanded a --maps / --eval-maps pattern
+                hint = " (a glob the shell expanded? quote it: --maps 'DIR/*.yaml')"
+            _command_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}{hint}")
         args.overrides = list(args.overrides or []) + extra
     if not getattr(args, "func", None):
         parser.print_help()

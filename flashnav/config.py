@@ -19,9 +19,11 @@ from flashnav.policy_meta import wall_map_channel_names
 
 class KnownKeys(BaseModel):
     """Base: unknown keys are errors that name the key and the allowed names (a misspelt key must not
-    be silently ignored, and the message should say what was meant)."""
+    be silently ignored, and the message should say what was meant); no number is inf or NaN (a time step, radius or
+    reward of inf or NaN once passed ``gt=0`` and unbounded fields, and failed later in a kernel's traceback or in a
+    NaN action far from the key that caused it)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     @model_validator(mode="before")
     @classmethod
@@ -38,7 +40,7 @@ class KnownKeys(BaseModel):
 class Strict(KnownKeys):
     """Base of frozen models: unknown keys are errors that list the allowed names."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 _TYPE_TAGS = {"str", "int", "float", "bool", "dict", "list", "none", "tuple"}
@@ -78,11 +80,13 @@ def problems(exc: ValidationError) -> list[tuple[list[str], dict]]:
     return out
 
 
-def error_lines(exc: ValidationError) -> list[str]:
+def error_lines(exc: ValidationError, section: str | None = None) -> list[str]:
     """One ``key.path: message`` per problem of a pydantic error (:func:`problems`), with the value that failed
-    a bound or a type."""
+    a bound or a type; with ``section`` (``algo``, ``robot``) the path starts with it, and a problem of the section as
+    a whole (a check across its keys) reads ``section: message``."""
     lines = []
     for loc, item in problems(exc):
+        loc = ([section] if section else []) + loc
         got = ""
         if item["type"] != "unknown_key" and isinstance(item.get("input"), (int, float, str)) \
                 and len(repr(item["input"])) <= 60:

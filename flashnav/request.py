@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import Field, StrictInt, ValidationError, ValidationInfo, field_validator, model_validator
 
 from flashnav.config import KnownKeys, error_lines
 from flashnav.learn.hparams import override_section
@@ -40,7 +40,7 @@ class EvalSettings(KnownKeys):
 
     episodes: int = Field(EVAL_EPISODES, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
     every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
-    seed: int = Field(EVAL_SEED, ge=0, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
+    seed: StrictInt = Field(EVAL_SEED, ge=0, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
     maps: str | list[str] | None = Field(
         None, description="evaluate on other maps than the training maps (None): a directory, glob or list of ROS map "
                           "YAML files, or 'validation' (generated, seeds from 800000; flashnav/maps/validation.py), "
@@ -63,7 +63,7 @@ class TrainConfig(KnownKeys):
     algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
     recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
         "auto", description="hyperparameter recipe: " + RECIPE_HELP)
-    seed: int = Field(0, ge=0, description="training seed")
+    seed: StrictInt = Field(0, ge=0, description="training seed (an integer: `seed=yes` is not 1)")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
     map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")
     maps: str | list[str] | GeneratedMaps | None = Field(

@@ -414,3 +414,64 @@ def test_eval_maps_per_family_goes_with_the_validation_suite(tmp_path, capsys):
     assert line == ("flashnav train: error: eval.maps_per_family=3 goes with eval.maps: validation (--eval-maps "
                     "validation); eval.maps is None")
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("override, named", [
+    ("robot.episode.dt=.inf", "robot.episode.dt: Input should be a finite number"),
+    ("robot.footprint.radius=.inf", "robot.footprint.radius: Input should be a finite number"),
+    ("robot.reward.goal=nan", "robot.reward.goal: Input should be a finite number"),
+    ("algo.actor_lr=.inf", "algo.actor_lr: Input should be a finite number"),
+    ("algo.temperature=.nan", "algo.temperature: Input should be a finite number"),
+    ("budget.max_train_seconds=.inf", "budget.max_train_seconds: Input should be a finite number"),
+    ("seed=yes", "seed: Input should be a valid integer (got True)"),
+    ("eval.seed=1.5", "eval.seed: Input should be a valid integer"),
+    ("algo.buffer_size=2048", "algo: learning_start (4096) must be <= buffer_size (2048)"),
+])
+def test_values_that_once_trained_or_crashed_are_named_before_anything_runs(tmp_path, capsys, override, named):
+    """inf passed gt=0 and crashed in a kernel's traceback (dt, radius), NaN trained into a NaN action with no word
+    of its key, `seed=yes` trained seed 1, and a replay smaller than learning_start trained without an update."""
+    out = tmp_path / "run"
+    line = fails(capsys, "train", "--device", "cpu", "--out", str(out), override)
+    assert named in line, line
+    assert not out.exists()
+
+
+def test_eval_refuses_an_infinite_override(tmp_path, capsys, run_dir):
+    line = fails(capsys, "eval", str(run_dir / "policy.pt"), "--episodes", "4", "robot.lidar.noise_std=.inf")
+    assert "robot.lidar.noise_std: Input should be a finite number" in line
+
+
+def test_an_empty_out_and_a_budget_before_the_first_update_are_said(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    line = fails(capsys, "train", "--device", "cpu", "--out", "")
+    assert "--out is empty; give a folder" in line and not (tmp_path / "runs").exists()
+    from flashnav.learn.cli import budget_notes
+    from flashnav.spec import config_from_cli, resolve
+
+    short = resolve(config_from_cli(None, {"device": "cpu"}, ["budget.max_env_steps=2048"]))
+    (note,) = budget_notes(short)
+    assert "ends at 2,048 env steps, before algo.learning_start = 4,096" in note and "no update will run" in note
+    assert budget_notes(resolve(config_from_cli(None, {"device": "cpu"}, ["budget.max_env_steps=4096"]))) == []
+
+
+def test_argument_errors_show_the_commands_usage_and_a_hint_for_an_unquoted_glob(tmp_path, capsys):
+    for name in ("a.yaml", "b.yaml"):
+        (tmp_path / name).write_text("x")
+    with pytest.raises(SystemExit):
+        main(["train", "--sead", "3"])
+    err = capsys.readouterr().err
+    assert "flashnav train: error: unrecognized arguments: --sead" in err and "usage: flashnav train" in err
+    with pytest.raises(SystemExit):  # what the shell makes of --maps DIR/*.yaml
+        main(["eval", "p.onnx", "--maps", str(tmp_path / "a.yaml"), str(tmp_path / "b.yaml")])
+    assert "(a glob the shell expanded? quote it: --maps 'DIR/*.yaml')" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench", "runs", "x", "--bogus"])
+    assert "flashnav bench runs: error: unrecognized arguments: --bogus" in capsys.readouterr().err
+
+
+def test_running_out_of_memory_is_one_line():
+    from flashnav.cli import USER_ERRORS, error_line
+
+    assert issubclass(MemoryError, USER_ERRORS)
+    line = error_line(MemoryError("Unable to allocate 12.7 GiB for an array"))
+    assert line.startswith("out of memory (Unable to allocate 12.7 GiB") and "fewer environments" in line

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import datetime as dt
 import json
+import math
 import signal
 import threading
 from pathlib import Path
@@ -88,6 +89,8 @@ def run_train(args) -> int:
     console = Console()
     if not args.save_every >= 0:
         raise ValueError(f"--save-every must be >= 0 seconds, got {args.save_every}")
+    if args.out is not None and not args.out.strip():  # an unset shell variable: not the default folder
+        raise ValueError("--out is empty; give a folder, or leave --out out for runs/train/<robot>-<algo>-s<seed>-<time>")
     spec = resolve(config_from_args(args))  # every bad input fails here, before anything is written
     config = spec.config
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -99,7 +102,7 @@ def run_train(args) -> int:
                          "to replace it")
     console.print(f"[bold]flashnav train[/] {spec.robot_name} / {config.algorithm} ({spec.recipe} recipe, "
                   f"{spec.device}), seed {config.seed} -> {out}")
-    for line in recorded_drift(args.config, spec):
+    for line in recorded_drift(args.config, spec) + budget_notes(spec):
         console.print(f"[yellow]note[/]: {line}", soft_wrap=True)
     if spec.init is not None:
         run = spec.init.run
@@ -133,6 +136,17 @@ def run_train(args) -> int:
     save_run(result, out, replay=args.save_replay)  # only now (or at the first snapshot): a failed start leaves none
     _summary(console, result, out)
     return 0
+
+
+def budget_notes(spec) -> list[str]:
+    """A line where the run's env-step budget ends before the learner's first update (``algo.learning_start``
+    transitions): such a run evaluates the untrained policy only (a smoke test may mean it; a study rarely does)."""
+    hp = spec.hparams
+    steps = math.ceil(spec.max_env_steps / hp.num_envs) * hp.num_envs  # whole vector steps, as the loop runs them
+    if steps >= hp.learning_start:
+        return []
+    return [f"the budget ends at {steps:,} env steps, before algo.learning_start = {hp.learning_start:,} stored "
+            f"transitions: no update will run (raise budget.max_env_steps or lower algo.learning_start)"]
 
 
 def recorded_drift(config_file: str | None, spec) -> list[str]:

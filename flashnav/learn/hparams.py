@@ -79,6 +79,10 @@ class LearnerHParams(Strict):
             raise ValueError(f"noise_color must be an exponent in [0, 2], or a list of one per action, got {self.noise_color}")
         if min(self.actor_hidden + self.critic_hidden) <= 0:
             raise ValueError("hidden layer widths must be > 0")
+        if self.learning_start > self.buffer_size:  # the replay never holds that many: no update would ever run
+            raise ValueError(f"learning_start ({self.learning_start}) must be <= buffer_size ({self.buffer_size}): "
+                             f"updates start once the replay holds learning_start transitions, and it holds at most "
+                             f"about buffer_size")
         return self
 
     @field_validator("wall_map_convs")
@@ -205,7 +209,7 @@ def load_hparams(algorithm: str, robot: str, recipe: str = "paper",
     try:
         return MODELS[algorithm].model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"algo.{line}" for line in error_lines(exc))
+        problems = "; ".join(error_lines(exc, "algo"))
         raise ValueError(f"{algorithm}.yaml [{recipe}.{robot}] with overrides {overrides or {}}: {problems}") from None
 
 

@@ -55,7 +55,7 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
     try:
         return RobotPreset.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"robot.{line}" for line in error_lines(exc))
+        problems = "; ".join(error_lines(exc, "robot"))
         raise ValueError(f"robot preset {source!r}"
                          + (f" with overrides {overrides}" if overrides else "") + f": {problems}") from None
 
