@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from importlib.metadata import entry_points
+from pathlib import Path
 
 
 #: Top-level modules of the optional ``services`` extra: a plugin command whose import fails on one of
@@ -87,7 +87,8 @@ def error_line(exc: BaseException) -> str:
 
 
 def _command_parser(parser: argparse.ArgumentParser, args) -> argparse.ArgumentParser:
-    """The parser of the command (and subcommand) ``args`` ran, so that an error shows its usage; else ``parser``."""
+    """The parser of the command (and subcommand) ``args`` ran, so that an error shows its usage; else ``parser``
+    (argparse keeps a parser's subcommands in its private ``_subparsers`` group; stable since Python 3.2)."""
     for action in parser._subparsers._group_actions if parser._subparsers else ():
         chosen = action.choices.get(getattr(args, action.dest, None) or "")
         if chosen is not None:

@@ -40,7 +40,8 @@ class EvalSettings(KnownKeys):
 
     episodes: int = Field(EVAL_EPISODES, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
     every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
-    seed: StrictInt = Field(EVAL_SEED, ge=0, description="fixed evaluation seed: same start/goal pairs for every evaluation and seed")
+    seed: StrictInt = Field(EVAL_SEED, ge=0, description="fixed evaluation seed: same start/goal pairs for every "
+                            "evaluation and seed")
     maps: str | list[str] | None = Field(
         None, description="evaluate on other maps than the training maps (None): a directory, glob or list of ROS map "
                           "YAML files, or 'validation' (generated, seeds from 800000; flashnav/maps/validation.py), "

@@ -107,7 +107,8 @@ def test_bench_plot_draws_run_folders_and_bench_files_together(tmp_path, capsys)
     empty = tmp_path / "empty"
     empty.mkdir()
     assert cli_main(["bench", "plot", str(empty), "--out", str(tmp_path / "x.png")]) == 2
-    assert "empty is not a `flashnav bench train --json` file or a `flashnav train` run folder" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "empty is not a `flashnav bench train --json` file or a `flashnav train` run folder" in err
 
 
 def test_bench_plot_names_a_bad_file(tmp_path, capsys):

@@ -90,7 +90,8 @@ def run_train(args) -> int:
     if not args.save_every >= 0:
         raise ValueError(f"--save-every must be >= 0 seconds, got {args.save_every}")
     if args.out is not None and not args.out.strip():  # an unset shell variable: not the default folder
-        raise ValueError("--out is empty; give a folder, or leave --out out for runs/train/<robot>-<algo>-s<seed>-<time>")
+        raise ValueError("--out is empty; give a folder, or leave --out out for "
+                         "runs/train/<robot>-<algo>-s<seed>-<time>")
     spec = resolve(config_from_args(args))  # every bad input fails here, before anything is written
     config = spec.config
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
