@@ -157,9 +157,10 @@ def _shape_keys(algorithm: str, hp) -> dict[str, Any]:
     return keys
 
 
-def check_compatible(checkpoint_spec, algorithm: str, hp, robot, source: str) -> None:
+def check_compatible(checkpoint_spec, algorithm: str, hp, robot, source: str, recipe: str | None = None) -> None:
     """A ValueError naming every key where this run's networks would differ in shape or input layout
-    from the checkpoint's (``checkpoint_spec``: its RunSpec); nothing when they match."""
+    from the checkpoint's (``checkpoint_spec``: its RunSpec), and the flags that would make this run the checkpoint's
+    robot, algorithm and ``recipe`` where they differ (most mismatches follow from those); nothing when they match."""
     ours = {**_shape_keys(algorithm, hp), **_layout_keys(robot)}
     theirs = {**_shape_keys(checkpoint_spec.algorithm, checkpoint_spec.hparams), **_layout_keys(checkpoint_spec.robot)}
     if robot.observation.wall_map or checkpoint_spec.robot.observation.wall_map:  # the map's CNN, where one reads it
@@ -168,9 +169,14 @@ def check_compatible(checkpoint_spec, algorithm: str, hp, robot, source: str) ->
     bad = [f"{key}: checkpoint {theirs.get(key)!r}, this run {value!r}" for key, value in ours.items()
            if theirs.get(key) != value]
     if bad:
+        flags = [f"{flag} {theirs_}" for flag, theirs_, ours_ in (
+            ("--robot", checkpoint_spec.robot_name, robot.name), ("--algo", checkpoint_spec.algorithm, algorithm),
+            ("--recipe", checkpoint_spec.recipe, recipe)) if ours_ is not None and theirs_ != ours_]
+        fix = (f"train with {' '.join(flags)} as the checkpoint's run did" if flags
+               else "set them as the checkpoint's run did")
         raise ValueError(f"init_from {source}: this run's networks do not match the checkpoint's "
                          f"({checkpoint_spec.robot_name} / {checkpoint_spec.algorithm}, {checkpoint_spec.recipe} "
-                         f"recipe): {'; '.join(bad)} (set them as the checkpoint's run did)")
+                         f"recipe): {'; '.join(bad)} ({fix})")
 
 
 def goal_band_top(robot) -> float:

@@ -183,10 +183,22 @@ def config_from_data(data: dict[str, Any], source: str = "config") -> TrainConfi
     if isinstance(data.get("algo"), dict):  # a section a config file cannot have: where its keys go instead
         raise ValueError(f"{source}: algo: not a section here; hyperparameters go under overrides as dotted keys: "
                          f"overrides: {{algo.{next(iter(data['algo']), 'batch_size')}: ...}}")
+    if isinstance(data.get("robot"), dict):  # robot names a preset; its changes are overrides too
+        first = _first_dotted(data["robot"]) or "lidar.noise_std"
+        raise ValueError(f"{source}: robot: names a preset (turtlebot2, go2 or a preset YAML file), not a section; "
+                         f"changes to it go under overrides as dotted keys: overrides: {{robot.{first}: ...}}")
     try:
         return TrainConfig.model_validate(data)
     except ValidationError as exc:
         raise ValueError(f"{source}: {'; '.join(error_lines(exc))}") from None
+
+
+def _first_dotted(section: dict) -> str | None:
+    """The first key path of a nested mapping, dotted (``{lidar: {noise_std: 0.1}}`` -> ``lidar.noise_std``)."""
+    for key, value in section.items():
+        rest = _first_dotted(value) if isinstance(value, dict) and value else None
+        return f"{key}.{rest}" if rest else str(key)
+    return None
 
 
 def run_request(data: dict[str, Any]) -> dict[str, Any] | None:

@@ -185,7 +185,7 @@ def resolve(config: TrainConfig | None = None) -> RunSpec:
     init = checkpoint = None
     if config.init_from is not None or config.init_replay:  # before the maps: a mismatch is refused before any loads
         init, checkpoint = load_init_source(config.init_from, RunSpec.from_dict, replay=config.init_replay)
-        check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from)
+        check_compatible(checkpoint, config.algorithm, hparams, robot, config.init_from, recipe)
     if isinstance(config.maps, GeneratedMaps):  # before drawing set 0: every set's seeds must be valid
         config.maps.check_seeds(math.ceil((config.budget.max_env_steps or hparams.total_env_steps) / hparams.num_envs))
     eval_grids, eval_maps = load_eval_maps(config, robot)  # before the training maps: a bad path fails fast

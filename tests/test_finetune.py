@@ -143,9 +143,11 @@ def test_the_wall_maps_cnn_must_match_where_a_map_is_read(tmp_path):
 
 def test_another_algorithm_or_robot_is_refused_by_name(tmp_path):
     _, _, run = trained_checkpoint(tmp_path, updates=1)
-    with pytest.raises(ValueError, match="algorithm: checkpoint 'fastdsac', this run 'fasttd3'"):
+    with pytest.raises(ValueError, match=r"algorithm: checkpoint 'fastdsac', this run 'fasttd3'.*"
+                                         r"\(train with --algo fastdsac as the checkpoint's run did\)"):
         resolve(config("fasttd3", init_from=str(run)))
-    with pytest.raises(ValueError, match="robot.motion.velocity_state_dims: checkpoint 2, this run 3"):
+    with pytest.raises(ValueError, match=r"robot.motion.velocity_state_dims: checkpoint 2, this run 3.*"
+                                         r"\(train with --robot turtlebot2 as the checkpoint's run did\)"):
         resolve(config(init_from=str(run)).model_copy(update={"robot": "go2"}))
 
 

@@ -265,6 +265,10 @@ def test_a_key_without_its_section_is_pointed_to_it(tmp_path, capsys):
     config.write_text("algo:\n  gamma: 0.99\n")
     assert "algo: not a section here; hyperparameters go under overrides as dotted keys: overrides: {algo.gamma: ...}" \
         in fails(capsys, "train", "--config", str(config), "--out", str(tmp_path / "r"))
+    config.write_text("robot:\n  lidar:\n    noise_std: 0.1\n")  # once: "robot: Input should be a valid string"
+    line = fails(capsys, "train", "--config", str(config), "--out", str(tmp_path / "r"))
+    assert "robot: names a preset (turtlebot2, go2 or a preset YAML file), not a section" in line
+    assert "overrides: {robot.lidar.noise_std: ...}" in line
 
 
 def test_a_union_value_error_says_only_its_reason(tmp_path, capsys):
