@@ -28,6 +28,8 @@ def run_demo(args) -> int:
     from flashnav.viz import draw_trajectories
 
     out = check_figure_file(args.out, "--out")  # before any work: a bad path costs nothing
+    if args.envs < 1:
+        raise ValueError(f"--envs must be >= 1 (robots driven at once), got {args.envs}")
     env = make_env(args.robot, args.envs, map=args.map, seed=args.seed)
     print(f"{env}  map {env.map}")
     env.reset(seed=args.seed)

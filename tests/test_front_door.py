@@ -479,3 +479,18 @@ def test_running_out_of_memory_is_one_line():
     assert issubclass(MemoryError, USER_ERRORS)
     line = error_line(MemoryError("Unable to allocate 12.7 GiB for an array"))
     assert line.startswith("out of memory (Unable to allocate 12.7 GiB") and "fewer environments" in line
+
+
+def test_demo_names_envs(tmp_path, capsys):
+    assert "--envs must be >= 1 (robots driven at once), got 0" in fails(
+        capsys, "demo", "--envs", "0", "--out", str(tmp_path / "d.png"))
+
+
+def test_a_long_override_list_is_cut_and_a_misspelt_family_spec_is_pointed_to(tmp_path, capsys):
+    from flashnav.presets import _shown
+
+    many = {f"agents.k{i}": i for i in range(7)}
+    assert _shown(many) == "{'agents.k0': 0, 'agents.k1': 1, 'agents.k2': 2, 'agents.k3': 3, ... 3 more}"
+    assert _shown({"a": 1}) == "{'a': 1}"
+    line = fails(capsys, "train", "--device", "cpu", "--out", str(tmp_path / "r"), "--maps", "famliy:rooms")
+    assert "maps 'famliy:rooms': no such directory or file" in line and "generated during training are family:" in line

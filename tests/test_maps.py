@@ -188,6 +188,9 @@ def test_missing_image_names_the_path_it_tried_and_the_yaml(tmp_path):
     with pytest.raises(FileNotFoundError) as err:
         load_ros_map(path)
     assert str(tmp_path / "pics" / "room.pgm") in str(err.value) and str(path) in str(err.value)
+    folder = write_yaml(tmp_path / "dir.yaml", ".")  # image: a folder (once "image file not found: tried DIR")
+    with pytest.raises(FileNotFoundError, match=r"dir\.yaml: image: '\.' is a folder .*not the map's image file"):
+        load_ros_map(folder)
 
 
 def test_unreadable_and_truncated_images(tmp_path):

@@ -137,6 +137,7 @@ def resolve_maps(maps, default: str) -> list[OccupancyMap]:
             raise MapsNotFound(
                 f"maps {text!r}: no such directory or file; maps are a directory of ROS map YAML files, a glob "
                 f"pattern (quote it), or one map: a bundled name ({', '.join(bundled_map_names())}) or a .yaml path"
+                + ("; maps generated during training are family:F1,F2" if ":" in text else "")
             )
         return [resolve_map(maps, default)]
     if isinstance(maps, OccupancyMap):

@@ -240,6 +240,8 @@ def _image_path(yaml_path: Path, image: str) -> Path:
     path = Path(image)
     if not path.is_absolute():
         path = yaml_path.parent / path  # Nav2: relative to the YAML's folder, not the working directory
+    if path.is_dir():
+        raise FileNotFoundError(f"{yaml_path}: image: {image!r} is a folder ({path}), not the map's image file")
     if not path.is_file():
         raise FileNotFoundError(
             f"{yaml_path}: image file not found: tried {path} (from image: {image!r}; a relative path is "

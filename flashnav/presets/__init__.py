@@ -57,7 +57,7 @@ def load_robot(robot: "str | RobotPreset", **overrides: Any) -> RobotPreset:
     except ValidationError as exc:
         problems = "; ".join(error_lines(exc, "robot"))
         raise ValueError(f"robot preset {source!r}"
-                         + (f" with overrides {overrides}" if overrides else "") + f": {problems}") from None
+                         + (f" with overrides {_shown(overrides)}" if overrides else "") + f": {problems}") from None
 
 
 def with_recipe_setup(data: dict[str, Any], own_maps: bool | None = None) -> dict[str, Any]:
@@ -82,3 +82,12 @@ def with_recipe_setup(data: dict[str, Any], own_maps: bool | None = None) -> dic
         setup.pop("maps", None)
         setup.pop("eval", None)
     return deep_merge(setup, data)
+
+
+def _shown(overrides: dict[str, Any], most: int = 4) -> str:
+    """The overrides for an error message: all of a few, else the first ``most`` and how many more (a scenario's
+    agent settings are a dozen, and the failing key is named after them anyway)."""
+    if len(overrides) <= most:
+        return str(overrides)
+    shown = ", ".join(f"{k!r}: {v!r}" for k, v in list(overrides.items())[:most])
+    return f"{{{shown}, ... {len(overrides) - most} more}}"
