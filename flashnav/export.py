@@ -297,6 +297,10 @@ def load_policy(path: str | Path, robot: "str | RobotPreset | None" = None,
         raise ValueError(f"{path}: unknown policy format {path.suffix!r}; expected policy.pt (TorchScript) or policy.onnx")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such policy file")
+    if isinstance(device, str):  # "cuda" without a GPU, or "gpu": named as the device, not as the file's fault
+        from flashnav.machine import resolve_device
+
+        device = resolve_device(device)
     run, meta = _load_onnx(path) if path.suffix == ".onnx" else _load_torchscript(path, device)
     obs_dim = int(meta["obs_dim"])
     if robot is not None:

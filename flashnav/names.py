@@ -70,6 +70,8 @@ SCENARIOS = ("static", "wander-4", "wander-8", "crossing")
 #: The fixed evaluation set: the start/goal seed and the episode count every evaluation plays by default
 #: (``eval.seed`` / ``eval.episodes`` in training, ``flashnav eval``, ``bench eval``, ``deploy sim-robot``).
 EVAL_SEED, EVAL_EPISODES = 12345, 1024
+#: the largest seed (training, evaluation, an environment's): a torch generator takes a signed 64-bit integer
+MAX_SEED = 2**63 - 1
 #: The files of a run folder (``flashnav train --out``; :func:`flashnav.learn.artefacts.save_run`): the run's config,
 #: its curve and outcome, the learner state, the best policy (TorchScript, ONNX) and a readable copy of its metadata.
 CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.json", "checkpoint.pt"
@@ -100,6 +102,8 @@ def seed_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    if value > MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be <= 2**63 - 1, got {value}")
     return value
 
 

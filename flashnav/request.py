@@ -18,8 +18,8 @@ from flashnav.learn.hparams import override_section
 from flashnav.machine import MACHINE_KEYS, check_device_name
 from flashnav.maps.stream import GeneratedMaps, parse_family_maps
 from flashnav.maps.validation import check_eval_maps_value
-from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, DEFAULT_ROBOT, EVAL_EPISODES, EVAL_SEED, RAYCASTERS,
-                            RECIPE_CHOICES, RECIPE_HELP, ROBOTS, check_robot)
+from flashnav.names import (ALGORITHMS, CUDA_GRAPH_MODES, DEFAULT_ROBOT, EVAL_EPISODES, EVAL_SEED, MAX_SEED,
+                            RAYCASTERS, RECIPE_CHOICES, RECIPE_HELP, ROBOTS, check_robot)
 from flashnav.presets import with_recipe_setup
 from flashnav.yamlio import load_yaml, parse_assignment, set_dotted
 
@@ -40,7 +40,8 @@ class EvalSettings(KnownKeys):
 
     episodes: int = Field(EVAL_EPISODES, gt=0, description="evaluation episodes, run in parallel, deterministic policy")
     every: int | None = Field(None, gt=0, description="evaluate every k vector steps (None = the recipe's eval_every)")
-    seed: StrictInt = Field(EVAL_SEED, ge=0, description="fixed evaluation seed: same start/goal pairs for every "
+    seed: StrictInt = Field(EVAL_SEED, ge=0, le=MAX_SEED, description="fixed evaluation seed: same start/goal pairs "
+                            "for every "
                             "evaluation and seed")
     maps: str | list[str] | None = Field(
         None, description="evaluate on other maps than the training maps (None): a directory, glob or list of ROS map "
@@ -64,7 +65,7 @@ class TrainConfig(KnownKeys):
     algorithm: Literal[ALGORITHMS] = Field("fastdsac", description="the learner")  # type: ignore[valid-type]
     recipe: Literal[RECIPE_CHOICES] = Field(  # type: ignore[valid-type]
         "auto", description="hyperparameter recipe: " + RECIPE_HELP)
-    seed: StrictInt = Field(0, ge=0, description="training seed (an integer: `seed=yes` is not 1)")
+    seed: StrictInt = Field(0, ge=0, le=MAX_SEED, description="training seed (an integer: `seed=yes` is not 1)")
     device: str = Field("auto", description="auto, cpu, cuda, cuda:N")
     map: str | None = Field(None, description="ROS map YAML path or bundled map name; None = the preset's map")
     maps: str | list[str] | GeneratedMaps | None = Field(
@@ -114,6 +115,8 @@ class TrainConfig(KnownKeys):
             raise ValueError("give either map or maps, not both")
         if self.map_weights is not None and (self.maps is None or isinstance(self.maps, GeneratedMaps)):
             raise ValueError("map_weights needs maps (files or a list; generated maps are drawn uniformly)")
+        if self.map_weights is not None and (min(self.map_weights, default=0) < 0 or not any(self.map_weights)):
+            raise ValueError(f"map_weights must be >= 0 and not all 0 (relative probabilities), got {self.map_weights}")
         return self
 
     @field_validator("maps", mode="before")

@@ -139,3 +139,60 @@ def test_a_map_too_fine_for_the_robot_is_refused(monkeypatch):
     fine = OccupancyMap(np.zeros((40, 40), dtype=bool), 0.001, name="fine")  # TB2's radius: ~700 cells
     with pytest.raises(ValueError, match=r"map 'fine': resolution 0.001 m is too fine for turtlebot2"):
         make_env("turtlebot2", 1, map=fine)
+
+
+def test_a_step_before_any_reset_is_refused():
+    """Every robot and goal start at (0, 0): a step from there scored every slot a success."""
+    fresh = make_env("turtlebot2", 3, map=open_room())
+    for step in (lambda: fresh.step(torch.zeros(3, 2)), lambda: fresh.step_slots(torch.arange(3), torch.zeros(3, 2))):
+        with pytest.raises(RuntimeError, match=r"step\(\) before reset\(\).*call env.reset"):
+            step()
+    fresh.reset(seed=0)
+    _, reward, terminated, _, info = fresh.step(torch.zeros(3, 2))
+    assert not bool(info["success"].all())
+    placed = make_env("turtlebot2", 1, map=open_room())
+    placed.set_state(torch.tensor([[2.0, 2.0, 0.0]]), torch.tensor([[4.0, 2.0]]))  # set_state starts episodes too
+    placed.step(torch.zeros(1, 2))
+
+
+@pytest.mark.parametrize("seed, error, said", [
+    (1.9, TypeError, "seed must be an integer, got float 1.9"),
+    ("1", TypeError, "seed must be an integer, got str '1'"),
+    (True, TypeError, "seed must be an integer, got bool True"),
+    (-1, ValueError, "seed must be in [0, 2**63 - 1], got -1"),
+    (2**70, ValueError, "seed must be in [0, 2**63 - 1]"),
+])
+def test_seeds_are_whole_numbers_in_torchs_range(seed, error, said):
+    with pytest.raises(error, match=said.replace("[", r"\[").replace("]", r"\]").replace("*", r"\*")):
+        make_env("turtlebot2", 2, map=open_room(), seed=seed)
+    env = make_env("turtlebot2", 2, map=open_room(), seed=np.int64(3))  # numpy's integers are integers
+    with pytest.raises(error):
+        env.reset(seed=seed)
+    a, _ = env.reset(seed=np.int64(5))
+    b, _ = make_env("turtlebot2", 2, map=open_room()).reset(seed=5)
+    assert torch.equal(a, b)
+
+
+@pytest.mark.parametrize("n, error", [("4", TypeError), (2.5, TypeError), (True, TypeError), (0, ValueError)])
+def test_num_envs_is_a_whole_number(n, error):
+    with pytest.raises(error, match="num_envs must be"):
+        make_env("turtlebot2", n, map=open_room())
+
+
+def test_a_refused_map_set_leaves_the_env_as_it_was():
+    rooms = [open_room(), OccupancyMap(np.zeros((300, 300), bool), 0.05)]
+    env = make_env("turtlebot2", 8, maps=rooms, seed=1)
+    env.reset(seed=1)
+    before = (env.maps, env.map_index.clone(), env.goal_distance_max, env.pose.clone())
+    with pytest.raises(ValueError, match="map_weights has 2 entries for 1 maps"):
+        env.replace_maps([open_room()], map_weights=[1, 2])
+    assert env.maps is before[0] and torch.equal(env.map_index, before[1]) and env.goal_distance_max == before[2]
+    assert torch.equal(env.pose, before[3])
+    env.step(torch.zeros(8, 2))  # still the old set, whole
+    env.world_pose()
+
+
+@pytest.mark.parametrize("origin", [(float("nan"), 0.0), (0.0, float("inf")), (1.0,), "ab"])
+def test_an_origin_is_two_finite_numbers(origin):
+    with pytest.raises(ValueError, match="origin must be two finite numbers"):
+        OccupancyMap(np.zeros((10, 10), bool), 0.05, origin)

@@ -494,3 +494,36 @@ def test_a_long_override_list_is_cut_and_a_misspelt_family_spec_is_pointed_to(tm
     assert _shown({"a": 1}) == "{'a': 1}"
     line = fails(capsys, "train", "--device", "cpu", "--out", str(tmp_path / "r"), "--maps", "famliy:rooms")
     assert "maps 'famliy:rooms': no such directory or file" in line and "generated during training are family:" in line
+
+
+def test_a_seed_past_torchs_range_and_bad_map_weights_fail_in_resolve_not_in_train(tmp_path):
+    from flashnav.request import TrainConfig
+    from flashnav.spec import resolve
+
+    with pytest.raises(ValueError, match="seed"):
+        TrainConfig(seed=2**70)
+    maps = [str(MAPS / "turtlebot2.yaml"), str(MAPS / "go2.yaml")]
+    for weights in ([1.0, -1.0], [0.0, 0.0]):
+        with pytest.raises(ValueError, match=r"map_weights must be >= 0 and not all 0"):
+            resolve(TrainConfig(device="cpu", maps=maps, map_weights=weights))
+
+
+def test_load_policy_names_the_device_not_the_file(run_dir, monkeypatch):
+    from flashnav.export import load_policy
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(ValueError, match="device 'gpu' is not one of auto, cpu, cuda, cuda:N"):
+        load_policy(run_dir / "policy.pt", device="gpu")
+    with pytest.raises(ValueError, match="cuda"):
+        load_policy(run_dir / "policy.pt", device="cuda")
+    policy, _ = load_policy(run_dir / "policy.pt", device="auto")  # auto: the CPU here
+    assert policy is not None
+
+
+def test_the_family_generator_refuses_a_bool_seed_and_a_map_too_fine_to_allocate():
+    from flashnav.maps.families import generate_family
+
+    with pytest.raises(ValueError, match="seed must be an integer >= 0, got True"):
+        generate_family("rooms", True)
+    with pytest.raises(ValueError, match="has more than 268,435,456 cells"):
+        generate_family("halls", 0, size=(8.0, 8.0), resolution=1e-5)

@@ -130,6 +130,7 @@ def test_reset_slot_draws_a_map_and_other_slots_stay_bit_identical(maps):
         before = {k: getattr(env, k).clone() for k in ("pose", "goal", "map_index", "steps", "obs")}
         action = torch.rand(n, 2, generator=gen) * 2 - 1
         ref = make_env("turtlebot2", n, maps=maps, seed=3)  # the same transition, without the reset
+        ref.reset(seed=3)  # a fresh env refuses to step; the state written next is env's
         ref.map_index[:] = before["map_index"]
         ref.pose[:], ref.goal[:], ref.steps[:] = before["pose"], before["goal"], before["steps"]
         ref.goal_distance[:], ref.episode_return[:] = env.goal_distance, env.episode_return

@@ -35,7 +35,7 @@ import numpy as np
 from flashnav.maps import family_layouts
 from flashnav.maps.canvas import Canvas
 from flashnav.maps.clutter import BORDER_M, connect_free_space, generate_map
-from flashnav.maps.grid import OccupancyMap
+from flashnav.maps.grid import MAX_CELLS, OccupancyMap
 from flashnav.names import MAP_FAMILIES, VALIDATION_SEEDS, check_name
 
 SIZE_RANGE = (6.0, 30.0)  # metres per side, drawn uniformly (rounded to 0.1 m) unless given
@@ -104,7 +104,7 @@ def _draw_family(family: str, seed: int, size, resolution, robot_radius: float, 
                  name: str | None) -> OccupancyMap:
     """:func:`generate_family`'s map, drawn."""
     check_name("map family", family, MAP_FAMILIES)
-    if not (isinstance(seed, numbers.Integral) and seed >= 0):
+    if isinstance(seed, bool) or not (isinstance(seed, numbers.Integral) and seed >= 0):
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     if not (robot_radius > 0 and margin >= 0):
         raise ValueError(f"robot_radius must be > 0 and margin >= 0 metres, got {robot_radius}, {margin}")
@@ -117,6 +117,9 @@ def _draw_family(family: str, seed: int, size, resolution, robot_radius: float, 
     for label, v in (("width", width), ("height", height), ("resolution", resolution)):
         if not (isinstance(v, numbers.Real) and math.isfinite(v) and v > 0):
             raise ValueError(f"{label} must be a positive number of metres, got {v!r}")
+    if (width / resolution) * (height / resolution) > MAX_CELLS:  # before the canvas is allocated
+        raise ValueError(f"a {width:g} x {height:g} m map at {resolution:g} m a cell has more than {MAX_CELLS:,} "
+                         f"cells; the families use 0.025-0.1 m")
     name = name or f"{family}_{seed}"
     need = 2 * BORDER_M + 2 * (2 * (robot_radius + margin) + 2 * resolution)
     if min(width, height) < need:

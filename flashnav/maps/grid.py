@@ -49,8 +49,14 @@ class OccupancyMap:
             raise ValueError(f"{where}map of {occ.shape[1]} x {occ.shape[0]} cells exceeds the limit of {MAX_CELLS} cells")
         if not (self.resolution > 0 and math.isfinite(self.resolution)):
             raise ValueError(f"{where}resolution must be a positive number of metres per cell, got {self.resolution}")
+        try:
+            origin = tuple(float(v) for v in self.origin)
+        except (TypeError, ValueError):
+            origin = ()
+        if len(origin) != 2 or not all(math.isfinite(v) for v in origin):  # a NaN origin gave NaN observations
+            raise ValueError(f"{where}origin must be two finite numbers (x, y metres), got {self.origin!r}")
         object.__setattr__(self, "occupied", np.array(occ, dtype=bool, order="C"))  # own copy: frozen below
-        object.__setattr__(self, "origin", (float(self.origin[0]), float(self.origin[1])))
+        object.__setattr__(self, "origin", origin)
         self.occupied.setflags(write=False)
 
     # ---- geometry ---------------------------------------------------------------------------------

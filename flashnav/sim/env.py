@@ -50,7 +50,7 @@ from flashnav.presets import load_robot
 from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
 from flashnav.sim.extras import ObservationExtras
-from flashnav.sim.inputs import as_batch, check_finite, check_slots, check_state
+from flashnav.sim.inputs import as_batch, check_finite, check_num_envs, check_seed, check_slots, check_state
 from flashnav.sim.mapset import MapDraw, as_grids, check_map_scale, sample_on_maps, sim_frame
 from flashnav.sim.motion import Actuation, action_to_velocity, integrate
 from flashnav.sim.observation import beam_angles, observation_bounds, observe  # noqa: F401 (beam_angles: re-exported)
@@ -75,8 +75,7 @@ class NavVecEnv(VectorEnv):
         raycaster: str | None = None,
         map_weights: Sequence[float] | None = None,
     ):
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        num_envs, seed = check_num_envs(num_envs), check_seed(seed)
         self.preset, self.num_envs = preset, num_envs
         self.device = torch.device(device)
         self.raycaster_name = raycaster or DEFAULT_RAYCASTER
@@ -108,14 +107,17 @@ class NavVecEnv(VectorEnv):
         self._gen = torch.Generator(device=self.device)
         self._gen.manual_seed(seed)
         self._seed = seed
+        self._placed = False  # no episode until reset() or set_state(): a step from the zero state means nothing
 
     def _use_maps(self, grid: OccupancyMap | Sequence[OccupancyMap], map_weights: Sequence[float] | None) -> None:
         """Build everything that reads the maps: frames, raycaster, collision, samplers, map draws."""
         preset, lidar = self.preset, self.preset.lidar
-        self.maps = as_grids(grid)
-        self.map = self.maps[0]  # the map of a single-map env (with several: the first)
-        for g in self.maps:
+        maps = as_grids(grid)
+        for g in maps:
             check_map_scale(g, preset)
+        draw = MapDraw(len(maps), map_weights, self.device)  # the weights checked too: a refused set changes nothing
+        self.maps = maps
+        self.map = self.maps[0]  # the map of a single-map env (with several: the first)
         # all geometry runs on the map in the simulator frame (the same cells and cached fields)
         origins = [sim_frame(g) for g in self.maps]
         self.frame_maps = tuple(g if o == (0.0, 0.0) else g.shifted(o) for g, o in zip(self.maps, origins))
@@ -130,7 +132,7 @@ class NavVecEnv(VectorEnv):
         # the shaping term's distance (reward.progress_metric geodesic: path lengths to each goal source)
         self.shaping = Shaping(preset, self.frame_maps, self.samplers, self.num_envs, self.device)
         self._map_sampler = MapSetSampler(self.samplers) if len(self.maps) > 1 else None
-        self._draw_map = MapDraw(len(self.maps), map_weights, self.device)
+        self._draw_map = draw
         self.goal_distance_max = max(g.diagonal_m for g in self.maps)
         # moving agents (issue 13): None with agents.count 0, and then every step is exactly the static one;
         # they move on each slot's own map (rebuilt with the maps)
@@ -238,7 +240,7 @@ class NavVecEnv(VectorEnv):
         """Reset all slots, or only ``options["reset_mask"]`` ([N] bool). ``seed`` reseeds the
         environment's generator: the same seed gives the same episodes."""
         if seed is not None:
-            self._seed = int(seed)
+            self._seed = check_seed(seed)
             self._gen.manual_seed(self._seed)
         mask = None if options is None else options.get("reset_mask")
         if mask is None:
@@ -250,6 +252,7 @@ class NavVecEnv(VectorEnv):
                                  f"[{self.num_envs}], got {mask.dtype} {list(mask.shape)}")
             idx = mask.nonzero().squeeze(1)
         self._reset_slots(idx)
+        self._placed = True
         return self.obs.clone(), {}
 
     def set_state(self, pose: torch.Tensor, goal: torch.Tensor, map_index=None) -> torch.Tensor:
@@ -265,7 +268,13 @@ class NavVecEnv(VectorEnv):
         self.map_index[:] = mi
         pose, goal = self._world_to_frame(pose, goal)
         self._place(torch.arange(self.num_envs, device=self.device), pose.float(), goal.float())
+        self._placed = True
         return self.obs.clone()
+
+    def _check_placed(self) -> None:
+        if not self._placed:
+            raise RuntimeError("step() before reset(): every robot and goal is still at (0, 0), which would count "
+                               "as reached; call env.reset(seed=...) (or set_state) first")
 
     def _world_to_frame(self, pose: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """World (checked float64 pose [N, 3], goal [N, 2]) -> the simulator frame of each slot's map,
@@ -287,6 +296,7 @@ class NavVecEnv(VectorEnv):
     def step(self, actions):
         """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped); another shape or a
         NaN / infinite value is a ValueError naming ``actions``."""
+        self._check_placed()
         actions = as_batch(self.device, actions, "actions", (self.num_envs, 2), "num_envs, 2")
         if not bool(torch.isfinite(actions).all()):  # the one host sync the checks cost per step
             check_finite(actions, "actions")
@@ -316,6 +326,7 @@ class NavVecEnv(VectorEnv):
         collision, collision_static, collision_agent, episode_steps, episode_return (the same semantics as :meth:`step`),
         pose [k, 3]. ``idx`` outside [0, N), repeating a slot or not 1-D integer, or ``actions`` of another shape or
         not finite: a ValueError."""
+        self._check_placed()
         idx = torch.as_tensor(idx, device=self.device)
         actions = check_slots(idx, actions, self.num_envs)
         return self._advance(idx, actions)

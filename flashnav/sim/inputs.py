@@ -3,11 +3,13 @@ values, with errors that name the input and the offending row."""
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
 
 import torch
 
 from flashnav.maps.grid import OccupancyMap
+from flashnav.names import MAX_SEED
 from flashnav.sim.mapset import check_map_index, outside_maps
 
 
@@ -76,3 +78,22 @@ def check_state(grids: Sequence[OccupancyMap], pose, goal, map_index, current: t
         raise ValueError(f"{name}[{row}] = {values[row].tolist()} lies outside the map {g.name!r} "
                          f"(x in [{xmin:g}, {xmax:g}] m, y in [{ymin:g}, {ymax:g}] m)")
     return pose, goal, mi
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """``seed`` as an int: an integer (numpy's too) in [0, :data:`MAX_SEED`]; a float, string or bool is a
+    TypeError naming ``name`` (``1.9`` was once taken as 1), a value out of range a ValueError."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {type(seed).__name__} {seed!r}")
+    if not 0 <= int(seed) <= MAX_SEED:
+        raise ValueError(f"{name} must be in [0, 2**63 - 1], got {seed}")
+    return int(seed)
+
+
+def check_num_envs(num_envs) -> int:
+    """``num_envs`` as an int >= 1 (numpy's integers too); another type a TypeError, fewer a ValueError."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, numbers.Integral):
+        raise TypeError(f"num_envs must be an integer, got {type(num_envs).__name__} {num_envs!r}")
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    return int(num_envs)
