@@ -137,7 +137,7 @@ def test_training_swaps_to_a_new_set_every_refresh(monkeypatch):
     monkeypatch.setattr(NavVecEnv, "replace_maps", record)
     config = TrainConfig(device="cpu", recipe="cpu", maps={"family": ["mazes"], "count": 2, "refresh_every": 3,
                                                            "seed": 20},
-                         overrides={"algo.num_envs": 8, "algo.learning_start": 10**6},
+                         overrides={"algo.num_envs": 8, "algo.learning_start": 1024, "algo.buffer_size": 1024},
                          budget={"max_env_steps": 8 * 7, "stop_at_success": None}, eval={"episodes": 4})
     result = loop.train(config)
     assert result.env_steps == 56
