@@ -64,12 +64,27 @@ def _shield_arg(p: argparse.ArgumentParser) -> None:
                         "and the scan's walls (e.g. 2); a deployment mode, reported beside the policy alone")
 
 
+def _input_files(args) -> list[Path]:
+    """The files a policy command reads that an output must not overwrite: the policy (a run folder's policy files)
+    and, with ``--map`` a ROS YAML, the map's YAML and image."""
+    from flashnav.maps.ros import map_files
+    from flashnav.names import POLICY_ONNX, POLICY_TORCHSCRIPT
+
+    policy = Path(args.policy)
+    files = [policy / POLICY_TORCHSCRIPT, policy / POLICY_ONNX] if policy.is_dir() else [policy]
+    if getattr(args, "map", None) is not None and str(args.map).endswith((".yaml", ".yml")):
+        files += map_files(args.map)
+    return files
+
+
 def _check_shield(args) -> None:
     """``--shield``'s errors, before any work: it needs ``--scenario`` and a look-ahead > 0."""
     if args.shield is not None and args.scenario is None:
         raise ValueError("--shield guards against moving agents: it goes with --scenario NAME")
-    if args.shield is not None and not (math.isfinite(args.shield) and args.shield > 0):
-        raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
+    if args.shield is not None:
+        from flashnav.shield import check_lookahead
+
+        check_lookahead(args.shield, "--shield")
 
 
 def _people_shield(args, preset):
@@ -225,8 +240,8 @@ def run_eval(args) -> int:
 
     if args.map is not None and args.maps is not None:
         raise ValueError("give either --map or --maps, not both")
-    if args.json:  # before the evaluation, which may take minutes
-        check_output_file(args.json, "--json")
+    if args.json:  # before the evaluation, which may take minutes; never over the policy or the map it reads
+        check_output_file(args.json, "--json", inputs=_input_files(args))
     if args.maps is not None and args.scenario is not None:
         raise ValueError("give either --maps or --scenario, not both")
     agent_overrides(args)  # --agents without --scenario: an error before any work
@@ -348,11 +363,11 @@ def run_render(args) -> int:
     if args.gif and Path(args.out).suffix.lower() == ".gif":
         raise ValueError(f"--out {args.out}: names the trajectories picture, and --gif writes the animation beside "
                          f"it as {Path(args.out).name}: give --out {Path(args.out).with_suffix('.png')}")
-    out_png = check_figure_file(args.out, "--out")  # what is written (.png added without a suffix)
+    out_png = check_figure_file(args.out, "--out", inputs=_input_files(args))  # .png added without a suffix
     agent_overrides(args)  # --agents without --scenario: an error before any work
     _check_shield(args)
     if args.gif:
-        check_output_file(out_png.with_suffix(".gif"), "--gif")
+        check_output_file(out_png.with_suffix(".gif"), "--gif", inputs=_input_files(args))
     if args.scenario is None:
         policy, meta, env = load_policy_and_env(args)
     else:  # only the scenario's env is built

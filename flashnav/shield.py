@@ -69,13 +69,25 @@ class People(NamedTuple):
         return self.radius if self.radius.dim() == 2 else self.radius[:, 0]
 
 
+#: the longest look-ahead, seconds: the shield rolls each candidate command out for lookahead / dt steps against every
+#: person, so its memory and time grow with it (1e3 s asked for 74 GB); people walking 1 m/s are 10 m away in 10 s
+MAX_LOOKAHEAD = 10.0
+
+
+def check_lookahead(lookahead: float, flag: str = "shield lookahead") -> float:
+    """``lookahead`` if it is a finite number of seconds in (0, :data:`MAX_LOOKAHEAD`]; else a ValueError naming
+    ``flag``."""
+    if not (math.isfinite(lookahead) and 0 < lookahead <= MAX_LOOKAHEAD):
+        raise ValueError(f"{flag} must be > 0 and at most {MAX_LOOKAHEAD:g} seconds, got {lookahead}")
+    return lookahead
+
+
 class PeopleShield:
     """The shield of the module docstring for a robot ``preset`` (its motion bounds, footprint and step)."""
 
     def __init__(self, preset: RobotPreset, lookahead: float = 2.0, margin: float = 0.05, v_levels: int = 5,
                  w_levels: int = 9):
-        if not (math.isfinite(lookahead) and lookahead > 0):
-            raise ValueError(f"shield lookahead must be > 0 seconds, got {lookahead}")
+        check_lookahead(lookahead)
         if not (math.isfinite(margin) and margin >= 0):
             raise ValueError(f"shield margin must be >= 0 metres, got {margin}")
         if v_levels < 2 or w_levels < 2:

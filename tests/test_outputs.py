@@ -71,3 +71,56 @@ def test_the_deploy_runtime_reads_a_run_folders_policy_and_names_a_folder_withou
     assert PolicyRuntime.load(POLICY_DIR).meta == PolicyRuntime.load(POLICY_DIR / "policy.onnx").meta
     with pytest.raises(ValueError, match="a folder without policy.onnx"):
         PolicyRuntime.load(tmp_path)
+
+
+def test_eval_and_render_never_write_over_the_policy_or_the_map_they_read(tmp_path, capsys):
+    import shutil
+
+    from flashnav.maps.bundled import __file__ as bundled
+
+    policy = tmp_path / "policy.onnx"
+    policy.write_bytes((POLICY_DIR / "policy.onnx").read_bytes())
+    maps = Path(bundled).parent / "data" / "benchmark" / "heldout"  # a map drawn as PNG: a picture suffix
+    for name in ("mazes_900000.yaml", "mazes_900000.png"):
+        shutil.copy(maps / name, tmp_path / name)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    for argv, flag in ((["eval", str(policy), "--episodes", "2", "--json", str(policy)], "--json"),
+                       (["eval", str(policy), "--episodes", "2", "--map", str(tmp_path / "mazes_900000.yaml"),
+                         "--json", str(tmp_path / "mazes_900000.yaml")], "--json"),
+                       (["render", str(policy), "--episodes", "1", "--map", str(tmp_path / "mazes_900000.yaml"),
+                         "--out", str(tmp_path / "mazes_900000.png")], "--out")):
+        assert cli_main(argv) == 2
+        err = capsys.readouterr().err
+        assert flag in err and "is one of the command's inputs" in err, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_map_files_are_the_yaml_and_its_image(tmp_path):
+    from flashnav.maps.ros import map_files
+
+    (tmp_path / "m.yaml").write_text("image: pics/m.png\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    assert map_files(tmp_path / "m.yaml") == [tmp_path / "m.yaml", tmp_path / "pics" / "m.png"]
+    (tmp_path / "bad.yaml").write_text(": : :")
+    assert map_files(tmp_path / "bad.yaml") == [tmp_path / "bad.yaml"]
+    assert map_files(tmp_path / "none.yaml") == [tmp_path / "none.yaml"]
+
+
+@pytest.mark.parametrize("argv", [
+    ["eval", str(POLICY_DIR / "policy.onnx"), "--scenario", "wander-4", "--episodes", "2", "--shield", "1e9"],
+    ["deploy", "replay", "in.bag", "--policy", str(POLICY_DIR / "policy.onnx"), "--out", "o.csv", "--shield", "11"],
+    ["bench", "shield", str(POLICY_DIR / "policy.onnx"), "--lookahead", "inf"],
+])
+def test_the_shield_look_ahead_is_bounded_and_its_flag_named(argv, tmp_path, monkeypatch, capsys):
+    """1e9 s asked the shield for 80 GB and ended in torch's traceback; inf was 'lookahead must be > 0'."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "in.bag").write_bytes(b"x")
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err
+    assert "must be > 0 and at most 10 seconds" in err and ("--shield" in err or "--lookahead" in err), err
+
+
+def test_a_json_in_a_new_folder_is_written_after_the_rows(tmp_path):
+    out = tmp_path / "new" / "sub" / "sim.json"
+    assert cli_main(["bench", "sim", "--no-irsim", "--raycasters", "exact", "--robots", "turtlebot2",
+                     "--num-envs", "4", "--seconds", "0.05", "--max-steps", "3", "--json", str(out)]) == 0
+    assert out.is_file()

@@ -265,7 +265,7 @@ def test_deploy_refuses_a_shield_of_no_length_by_name(tmp_path, capsys):
     policy = Path(__file__).parent / "fixtures" / "deploy_policy" / "policy.onnx"
     code = cli_main(["deploy", "replay", str(tmp_path / "in.bag"), "--policy", str(policy), "--out",
                      str(tmp_path / "o.csv"), "--shield", "-1"])
-    assert code != 0 and "--shield must be > 0 seconds" in capsys.readouterr().err
+    assert code != 0 and "--shield must be > 0 and at most 10 seconds" in capsys.readouterr().err
 
 
 def test_robot_command_is_the_shield_on_the_scans_grouped_points_pruned_only_where_unreachable():

@@ -6,6 +6,7 @@ import argparse
 import datetime as dt
 import json
 import sys
+from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
@@ -157,6 +158,7 @@ def run_sim(args) -> int:
             console.print("[yellow]ir-sim not installed (pip install 'flashnav[bench]'): peer rows skipped[/]")
     _print_tables(console, rows, accuracy, peer)
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)  # checked creatable before the rows
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"machine": machine, "threads": threads, "date": when, "argv": sys.argv, "rows": rows,
                        "accuracy": accuracy, "irsim": peer}, f, indent=2)

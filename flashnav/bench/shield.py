@@ -13,11 +13,13 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
 
 from flashnav.names import seed_arg
+from flashnav.shield import check_lookahead
 
 
 def register_cli(bsub: argparse._SubParsersAction) -> None:
@@ -82,8 +84,11 @@ def run_bench_shield(args) -> int:
 
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
-    if not args.lookahead > 0:
-        raise ValueError(f"--lookahead must be > 0 seconds, got {args.lookahead}")
+    check_lookahead(args.lookahead, "--lookahead")
+    if args.json:  # before the runs, which take minutes
+        from flashnav.outputs import check_output_file
+
+        check_output_file(args.json, "--json", inputs=(args.policy,))
     if args.threads < 1:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     torch.set_num_threads(args.threads)
@@ -116,6 +121,7 @@ def run_bench_shield(args) -> int:
     if args.json:
         import json
 
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)  # checked creatable before the runs
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"machine": machine, "device": str(device), "threads": args.threads, "scenario": args.scenario, "seed": args.seed,
                        "episodes": args.episodes, "lookahead": args.lookahead, "runs": runs,

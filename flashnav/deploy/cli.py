@@ -114,8 +114,10 @@ def make_controller(args):
         raise ValueError(f"--fill must be a range in metres >= 0 (at most the policy's max range), got {args.fill}")
     if args.guide is not None and not (math.isfinite(args.guide) and args.guide > 0):
         raise ValueError(f"--guide must be > 0 metres, got {args.guide}")
-    if args.shield is not None and not (math.isfinite(args.shield) and args.shield > 0):
-        raise ValueError(f"--shield must be > 0 seconds, got {args.shield}")
+    if args.shield is not None:
+        from flashnav.shield import check_lookahead
+
+        check_lookahead(args.shield, "--shield")
     x, y, yaw = args.lidar_pose
     try:
         rt = PolicyRuntime.load(args.policy, mount=Mount(x, y, yaw, args.lidar_flipped), fill=args.fill)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import math
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -158,7 +159,8 @@ class SimRobot:
         ends = [self.scan_pub, self.odom_pub, self.goal_pub, self.cmd_sub, self.status_sub]
         while not all(e.get_num_connections() > 0 for e in ends):
             if time.monotonic() > deadline:
-                raise RuntimeError(f"no deploy node connected within {timeout:g} s (topics {[e.name for e in ends]})")
+                raise TimeoutError(f"no deploy node connected within {timeout:g} s (topics {[e.name for e in ends]}); "
+                                   f"start one: flashnav deploy ros POLICY")
             time.sleep(0.05)
 
     def send_goal(self, goal) -> None:
@@ -263,6 +265,8 @@ def run(args) -> dict:
                      people=args.people)
     robot.publish_clock()
     if args.episodes or args.goal_at is not None:
+        print(f"flashnav deploy sim-robot: waiting up to 60 s for a deploy node on {args.scan}, {args.odom}, "
+              f"{args.goal} -> {args.cmd}", file=sys.stderr, flush=True)
         robot.wait_for_node()
     report: dict = {"clock": "real" if args.real_time else "simulated", "robot": robot.preset.name,
                     "map": robot.env.map.name}
@@ -290,6 +294,7 @@ def run(args) -> dict:
                    "command_now": list(robot.cmd), "velocity_now": robot.env.velocity[0].tolist()}
     report["scan_stop"] = robot.scan_stop_report()
     if args.results:
+        Path(args.results).parent.mkdir(parents=True, exist_ok=True)  # checked creatable before the run
         Path(args.results).write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
     robot.rospy.signal_shutdown("done")
     return report

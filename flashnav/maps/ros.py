@@ -236,6 +236,20 @@ def _number(doc: dict, key: str, yaml_path: Path) -> float:
     return float(v)
 
 
+def map_files(yaml_path: str | Path) -> list[Path]:
+    """The files a ROS map is read from: its YAML and, where the YAML names one, its image (resolved as
+    :func:`load_ros_map` resolves it, whether or not it exists); just the YAML when it cannot be read. For the checks
+    that an output never overwrites a command's map (:func:`flashnav.outputs.check_output_file`)."""
+    path = Path(yaml_path)
+    try:
+        image = load_yaml(path).get("image")
+    except Exception:  # noqa: BLE001 - any unreadable YAML: the loader will say what is wrong with it
+        return [path]
+    if not isinstance(image, str) or not image:
+        return [path]
+    return [path, Path(image) if Path(image).is_absolute() else path.parent / image]
+
+
 def _image_path(yaml_path: Path, image: str) -> Path:
     path = Path(image)
     if not path.is_absolute():
