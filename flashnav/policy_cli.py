@@ -247,6 +247,8 @@ def run_eval(args) -> int:
     agent_overrides(args)  # --agents without --scenario: an error before any work
     if args.guide_from is not None and args.guide is None:
         raise ValueError(f"--guide-from {args.guide_from} goes with --guide LOOKAHEAD_M")
+    if args.guide is not None and not (math.isfinite(args.guide) and args.guide > 0):  # before the policy loads
+        raise ValueError(f"--guide must be > 0 metres, got {args.guide}")
     if args.guide_keep_walls and args.guide_from != "scans":
         raise ValueError("--guide-keep-walls goes with --guide LOOKAHEAD_M --guide-from scans")
     _check_shield(args)
@@ -341,8 +343,6 @@ def _scenario_guide(args):
     from flashnav.eval_maps import SCANS_GUIDE_CELLS
     from flashnav.guidance import MaplessGuide, PathGuide
 
-    if not (math.isfinite(args.guide) and args.guide > 0):
-        raise ValueError(f"--guide must be > 0 metres, got {args.guide}")
     if args.guide_from == "scans":
         def scans(env):
             cells = env.frame_maps[0].shape[0] * env.frame_maps[0].shape[1] * env.num_envs

@@ -124,3 +124,19 @@ def test_a_json_in_a_new_folder_is_written_after_the_rows(tmp_path):
     assert cli_main(["bench", "sim", "--no-irsim", "--raycasters", "exact", "--robots", "turtlebot2",
                      "--num-envs", "4", "--seconds", "0.05", "--max-steps", "3", "--json", str(out)]) == 0
     assert out.is_file()
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--duration", "nan"], "--duration must be a finite number of seconds >= 0"),
+    (["--duration", "-5"], "--duration must be a finite number of seconds >= 0"),
+    (["--answer-timeout", "0"], "--answer-timeout must be a finite number of seconds > 0"),
+    (["--episodes", "1", "--start", "1,1,0", "--goal-at", "2,2"], "--start, --goal-at drive the free-running mode"),
+])
+def test_sim_robot_flags_are_checked_before_ros(flags, named, capsys):
+    assert cli_main(["deploy", "sim-robot", *flags]) == 2
+    assert named in capsys.readouterr().err
+
+
+def test_eval_names_a_bad_guide_before_loading_anything(tmp_path, capsys):
+    assert cli_main(["eval", str(tmp_path / "absent.onnx"), "--maps", "heldout", "--guide", "0"]) == 2
+    assert "--guide must be > 0 metres, got 0.0" in capsys.readouterr().err

@@ -173,6 +173,15 @@ def run_sim_robot(args) -> int:
 
     if args.episodes < 0:
         raise ValueError(f"--episodes must be >= 0, got {args.episodes}")
+    if not (math.isfinite(args.duration) and args.duration >= 0):
+        raise ValueError(f"--duration must be a finite number of seconds >= 0 (0: run until stopped), got "
+                         f"{args.duration}")
+    if not (math.isfinite(args.answer_timeout) and args.answer_timeout > 0):
+        raise ValueError(f"--answer-timeout must be a finite number of seconds > 0, got {args.answer_timeout}")
+    if args.episodes and (given := [flag for flag, value in (("--start", args.start), ("--goal-at", args.goal_at),
+                                                            ("--duration", args.duration or None)) if value]):
+        raise ValueError(f"{', '.join(given)} drive the free-running mode; with --episodes {args.episodes} the "
+                         f"episodes' own starts, goals and horizons are played: drop one or the other")
     if args.results:
         check_output_file(args.results, "--results")
     sim_robot.run(args)

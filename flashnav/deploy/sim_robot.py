@@ -282,7 +282,11 @@ def run(args) -> dict:
     else:
         pose = args.start or [float(v) for v in episodes_of(args.robot, args.map, 1, args.seed, args.goal_sampling)[0][0]]
         goal = args.goal_at if args.goal_at is not None else pose[:2]
-        robot.env.set_state(torch.tensor([pose], dtype=torch.float64), torch.tensor([goal], dtype=torch.float64))
+        try:
+            robot.env.set_state(torch.tensor([pose], dtype=torch.float64), torch.tensor([goal], dtype=torch.float64))
+        except ValueError as exc:  # the goal defaults to the start: name the flag the user gave
+            flag = "--goal-at" if args.goal_at is not None and "goal" in str(exc) else "--start"
+            raise ValueError(f"{flag}: {exc}") from None
         robot.publish_clock()
         if args.goal_at is not None:
             robot.send_goal(args.goal_at)
