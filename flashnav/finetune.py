@@ -93,6 +93,9 @@ def checkpoint_file(source: str | Path, name: str = "init_from") -> Path:
     if path.suffix == ".json":
         raise ValueError(f"{name} {str(source)!r}: a JSON file (a policy's metadata or a run's metrics), not a "
                          f"learner checkpoint: give its run folder or its {CHECKPOINT_NAME}")
+    if path.suffix in (".yaml", ".yml"):
+        raise ValueError(f"{name} {str(source)!r}: a YAML file (a run's config.yaml: --config takes it), not a "
+                         f"learner checkpoint: give its run folder or its {CHECKPOINT_NAME}")
     if path.suffix == ".onnx" or is_torchscript(path):
         raise ValueError(f"{name} {str(source)!r}: an exported policy, which holds the actor only, not the "
                          f"learner (critics, optimisers, temperature): give its run folder or its {CHECKPOINT_NAME}")

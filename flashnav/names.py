@@ -150,4 +150,7 @@ def parse_names(kind: str, text: str | list[str], allowed: tuple[str, ...], opti
             check_name(kind, name, allowed)
         except ValueError as exc:
             raise ValueError(f"{where}{exc}") from None
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:  # `--scenario static,static` ran twice and kept one result
+        raise ValueError(f"{where}{kind} {', '.join(map(str, twice))} named more than once in {text!r}")
     return names

@@ -88,6 +88,8 @@ def check_figure_file(path: str | Path, flag: str, inputs=()) -> Path:
     """A picture file to be written (``.png`` added when ``path`` has no suffix): a suffix that matplotlib writes
     (:data:`FIGURE_SUFFIXES`) and a path that :func:`check_output_file` accepts. Returns the path that will be
     written; raises ValueError naming ``flag`` and ``path``."""
+    if str(path).endswith("."):  # "r5." has no suffix to Path: it would become "r5..png"
+        raise ValueError(f"{flag} {path}: ends with a dot; give the picture's suffix (e.g. {str(path)}png)")
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"{flag} {path}: is a folder; give a file name (e.g. {path / 'figure.png'})")

@@ -527,3 +527,17 @@ def test_the_family_generator_refuses_a_bool_seed_and_a_map_too_fine_to_allocate
         generate_family("rooms", True)
     with pytest.raises(ValueError, match="has more than 268,435,456 cells"):
         generate_family("halls", 0, size=(8.0, 8.0), resolution=1e-5)
+
+
+def test_a_name_twice_a_trailing_dot_and_a_config_as_checkpoint_are_named(tmp_path, capsys):
+    from flashnav.names import parse_names
+    from flashnav.outputs import check_figure_file
+
+    with pytest.raises(ValueError, match=r"--scenario: scenario static named more than once in 'static,static'"):
+        parse_names("scenario", "static,static", ("static", "wander-4"), "--scenario")
+    assert parse_names("scenario", "static, wander-4", ("static", "wander-4")) == ["static", "wander-4"]
+    with pytest.raises(ValueError, match=r"--out r5\.: ends with a dot; give the picture's suffix \(e\.g\. r5\.png\)"):
+        check_figure_file("r5.", "--out")
+    (tmp_path / "config.yaml").write_text("seed: 0\n")
+    line = fails(capsys, "train", "--init-from", str(tmp_path / "config.yaml"), "--out", str(tmp_path / "r"))
+    assert "a YAML file (a run's config.yaml: --config takes it), not a learner checkpoint" in line

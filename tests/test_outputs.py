@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -140,3 +141,18 @@ def test_sim_robot_flags_are_checked_before_ros(flags, named, capsys):
 def test_eval_names_a_bad_guide_before_loading_anything(tmp_path, capsys):
     assert cli_main(["eval", str(tmp_path / "absent.onnx"), "--maps", "heldout", "--guide", "0"]) == 2
     assert "--guide must be > 0 metres, got 0.0" in capsys.readouterr().err
+
+
+def test_the_deploy_runtime_names_a_pose_goal_or_velocity_of_another_length():
+    import numpy as np
+
+    from flashnav.deploy.runtime import PolicyRuntime
+
+    rt = PolicyRuntime.load(POLICY_DIR / "policy.onnx")
+    sectors = np.full(rt.layout.sectors, 3.0, np.float32)
+    for args, said in (((sectors, (0, 0), (3, 0), (0, 0)), "pose must have 3 values (x, y, yaw), got 2"),
+                       ((sectors, (0, 0, 0), (3,), (0, 0)), "goal must have 2 values (x, y), got 1"),
+                       ((sectors, (0, 0, 0), (3, 0), (0,)), "velocity must have 2 values (v, w), got 1")):
+        with pytest.raises(ValueError, match=re.escape(said)):
+            rt.decide(*args)
+    assert rt.decide(sectors, (0, 0, 0), (3, 0), (0, 0)).state == "driving"

@@ -160,6 +160,10 @@ class PolicyRuntime:
         sectors = np.asarray(sectors, np.float32).reshape(-1)
         if sectors.size != self.layout.sectors:
             raise ValueError(f"sectors must have {self.layout.sectors} values, got {sectors.size}")
+        for name, value, parts in (("pose", pose, "x, y, yaw"), ("goal", goal, "x, y"), ("velocity", velocity, "v, w")):
+            n = parts.count(",") + 1
+            if np.size(value) != n:  # an (x, y) pose once failed as an IndexError deep in the goal's frame
+                raise ValueError(f"{name} must have {n} values ({parts}), got {np.size(value)}")
         dist, angle = self.goal_in_robot_frame(pose, goal)
         v, w = float(velocity[0]), float(velocity[1])
         vel = [v, w] if self.velocity_dims == 2 else [v, 0.0, w]
