@@ -132,11 +132,13 @@ def check_robot(value: str) -> str:
     return value
 
 
-def parse_names(kind: str, text: str | list[str], allowed: tuple[str, ...], option: str | None = None) -> list[str]:
+def parse_names(kind: str, text: str | list[str], allowed: tuple[str, ...], option: str | None = None,
+                unique: bool = False) -> list[str]:
     """A comma list of ``kind`` names (``"wander-8, crossing"``; or a list of names, as YAML gives)
     or ``all`` -> the names, each checked against ``allowed``; ``all`` -> every allowed name, in their
     order. Blank items are skipped. A ValueError names ``option`` (the flag or key, when given) and
-    the bad name, with the choices."""
+    the bad name, with the choices; with ``unique``, a name given twice too (where a repeat means nothing; a map
+    family named twice is drawn twice as often)."""
     where = f"{option}: " if option else ""
     items = text.split(",") if isinstance(text, str) else list(text)
     names = [n.strip() if isinstance(n, str) else n for n in items]
@@ -150,7 +152,7 @@ def parse_names(kind: str, text: str | list[str], allowed: tuple[str, ...], opti
             check_name(kind, name, allowed)
         except ValueError as exc:
             raise ValueError(f"{where}{exc}") from None
-    twice = sorted({n for n in names if names.count(n) > 1})
+    twice = sorted({n for n in names if names.count(n) > 1}) if unique else []
     if twice:  # `--scenario static,static` ran twice and kept one result
         raise ValueError(f"{where}{kind} {', '.join(map(str, twice))} named more than once in {text!r}")
     return names

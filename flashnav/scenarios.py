@@ -56,7 +56,7 @@ def scenario_preset(robot: str | RobotPreset, name: str, own_agents: bool = Fals
 
 def scenario_names(text: str) -> list[str]:
     """``"wander-8,crossing"`` or ``"all"`` -> the scenario names, each checked (``--scenario``)."""
-    return parse_names("scenario", text, SCENARIOS, "--scenario")
+    return parse_names("scenario", text, SCENARIOS, "--scenario", unique=True)
 
 
 @torch.no_grad()

@@ -534,7 +534,12 @@ def test_a_name_twice_a_trailing_dot_and_a_config_as_checkpoint_are_named(tmp_pa
     from flashnav.outputs import check_figure_file
 
     with pytest.raises(ValueError, match=r"--scenario: scenario static named more than once in 'static,static'"):
-        parse_names("scenario", "static,static", ("static", "wander-4"), "--scenario")
+        parse_names("scenario", "static,static", ("static", "wander-4"), "--scenario", unique=True)
+    assert parse_names("map family", "mazes,mazes", ("mazes",)) == ["mazes", "mazes"]  # twice as often: kept
+    from flashnav.scenarios import scenario_names
+
+    with pytest.raises(ValueError, match="named more than once"):
+        scenario_names("static,static")
     assert parse_names("scenario", "static, wander-4", ("static", "wander-4")) == ["static", "wander-4"]
     with pytest.raises(ValueError, match=r"--out r5\.: ends with a dot; give the picture's suffix \(e\.g\. r5\.png\)"):
         check_figure_file("r5.", "--out")
