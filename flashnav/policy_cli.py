@@ -363,11 +363,12 @@ def run_render(args) -> int:
     if args.gif and Path(args.out).suffix.lower() == ".gif":
         raise ValueError(f"--out {args.out}: names the trajectories picture, and --gif writes the animation beside "
                          f"it as {Path(args.out).name}: give --out {Path(args.out).with_suffix('.png')}")
-    out_png = check_figure_file(args.out, "--out", inputs=_input_files(args))  # .png added without a suffix
+    inputs = _input_files(args)  # the policy, and the --map YAML and image: read once for both checks
+    out_png = check_figure_file(args.out, "--out", inputs=inputs)  # .png added without a suffix
     agent_overrides(args)  # --agents without --scenario: an error before any work
     _check_shield(args)
     if args.gif:
-        check_output_file(out_png.with_suffix(".gif"), "--gif", inputs=_input_files(args))
+        check_output_file(out_png.with_suffix(".gif"), "--gif", inputs=inputs)
     if args.scenario is None:
         policy, meta, env = load_policy_and_env(args)
     else:  # only the scenario's env is built
