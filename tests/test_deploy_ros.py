@@ -314,3 +314,34 @@ def test_cli_errors_are_one_line(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "flashnav.cli", "deploy", "ros", str(tmp_path / "policy.pt")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "policy.pt" in bad.stderr and bad.stderr.strip().count("\n") == 0
+
+
+def test_watchdog_survives_a_clock_that_restarts(ros, tmp_path):
+    """A second sim-robot on the same master starts /clock afresh (simulated time moves backwards): the node's
+    watchdog timer must keep running (rospy's Timer raised ROSTimeMovedBackwardsException and its thread ended),
+    so a scanner that then falls silent still stops the robot."""
+    ros.set_param("/use_sim_time", True)
+    poses, goals = episodes_of("turtlebot2", None, 64, SEED)
+    far = max(range(64), key=lambda i: math.dist(poses[i][:2], goals[i]))
+    start, goal = (",".join(f"{v:.6f}" for v in a) for a in (poses[far], goals[far]))
+    node = ros.flashnav("node", "deploy", "ros", str(POLICY), "--timeout", "0.3")
+    back = ",".join(f"{v:.6f}" for v in poses[far][:2])  # the way back: a goal the node has not been given
+    first = ros.flashnav("sim", "deploy", "sim-robot", "--start", start, "--goal-at", goal, "--duration", "3")
+    _finished(ros, first, 120)  # simulated time ran to some seconds
+    results = tmp_path / "restart.json"
+    second = ros.flashnav("sim2", "deploy", "sim-robot", "--start", f"{goal},0", "--goal-at", back,  # /clock from 1 s
+                          "--duration", "4", "--results", str(results))
+    deadline = time.monotonic() + 90
+    while "goal acknowledged" not in ros.log("sim2"):
+        assert second.poll() is None, f"sim-robot failed: {ros.log('sim2')}\nnode: {ros.log('node')}"
+        assert time.monotonic() < deadline, f"no goal acknowledged: {ros.log('sim2')}\nnode: {ros.log('node')}"
+        time.sleep(0.1)
+    time.sleep(0.3)  # driving on the new clock
+    os.kill(second.pid, signal.SIGUSR1)  # the scan publisher goes away
+    assert second.wait(60) == 0, ros.log("sim2")
+    assert node.poll() is None, f"the node died: {ros.log('node')}"
+    stop = json.loads(results.read_text())["scan_stop"]
+    assert stop["command_before"][0] > 0.05, ros.log("node")  # it was driving
+    assert stop["stopped"], f"no zero command after the scans stopped: {ros.log('node')}"
+    assert stop["sim_s_to_zero_command"] <= 0.5
+    assert stop["command_now"] == [0.0, 0.0] and stop["velocity_now"] == [0.0, 0.0]

@@ -171,3 +171,40 @@ def test_no_ros_master_is_named_with_its_uri(monkeypatch):
     with pytest.raises(RosUnavailable, match=f"no ROS master answers at http://127.0.0.1:{port} .ROS_MASTER_URI; "
                                              ".*start roscore"):
         check_master()
+
+
+def test_a_clock_that_moves_backwards_stops_the_robot_and_drops_the_goal():
+    """A simulator restarting /clock (or the wall clock stepped back) while driving: the scans' stamps were all
+    'not due' until they caught up with the old clock and the inputs' ages negative (fresh), so the last command
+    stayed in force, unwatched. Now: one zero, the goal dropped, and a new goal drives on the new clock."""
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
+    ctl.on_odom(0.0, 0.0, 0.0, now=100.0)
+    ctl.on_goal(3.0, 0.0, now=100.0)
+    assert ctl.on_scan(ranges=_ranges(), stamp=100.0, now=100.0, **SCAN).v > 0
+    assert ctl.tick(100.04) is None  # a small step back (threads) is not a jump
+    ctl.on_odom(0.0, 0.0, 0.0, now=1.0)  # the clock restarts
+    assert ctl.state == "clock" and ctl.goal is None and ctl.velocity == (0.0, 0.0)
+    stop = ctl.tick(1.01)
+    assert (stop.v, stop.w, stop.state) == (0.0, 0.0, "clock")
+    assert ctl.tick(1.02) is None  # sent once
+    assert ctl.on_scan(ranges=_ranges(), stamp=1.05, now=1.05, **SCAN) is None  # no goal: nothing is driven
+    status = ctl.status(1.05)
+    assert status["state"] == "clock" and status["clock_jumps"] == 1 and status["goal"] is None
+    ctl.on_goal(3.0, 0.0, now=1.1)
+    ctl.on_odom(0.0, 0.0, 0.0, now=1.1)
+    again = ctl.on_scan(ranges=_ranges(), stamp=1.1, now=1.1, **SCAN)  # due at once: the old stamps are forgotten
+    assert again.state == "driving" and again.v > 0
+    assert ctl.tick(1.5).state == "stale"  # the watchdog on the new clock
+
+
+def test_a_jump_between_a_goal_and_its_first_scan_owes_the_zero_once():
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
+    ctl.on_odom(0.0, 0.0, 0.0, now=50.0)
+    ctl.on_goal(3.0, 0.0, now=50.0)
+    assert ctl.on_scan(ranges=_ranges(), stamp=50.0, now=50.0, **SCAN).v > 0
+    ctl.on_goal(0.0, 3.0, now=2.0)  # the restarted simulator's goal is the first message on the new clock
+    assert ctl.state == "driving" and ctl.goal == (0.0, 3.0) and ctl.clock_jumps == 1
+    ctl.on_odom(0.0, 0.0, 0.0, now=2.0)
+    owed = ctl.on_scan(ranges=_ranges(), stamp=2.0, now=2.0, **SCAN)
+    assert (owed.v, owed.w, owed.state) == (0.0, 0.0, "clock") and ctl.state == "driving"
+    assert ctl.on_scan(ranges=_ranges(), stamp=2.1, now=2.1, **SCAN).state == "driving"

@@ -13,6 +13,12 @@ and the tests all drive this one state machine, so the safety behaviour is writt
   ``range_min``: a dead or covered sensor, which the policy would see as open space): zero velocity, sent
   for every such scan; the next scan with a valid reading drives again.
 * ``reached``: within the goal radius: zero velocity, sent once; a new goal starts driving again.
+* ``clock``: an input's time was earlier than one seen before by more than ``CLOCK_SLACK`` (a simulator
+  restarted its /clock, a bag looped, the wall clock was stepped back): every input time is on the old clock,
+  so the goal, the pose and what was remembered since the goal are dropped and zero velocity is sent once (by
+  the next :meth:`tick` or scan, if a command was in force); a new goal drives again. Before, scans were
+  ignored as not due until their stamps caught up with the old clock, and the ages came out negative, i.e.
+  fresh: the last command stayed in force, unwatched, for as long as the clock had jumped.
 * ``stopped``: :meth:`shutdown`: zero velocity; nothing after it.
 
 The velocity state given to the policy is the command the controller sent last (what the simulator
@@ -69,6 +75,9 @@ from flashnav.mapless import ScanGuide
 #: a scan triggers a control step when its stamp is at least this fraction of the period after the
 #: last one: a 10 Hz policy on a 40 Hz scanner acts on every 4th scan despite stamp jitter
 DUE_FRACTION = 0.8
+#: seconds an input's time may lie before the latest time seen (callbacks of several threads read the clock
+#: and then wait for the lock) before it counts as the clock moving backwards (state ``clock``)
+CLOCK_SLACK = 0.05
 
 
 @dataclass(frozen=True)
@@ -97,6 +106,8 @@ class Controller:
         self.goal: tuple[float, float] | None = None
         self.pose: tuple[float, float, float] | None = None
         self.odom_time = self.scan_time = self.people_time = -math.inf
+        self.latest = -math.inf  # the latest input time seen (a time well before it: the clock moved backwards)
+        self.clock_jumps, self.owed_stop = 0, False  # backward jumps seen; a zero owed since the last one
         self.people = np.zeros((0, 5))  # the tracker's latest people, fixed frame
         self.last_step_stamp = -math.inf
         self.velocity = (0.0, 0.0)
@@ -118,6 +129,7 @@ class Controller:
         """A new goal (same frame as the odometry pose)."""
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ValueError(f"goal ({x}, {y}) is not finite")
+        self._clock(now)
         if self.state == "stopped":
             return
         self.goal, self.velocity, self.last_step_stamp = (float(x), float(y)), (0.0, 0.0), -math.inf
@@ -131,6 +143,7 @@ class Controller:
             self.carrot = None
 
     def on_odom(self, x: float, y: float, yaw: float, now: float) -> None:
+        self._clock(now)
         self.pose, self.odom_time = (float(x), float(y), float(yaw)), float(now)
 
     def on_people(self, people, now: float) -> None:
@@ -141,13 +154,17 @@ class Controller:
         rows = rows.reshape(0, 5) if rows.size == 0 else rows
         if rows.ndim != 2 or rows.shape[1] != 5 or not np.isfinite(rows).all():
             raise ValueError(f"people must be finite rows of (x, y, vx, vy, radius), got shape {list(rows.shape)}")
+        self._clock(now)
         self.people, self.people_time = rows, float(now)
 
     def on_scan(self, angle_min: float, angle_increment: float, ranges, range_min: float, range_max: float,
                 stamp: float, now: float) -> Command | None:
         """A scan (``stamp``: its header time; ``now``: when it arrived). Returns the command to send, if any."""
+        self._clock(now)
         self.scan_time = float(now)
-        if self.state in ("idle", "stopped", "reached"):
+        if self.owed_stop:
+            return self._owed()
+        if self.state in ("idle", "stopped", "reached", "clock"):
             return None
         if stamp < self.last_step_stamp + DUE_FRACTION * self.period:
             return None
@@ -193,6 +210,9 @@ class Controller:
 
     def tick(self, now: float) -> Command | None:
         """The watchdog, called often (e.g. 4x the control rate): zero velocity while inputs are stale."""
+        self._clock(now)
+        if self.owed_stop:
+            return self._owed()
         if self.state in ("driving", "stale", "blind") and self._stale(now):
             return self._stop("stale")
         if self.state == "stale":  # fresh again: the next due scan drives
@@ -203,6 +223,30 @@ class Controller:
         return self._stop("stopped")
 
     # ---- helpers --------------------------------------------------------------------------------
+    def _clock(self, now: float) -> None:
+        """Every input's time passes here first: one well before the latest seen is the clock moving backwards
+        (module docstring, state ``clock``)."""
+        now = float(now)
+        if now >= self.latest - CLOCK_SLACK:
+            self.latest = max(self.latest, now)
+            return
+        self.latest, self.clock_jumps = now, self.clock_jumps + 1
+        self.odom_time = self.scan_time = self.people_time = self.last_step_stamp = -math.inf
+        if self.state == "stopped":
+            return
+        self.owed_stop = self.owed_stop or self.state in ("driving", "stale", "blind")  # a command may be in force
+        self.state, self.goal, self.pose, self.carrot, self.distance = "clock", None, None, None, math.nan
+        self.velocity, self.frames, self.crumbs, self.goal_steps = (0.0, 0.0), [], [], 0
+        if self.memory is not None:
+            self.memory.forget()
+        if self.walls is not None:
+            self.walls.forget()
+
+    def _owed(self) -> Command:
+        """The zero owed since the clock moved backwards (the state stays: a new goal may be driving already)."""
+        self.owed_stop, self.velocity = False, (0.0, 0.0)
+        return Command(0.0, 0.0, "clock")
+
     def _stale(self, now: float) -> bool:
         return (self.pose is None or now - self.scan_time > self.timeout or now - self.odom_time > self.timeout
                 or ((self.rt.agent_tracks > 0 or self.shield is not None) and now - self.people_time > self.timeout))
@@ -252,7 +296,7 @@ class Controller:
                 "goal": None if self.goal is None else list(self.goal),
                 "carrot": None if self.carrot is None else [round(c, 4) for c in self.carrot],
                 "command": list(self.velocity), "action": self.last_action, "steps": self.steps,
-                "shielded": self.shielded if self.shield is not None else None,
+                "shielded": self.shielded if self.shield is not None else None, "clock_jumps": self.clock_jumps,
                 "scan_age": _age(now, self.scan_time), "odom_age": _age(now, self.odom_time),
                 "people_age": _age(now, self.people_time),
                 "last_step_stamp": None if math.isinf(self.last_step_stamp) else self.last_step_stamp}

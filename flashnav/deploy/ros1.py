@@ -124,7 +124,10 @@ class DeployNode:
 
             rospy.Subscriber(people, Float32MultiArray, self._on_people, queue_size=1, tcp_nodelay=True)
         rospy.on_shutdown(self._on_shutdown)
-        self.timer = rospy.Timer(rospy.Duration(controller.period / 4.0), self._on_tick)
+        # reset=True: when ROS time moves backwards (a simulator restarts /clock) rospy's Timer raises
+        # ROSTimeMovedBackwardsException in its thread and the thread ends - the watchdog with it - unless told to
+        # start over on the new clock (the controller then drops the goal: its state "clock")
+        self.timer = rospy.Timer(rospy.Duration(controller.period / 4.0), self._on_tick, reset=True)
 
     def _now(self) -> float:
         return self.rospy.get_time()
