@@ -208,3 +208,19 @@ def test_a_jump_between_a_goal_and_its_first_scan_owes_the_zero_once():
     owed = ctl.on_scan(ranges=_ranges(), stamp=2.0, now=2.0, **SCAN)
     assert (owed.v, owed.w, owed.state) == (0.0, 0.0, "clock") and ctl.state == "driving"
     assert ctl.on_scan(ranges=_ranges(), stamp=2.1, now=2.1, **SCAN).state == "driving"
+
+
+def test_scan_stamps_that_go_back_are_due_again():
+    """A bag played in a loop without /clock, or a scanner whose clock restarted: stamps go back while the node's
+    clock goes on. Every scan was 'not due' until the stamps caught up, yet fresh by arrival: the last command
+    stayed in force. A stamp more than the timeout before the last step's drives; a little earlier (out of
+    order) does not."""
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.0)
+    ctl.on_goal(3.0, 0.0, now=0.0)
+    assert ctl.on_scan(ranges=_ranges(), stamp=60.0, now=0.0, **SCAN).state == "driving"
+    assert ctl.on_scan(ranges=_ranges(), stamp=59.9, now=0.1, **SCAN) is None  # out of order
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.2)
+    looped = ctl.on_scan(ranges=_ranges(), stamp=0.5, now=0.2, **SCAN)
+    assert looped is not None and looped.state == "driving" and ctl.last_step_stamp == 0.5
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.55, now=0.25, **SCAN) is None  # the period counts from there

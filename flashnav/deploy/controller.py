@@ -5,7 +5,8 @@ and the tests all drive this one state machine, so the safety behaviour is writt
 
 * ``idle``: no goal yet; nothing is commanded.
 * ``driving``: a goal is set and the inputs are fresh: each scan at least ``0.8 * period`` (by its
-  stamp) after the last control step runs the policy, and its command is sent.
+  stamp) after the last control step runs the policy, and its command is sent. A scan stamped more than
+  ``timeout`` before the last control step's scan is due too (the scanner's clock restarted).
 * ``stale``: the latest scan or odometry arrived more than ``timeout`` seconds ago (or odometry is that
   much older than the scan): zero velocity, sent again on every :meth:`tick`; driving resumes with
   fresh inputs.
@@ -166,6 +167,8 @@ class Controller:
             return self._owed()
         if self.state in ("idle", "stopped", "reached", "clock"):
             return None
+        if stamp < self.last_step_stamp - self.timeout:  # the scanner's stamps went back (its clock restarted, a
+            self.last_step_stamp = -math.inf  # bag looped without /clock): due now, or none would be until they caught up
         if stamp < self.last_step_stamp + DUE_FRACTION * self.period:
             return None
         if self._stale(now):
