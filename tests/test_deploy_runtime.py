@@ -224,3 +224,21 @@ def test_scan_stamps_that_go_back_are_due_again():
     looped = ctl.on_scan(ranges=_ranges(), stamp=0.5, now=0.2, **SCAN)
     assert looped is not None and looped.state == "driving" and ctl.last_step_stamp == 0.5
     assert ctl.on_scan(ranges=_ranges(), stamp=0.55, now=0.25, **SCAN) is None  # the period counts from there
+
+
+@pytest.mark.parametrize("bad", ["", "scan topic", "/scan/", "//scan", "1scan", "/", "~", "/scan-1"])
+def test_topic_flags_are_checked_as_ros_names_before_anything_starts(bad):
+    import argparse
+
+    from flashnav.deploy.cli import topic_name
+
+    for good in ("/scan", "scan", "~scan", "/robot_1/base_scan"):
+        assert topic_name(good) == good
+    with pytest.raises(argparse.ArgumentTypeError, match="not a ROS topic name"):
+        topic_name(bad)
+
+
+def test_a_bad_topic_is_a_usage_error_naming_the_flag():
+    bad = subprocess.run([sys.executable, "-m", "flashnav.cli", "deploy", "ros", str(POLICY), "--cmd", "cmd vel"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "--cmd" in bad.stderr and "not a ROS topic name" in bad.stderr, bad.stderr

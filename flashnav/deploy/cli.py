@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 
 from flashnav.deploy.scan import Mount
@@ -23,17 +24,31 @@ def _floats(n: int, name: str):
     return parse
 
 
+#: a ROS 1 graph name (wiki.ros.org/Names): a letter, "/" or "~" first, then letters, digits, "_" and "/"
+_ROS_NAME = re.compile(r"[A-Za-z/~][A-Za-z0-9_/]*")
+
+
+def topic_name(text: str) -> str:
+    """A topic flag's value, checked as a ROS 1 name before anything starts (rospy failed only once the node was up,
+    in its own words, after the policy had loaded)."""
+    if not _ROS_NAME.fullmatch(text) or "//" in text or text[-1] in "/~":
+        raise argparse.ArgumentTypeError(f"{text!r} is not a ROS topic name (a letter, '/' or '~' first, then "
+                                         "letters, digits, '_' and single '/'; e.g. /scan)")
+    return text
+
+
 def _topics(p: argparse.ArgumentParser, cmd: bool = True) -> None:
-    p.add_argument("--scan", default="/scan", help="sensor_msgs/LaserScan topic (default /scan)")
-    p.add_argument("--odom", default="/odom", help="nav_msgs/Odometry topic (default /odom)")
-    p.add_argument("--goal", default="/move_base_simple/goal",
+    p.add_argument("--scan", type=topic_name, default="/scan", help="sensor_msgs/LaserScan topic (default /scan)")
+    p.add_argument("--odom", type=topic_name, default="/odom", help="nav_msgs/Odometry topic (default /odom)")
+    p.add_argument("--goal", type=topic_name, default="/move_base_simple/goal",
                    help="geometry_msgs/PoseStamped goal topic, in the odometry frame (default /move_base_simple/goal)")
-    p.add_argument("--people", default="/people",
+    p.add_argument("--people", type=topic_name, default="/people",
                    help="std_msgs/Float32MultiArray of tracked people, rows (x, y, vx, vy, radius) in the odometry "
                         "frame; read only for a policy trained with observation.agent_tracks (default /people)")
     if cmd:
-        p.add_argument("--cmd", default="/cmd_vel", help="geometry_msgs/Twist command topic (default /cmd_vel)")
-        p.add_argument("--status", default="/flashnav_deploy/status",
+        p.add_argument("--cmd", type=topic_name, default="/cmd_vel",
+                       help="geometry_msgs/Twist command topic (default /cmd_vel)")
+        p.add_argument("--status", type=topic_name, default="/flashnav_deploy/status",
                        help="std_msgs/String JSON status topic (default /flashnav_deploy/status)")
 
 
