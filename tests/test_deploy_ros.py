@@ -191,6 +191,15 @@ def test_a_tracks_policy_drives_on_the_sim_robots_people(ros, tmp_path):
     assert sum(e["missed_answers"] for e in episodes) == 0, ros.log("node")
 
 
+def _acknowledged(ros, sim: subprocess.Popen) -> None:
+    """Wait until the free-running sim-robot ``sim`` says the node acknowledged its goal."""
+    deadline = time.monotonic() + 90
+    while "goal acknowledged" not in ros.log(sim.name):
+        assert sim.poll() is None, f"sim-robot failed: {ros.log(sim.name)}\nnode: {ros.log('node')}"
+        assert time.monotonic() < deadline, f"no goal acknowledged: {ros.log(sim.name)}\nnode: {ros.log('node')}"
+        time.sleep(0.1)
+
+
 def _drive_far_goal(ros, results: Path):
     """Real time: the node and a free-running sim-robot driving to the farthest of 64 sampled goals
     for 4 s; returns (node, sim) once the robot has been driving for 1.5 s."""
@@ -202,11 +211,7 @@ def _drive_far_goal(ros, results: Path):
     node = ros.flashnav("node", "deploy", "ros", str(POLICY), "--timeout", "0.3")
     sim = ros.flashnav("sim", "deploy", "sim-robot", "--real-time", "--start", start, "--goal-at", goal,
                        "--duration", "4", "--results", str(results))
-    deadline = time.monotonic() + 90
-    while "goal acknowledged" not in ros.log("sim"):
-        assert sim.poll() is None, f"sim-robot failed: {ros.log('sim')}\nnode: {ros.log('node')}"
-        assert time.monotonic() < deadline, f"no goal acknowledged: {ros.log('sim')}\nnode: {ros.log('node')}"
-        time.sleep(0.1)
+    _acknowledged(ros, sim)
     time.sleep(1.5)  # driving
     return node, sim
 
@@ -331,11 +336,7 @@ def test_watchdog_survives_a_clock_that_restarts(ros, tmp_path):
     results = tmp_path / "restart.json"
     second = ros.flashnav("sim2", "deploy", "sim-robot", "--start", f"{goal},0", "--goal-at", back,  # /clock from 1 s
                           "--duration", "4", "--results", str(results))
-    deadline = time.monotonic() + 90
-    while "goal acknowledged" not in ros.log("sim2"):
-        assert second.poll() is None, f"sim-robot failed: {ros.log('sim2')}\nnode: {ros.log('node')}"
-        assert time.monotonic() < deadline, f"no goal acknowledged: {ros.log('sim2')}\nnode: {ros.log('node')}"
-        time.sleep(0.1)
+    _acknowledged(ros, second)
     time.sleep(0.3)  # driving on the new clock
     os.kill(second.pid, signal.SIGUSR1)  # the scan publisher goes away
     assert second.wait(60) == 0, ros.log("sim2")
