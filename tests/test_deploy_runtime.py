@@ -6,6 +6,8 @@ import math
 import subprocess
 import sys
 import textwrap
+import types
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -242,3 +244,188 @@ def test_a_bad_topic_is_a_usage_error_naming_the_flag():
     bad = subprocess.run([sys.executable, "-m", "flashnav.cli", "deploy", "ros", str(POLICY), "--cmd", "cmd vel"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--cmd" in bad.stderr and "not a ROS topic name" in bad.stderr, bad.stderr
+
+
+def _driving(timeout=0.3, **kw):
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=timeout, **kw)
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.0)
+    ctl.on_goal(3.0, 0.0, now=0.0)
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.0, now=0.0, **SCAN).v > 0
+    return ctl
+
+
+@pytest.mark.parametrize("bad", [dict(ranges=[]), dict(angle_increment=0.0), dict(angle_min=float("nan")),
+                                 dict(range_max=0.0), dict(range_min=float("nan")), dict(range_min=5.0, range_max=4.0)])
+def test_an_unreadable_scan_stops_the_robot_and_says_why(bad):
+    """It raised out of on_scan (rospy logged a 'bad callback') after the scan had counted as fresh: the last
+    command stayed in force. range_max 0 (a LaserScan left at its defaults) read every wall as open space."""
+    ctl = _driving()
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.1)
+    fault = ctl.on_scan(**{**SCAN, "ranges": _ranges(0.25), **bad}, stamp=0.1, now=0.1)
+    assert (fault.v, fault.w, fault.state) == (0.0, 0.0, "fault") and ctl.velocity == (0.0, 0.0)
+    assert ctl.status(0.1)["fault"] == ctl.fault and "scan" in ctl.fault
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.2)
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.2, now=0.2, **SCAN).state == "driving"
+    assert ctl.status(0.2)["fault"] is None
+
+
+def test_scans_whose_stamps_do_not_advance_stop_the_robot():
+    """A driver that leaves header.stamp at 0 (or republishes one scan): no scan is due after the first, yet all
+    arrive fresh. The first command stayed in force; now the watchdog stops it (stuck) and drives again with
+    the next control step."""
+    ctl = _driving()
+    for now in (0.1, 0.2, 0.3):  # fresh inputs, frozen stamps
+        ctl.on_odom(0.0, 0.0, 0.0, now=now)
+        assert ctl.on_scan(ranges=_ranges(), stamp=0.0, now=now, **SCAN) is None
+    assert ctl.tick(0.3) is None  # within the timeout of the last control step
+    stuck = ctl.tick(0.31)
+    assert (stuck.v, stuck.w, stuck.state) == (0.0, 0.0, "stuck") and ctl.velocity == (0.0, 0.0)
+    assert ctl.tick(0.42).state == "stuck"  # sent again while it lasts
+    again = ctl.on_scan(ranges=_ranges(), stamp=0.5, now=0.43, **SCAN)
+    assert again.state == "driving" and ctl.tick(0.44) is None
+
+
+def test_a_control_period_longer_than_the_timeout_is_refused():
+    """--rate 0.001 drove 1000 s on its first command (past the goal); a rate the timeout cannot watch is refused."""
+    rt = PolicyRuntime.load(POLICY)
+    with pytest.raises(ValueError, match=r"period 0\.5 s .* shorter than the timeout 0\.3 s"):
+        Controller(rt, timeout=0.3, period=0.5)
+    for timeout in (float("inf"), 1e9, 0.0):
+        with pytest.raises(ValueError, match="timeout must be in"):
+            Controller(rt, timeout=timeout)
+
+
+def test_a_pose_that_is_not_finite_is_dropped_and_goes_stale():
+    ctl = _driving()
+    with pytest.raises(ValueError, match="odometry pose .* not finite"):
+        ctl.on_odom(float("nan"), 0.0, 0.0, now=0.1)
+    assert ctl.pose == (0.0, 0.0, 0.0) and ctl.odom_time == 0.0
+    assert ctl.tick(0.35).state == "stale"
+
+
+def test_yaw_of_a_quaternion_of_any_length_and_none_of_length_zero():
+    s, c = math.sin(math.pi / 4), math.cos(math.pi / 4)  # 90 deg
+    for scale in (2.0, 0.5, 1.0):
+        assert yaw_from_quaternion(0.0, 0.0, scale * s, scale * c) == pytest.approx(math.pi / 2)  # 127 / 18 deg before
+    for q in ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, float("nan"), 1.0)):
+        with pytest.raises(ValueError, match="not a rotation"):
+            yaw_from_quaternion(*q)
+
+
+@pytest.mark.parametrize("case", ["too_close", "outside"])
+def test_only_too_close_readings_or_none_in_view_are_blind(case):
+    """All -inf (REP 117: closer than range_min, a covered window) drove on readings of 0; a scan whose beams all
+    miss the field of view (a wrong mounting yaw) read 20 m of open space in every sector and drove."""
+    ctl = _driving()
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.1)
+    if case == "too_close":
+        scan = {**SCAN, "ranges": _ranges(-np.inf), "range_min": 0.1}
+    else:
+        scan = dict(ranges=np.full(100, 0.2, np.float32), angle_min=math.radians(140),
+                    angle_increment=math.radians(0.8), range_min=0.0, range_max=20.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # (the scan that misses the view is warned of)
+        blind = ctl.on_scan(**scan, stamp=0.1, now=0.1)
+    assert (blind.v, blind.w, blind.state) == (0.0, 0.0, "blind")
+    ranges = _ranges()
+    ranges[:5] = -np.inf  # something closer than range_min on one side, the rest seen: not blind
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.2)
+    assert ctl.on_scan(**{**SCAN, "ranges": ranges}, stamp=0.2, now=0.2).state == "driving"
+
+
+def test_cancel_drops_the_goal_and_stops():
+    ctl = _driving()
+    stop = ctl.cancel(0.05)
+    assert (stop.v, stop.w, stop.state) == (0.0, 0.0, "idle") and ctl.goal is None
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.1)
+    assert ctl.on_scan(ranges=_ranges(), stamp=0.1, now=0.1, **SCAN) is None and ctl.tick(0.5) is None
+
+
+class _FakeRospy:
+    """The few rospy calls DeployNode's callbacks make, recorded (no ROS needed)."""
+
+    def __init__(self, now=1.0):
+        self.now, self.errors, self.warnings = now, [], []
+
+    def get_time(self):
+        return self.now
+
+    def get_rostime(self):
+        return types.SimpleNamespace(is_zero=lambda: self.now == 0.0)
+
+    def logerr(self, msg):
+        self.errors.append(msg)
+
+    def logerr_throttle(self, _period, msg):
+        self.errors.append(msg)
+
+    def logwarn_once(self, msg):
+        self.warnings.append(msg)
+
+
+def _fake_node(now=1.0):
+    """A DeployNode without ROS: its callbacks on a real controller, its publishers recording."""
+    import threading
+
+    from flashnav.deploy.ros1 import DeployNode
+
+    node = DeployNode.__new__(DeployNode)
+    node.rospy, node.ctl, node.lock = _FakeRospy(now), Controller(PolicyRuntime.load(POLICY), timeout=0.3), threading.Lock()
+    node.odom_frame = node.goal_frame = None
+    node.Twist = lambda: types.SimpleNamespace(linear=types.SimpleNamespace(x=0.0), angular=types.SimpleNamespace(z=0.0))
+    node.String = lambda data: data
+    node.sent = []
+    node.cmd_pub = types.SimpleNamespace(publish=lambda t: node.sent.append((t.linear.x, t.angular.z)))
+    node.status_pub = types.SimpleNamespace(publish=lambda s: None)
+    return node
+
+
+def _msg(frame="odom", x=0.0, y=0.0, q=(0.0, 0.0, 0.0, 1.0), stamp=1.0, **scan):
+    ns = types.SimpleNamespace
+    pose = ns(position=ns(x=x, y=y), orientation=ns(x=q[0], y=q[1], z=q[2], w=q[3]))
+    header = ns(frame_id=frame, stamp=ns(to_sec=lambda: stamp))
+    return ns(header=header, pose=ns(pose=pose), **scan)
+
+
+def _goal(frame="odom", x=0.0, y=0.0):
+    """A PoseStamped's fields (its pose one level less deep than an Odometry's)."""
+    msg = _msg(frame, x, y)
+    return types.SimpleNamespace(header=msg.header, pose=msg.pose.pose)
+
+
+def test_node_checks_a_goal_sent_before_odometry_against_the_first_odometry():
+    """A goal in 'map' sent before any odometry was accepted unchecked and driven to in the odometry frame."""
+    node = _fake_node()
+    node._on_goal(_goal(frame="map", x=3.0))
+    assert node.ctl.goal == (3.0, 0.0)
+    node._on_odom(_msg(frame="odom"))
+    assert node.ctl.goal is None and node.ctl.state == "idle" and node.sent[-1] == (0.0, 0.0)
+    assert "frame 'map'" in node.rospy.errors[-1]
+    node._on_goal(_goal(frame="odom", x=3.0))  # the right frame drives
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.0, **SCAN))
+    assert node.sent[-1][0] > 0
+    node._on_goal(_goal(frame="map", x=0.0, y=3.0))  # a wrong frame now: refused, and the robot stops
+    assert node.ctl.goal is None and node.sent[-1] == (0.0, 0.0) and "refused" in node.rospy.errors[-1]
+
+
+def test_node_drops_a_pose_that_is_not_a_rotation_and_a_nan_goal_stops():
+    node = _fake_node()
+    node._on_odom(_msg(q=(0.0, 0.0, 0.0, 0.0)))  # an orientation never set
+    assert node.ctl.pose is None and "odometry ignored" in node.rospy.errors[-1]
+    node._on_odom(_msg())
+    node._on_goal(_goal(x=3.0))
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.0, **SCAN))
+    assert node.sent[-1][0] > 0
+    node._on_goal(_goal(x=float("nan")))
+    assert node.ctl.goal is None and node.sent[-1] == (0.0, 0.0) and "not finite" in node.rospy.errors[-1]
+
+
+def test_node_does_not_drive_while_ros_time_is_zero():
+    """/use_sim_time left set with nothing on /clock: ROS time stays 0, every age reads 0 and rospy's timer never
+    fires, so one command would have been in force for good."""
+    node = _fake_node(now=0.0)
+    node._on_odom(_msg())
+    node._on_goal(_goal(x=3.0))
+    node._on_scan(_msg(ranges=_ranges(), stamp=0.0, **SCAN))
+    node._on_scan(_msg(ranges=_ranges(), stamp=0.0, **SCAN))
+    assert node.sent == [] and len(node.rospy.warnings) == 2 and "/use_sim_time" in node.rospy.warnings[0]

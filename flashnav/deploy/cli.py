@@ -117,14 +117,14 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
 
 def make_controller(args):
     """The runtime and controller for parsed `ros` / `replay` arguments."""
-    from flashnav.deploy.controller import Controller
+    from flashnav.deploy.controller import MAX_TIMEOUT, Controller
     from flashnav.deploy.runtime import PolicyRuntime
 
     # the flags first: loading the policy costs a session
     if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
         raise ValueError(f"--rate must be a finite number of Hz > 0, got {args.rate}")
-    if not (math.isfinite(args.timeout) and args.timeout > 0):  # inf would never stop a robot whose scans stop
-        raise ValueError(f"--timeout must be a finite number of seconds > 0, got {args.timeout}")
+    if not (math.isfinite(args.timeout) and 0 < args.timeout <= MAX_TIMEOUT):  # inf: never a stop when scans stop
+        raise ValueError(f"--timeout must be in (0, {MAX_TIMEOUT:g}] seconds, got {args.timeout}")
     if args.fill is not None and not (math.isfinite(args.fill) and args.fill >= 0):
         raise ValueError(f"--fill must be a range in metres >= 0 (at most the policy's max range), got {args.fill}")
     if args.guide is not None and not (math.isfinite(args.guide) and args.guide > 0):

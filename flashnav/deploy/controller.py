@@ -7,12 +7,19 @@ and the tests all drive this one state machine, so the safety behaviour is writt
 * ``driving``: a goal is set and the inputs are fresh: each scan at least ``0.8 * period`` (by its
   stamp) after the last control step runs the policy, and its command is sent. A scan stamped more than
   ``timeout`` before the last control step's scan is due too (the scanner's clock restarted).
-* ``stale``: the latest scan or odometry arrived more than ``timeout`` seconds ago (or odometry is that
-  much older than the scan): zero velocity, sent again on every :meth:`tick`; driving resumes with
-  fresh inputs.
+* ``stale``: the latest scan or odometry arrived more than ``timeout`` seconds ago: zero velocity, sent again
+  on every :meth:`tick`; driving resumes with fresh inputs.
 * ``blind``: the latest scan had not one valid reading in the policy's field of view (NaN, 0 or below
-  ``range_min``: a dead or covered sensor, which the policy would see as open space): zero velocity, sent
-  for every such scan; the next scan with a valid reading drives again.
+  ``range_min``: a dead or covered sensor, which the policy would see as open space; only ``-inf``, too close;
+  or no beam in the field of view): zero velocity, sent for every such scan; the next scan with a valid reading
+  drives again.
+* ``fault``: the latest due scan could not be read (no ranges, angles or range limits that are not a scan's;
+  :attr:`fault` says why): zero velocity, sent for every such scan; the next readable scan drives again.
+* ``stuck``: a command other than zero has been in force for ``timeout`` seconds without a control step while
+  the inputs kept arriving (scans whose stamps do not advance - a driver that leaves them at 0 or republishes
+  one scan - or anything else that keeps every scan from acting): zero velocity, sent again on every
+  :meth:`tick`; the next control step drives again. The watchdog's own backstop: before, the scans counted
+  as fresh by their arrival and the last command stayed in force.
 * ``reached``: within the goal radius: zero velocity, sent once; a new goal starts driving again.
 * ``clock``: an input's time was earlier than one seen before by more than ``CLOCK_SLACK`` (a simulator
   restarted its /clock, a bag looped, the wall clock was stepped back): every input time is on the old clock,
@@ -76,6 +83,8 @@ from flashnav.mapless import ScanGuide
 #: a scan triggers a control step when its stamp is at least this fraction of the period after the
 #: last one: a 10 Hz policy on a 40 Hz scanner acts on every 4th scan despite stamp jitter
 DUE_FRACTION = 0.8
+#: the longest watchdog timeout, seconds (a robot driving on for longer without news is not being watched)
+MAX_TIMEOUT = 10.0
 #: seconds an input's time may lie before the latest time seen (callbacks of several threads read the clock
 #: and then wait for the lock) before it counts as the clock moving backwards (state ``clock``)
 CLOCK_SLACK = 0.05
@@ -95,14 +104,17 @@ class Controller:
 
     def __init__(self, runtime: PolicyRuntime, timeout: float = 0.5, period: float | None = None,
                  guide: ScanGuide | None = None, shield=None):
-        if not timeout > 0:
-            raise ValueError(f"timeout must be > 0 s, got {timeout}")
+        if not (math.isfinite(timeout) and 0 < timeout <= MAX_TIMEOUT):
+            raise ValueError(f"timeout must be in (0, {MAX_TIMEOUT:g}] s, got {timeout}")
         self.rt, self.timeout, self.guide, self.shield = runtime, float(timeout), guide, shield
         self.shielded = 0  # control steps whose command the shield replaced
         self.carrot: tuple[float, float] | None = None  # the guide's latest point
         self.period = runtime.control_period if period is None else float(period)
-        if not self.period > 0:
+        if not (math.isfinite(self.period) and self.period > 0):
             raise ValueError(f"period must be > 0 s, got {period}")
+        if self.period >= self.timeout:  # (a slower rate would stop the robot between every two steps: stuck)
+            raise ValueError(f"the control period {self.period:g} s (--rate {1 / self.period:g} Hz) must be shorter "
+                             f"than the timeout {self.timeout:g} s (--timeout): raise one of them")
         self.state = "idle"
         self.goal: tuple[float, float] | None = None
         self.pose: tuple[float, float, float] | None = None
@@ -111,6 +123,8 @@ class Controller:
         self.clock_jumps, self.owed_stop = 0, False  # backward jumps seen; a zero owed since the last one
         self.people = np.zeros((0, 5))  # the tracker's latest people, fixed frame
         self.last_step_stamp = -math.inf
+        self.step_time = -math.inf  # when the last control step ran (the ``stuck`` backstop's clock)
+        self.fault: str | None = None  # why the last due scan could not be read (state ``fault``)
         self.velocity = (0.0, 0.0)
         self.distance = math.nan
         self.last_action: list[float] | None = None
@@ -144,6 +158,10 @@ class Controller:
             self.carrot = None
 
     def on_odom(self, x: float, y: float, yaw: float, now: float) -> None:
+        """The odometry pose (fixed frame). ValueError for a pose that is not finite: it is dropped, so the
+        odometry goes stale and stops the robot unless a good one follows."""
+        if not all(math.isfinite(v) for v in (x, y, yaw)):
+            raise ValueError(f"odometry pose ({x}, {y}, {yaw}) is not finite")
         self._clock(now)
         self.pose, self.odom_time = (float(x), float(y), float(yaw)), float(now)
 
@@ -173,7 +191,12 @@ class Controller:
             return None
         if self._stale(now):
             return self._stop("stale")
-        sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
+        try:
+            sectors = self.rt.scan(angle_min, angle_increment, ranges, range_min, range_max)
+        except ValueError as exc:  # raised out of the callback, it left the last command in force
+            self.fault = str(exc)
+            return self._stop("fault")
+        self.fault = None
         if self.rt.adapter.no_valid_reading:  # a dead or covered sensor would read as open space
             return self._stop("blind")
         target, goal_distance, memory, walls = self.goal, None, None, None
@@ -193,6 +216,7 @@ class Controller:
         d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
                            self._trail(), memory, walls)
         self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1
+        self.step_time = float(now)
         self.last_obs = d.obs
         self.distance = d.distance if target is self.goal else goal_distance
         self.last_action = None if d.action is None else [float(a) for a in np.asarray(d.action)]
@@ -216,11 +240,21 @@ class Controller:
         self._clock(now)
         if self.owed_stop:
             return self._owed()
-        if self.state in ("driving", "stale", "blind") and self._stale(now):
+        if self.state in ("driving", "stale", "blind", "fault", "stuck") and self._stale(now):
             return self._stop("stale")
+        if self.state == "stuck" or (self.state == "driving" and self.velocity != (0.0, 0.0)
+                                     and now - self.step_time > self.timeout):
+            return self._stop("stuck")
         if self.state == "stale":  # fresh again: the next due scan drives
             self.state = "driving"
         return None
+
+    def cancel(self, now: float) -> Command:
+        """Drop the goal (the node: a goal whose frame turned out not to be the odometry's): zero velocity, idle
+        until a new goal."""
+        self._clock(now)
+        self.goal, self.carrot, self.distance = None, None, math.nan
+        return Command(0.0, 0.0, "stopped") if self.state == "stopped" else self._stop("idle")
 
     def shutdown(self) -> Command:
         return self._stop("stopped")
@@ -234,10 +268,10 @@ class Controller:
             self.latest = max(self.latest, now)
             return
         self.latest, self.clock_jumps = now, self.clock_jumps + 1
-        self.odom_time = self.scan_time = self.people_time = self.last_step_stamp = -math.inf
+        self.odom_time = self.scan_time = self.people_time = self.last_step_stamp = self.step_time = -math.inf
         if self.state == "stopped":
             return
-        self.owed_stop = self.owed_stop or self.state in ("driving", "stale", "blind")  # a command may be in force
+        self.owed_stop = self.owed_stop or self.state in ("driving", "stale", "blind", "fault", "stuck")  # a command may be in force
         self.state, self.goal, self.pose, self.carrot, self.distance = "clock", None, None, None, math.nan
         self.velocity, self.frames, self.crumbs, self.goal_steps = (0.0, 0.0), [], [], 0
         if self.memory is not None:
@@ -300,6 +334,7 @@ class Controller:
                 "carrot": None if self.carrot is None else [round(c, 4) for c in self.carrot],
                 "command": list(self.velocity), "action": self.last_action, "steps": self.steps,
                 "shielded": self.shielded if self.shield is not None else None, "clock_jumps": self.clock_jumps,
+                "fault": self.fault,
                 "scan_age": _age(now, self.scan_time), "odom_age": _age(now, self.odom_time),
                 "people_age": _age(now, self.people_time),
                 "last_step_stamp": None if math.isinf(self.last_step_stamp) else self.last_step_stamp}

@@ -4,12 +4,14 @@ The bag's LaserScan, Odometry and (if any) goal messages are fed in recording or
 clock, to the same :class:`~flashnav.deploy.controller.Controller` the node runs (the watchdog checked
 before each message), and every command it would have sent is written as a CSV row:
 ``time`` (bag seconds), ``scan_stamp`` (header time of the scan that produced it; empty for a watchdog
-stop), ``v`` (m/s), ``w`` (rad/s), ``state``, ``distance`` (m to the goal).
+stop), ``v`` (m/s), ``w`` (rad/s), ``state``, ``distance`` (m to the goal). Messages the node would drop
+(a pose or people that are not finite, a goal it refuses and stops for) are dropped alike, with one warning.
 """
 
 from __future__ import annotations
 
 import csv
+import warnings
 from pathlib import Path
 
 from flashnav.deploy.controller import Controller
@@ -52,7 +54,7 @@ def replay_bag(bag_path, controller: Controller, out, *, scan: str = "/scan", od
                              f"{controller.rt.agent_tracks}) but the bag has no messages on --people {people}")
         if goal not in topics and goal_at is None:
             raise ValueError(f"{bag_path}: no goal messages on --goal {goal}; give the goal with --goal-at X,Y")
-        rows = []
+        rows, dropped = [], []
         started = goal_at is None
         for topic, msg, t in bag.read_messages(topics=[scan, odom, goal] + ([people] if tracks else [])):
             now = t.to_sec()
@@ -62,17 +64,26 @@ def replay_bag(bag_path, controller: Controller, out, *, scan: str = "/scan", od
             stop = controller.tick(now)
             if stop is not None:
                 rows.append([now, "", stop.v, stop.w, stop.state, controller.distance])
-            if topic == odom:
-                controller.on_odom(*odom_pose(msg), now)
-            elif topic == goal:
-                controller.on_goal(msg.pose.position.x, msg.pose.position.y, now)
-            elif topic == people and tracks:
-                controller.on_people(people_rows(msg), now)
-            else:
+            try:
+                if topic == odom:
+                    controller.on_odom(*odom_pose(msg), now)
+                elif topic == goal:
+                    controller.on_goal(msg.pose.position.x, msg.pose.position.y, now)
+                elif topic == people and tracks:
+                    controller.on_people(people_rows(msg), now)
+            except ValueError as exc:  # as the node: dropped; a refused goal stops the robot
+                dropped.append(f"{topic} at {now:.3f} s: {exc}")
+                if topic == goal:
+                    stop = controller.cancel(now)
+                    rows.append([now, "", stop.v, stop.w, stop.state, controller.distance])
+            if topic == scan:
                 stamp = msg.header.stamp.to_sec()
                 command = controller.on_scan(*scan_args(msg), stamp=stamp, now=now)
                 if command is not None:
                     rows.append([now, stamp, command.v, command.w, command.state, controller.distance])
+    if dropped:
+        warnings.warn(f"{bag_path}: {len(dropped)} message(s) dropped as the node drops them (first: {dropped[0]})",
+                      RuntimeWarning, stacklevel=2)
     with open(out, "w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow(COLUMNS)

@@ -113,6 +113,7 @@ class DeployNode:
         self.Twist, self.String = Twist, String
         self.ctl, self.lock = controller, threading.Lock()
         self.odom_frame = None
+        self.goal_frame = None  # a goal's frame given before any odometry: checked against the first odometry
         rospy.init_node(name)
         self.cmd_pub = rospy.Publisher(cmd, Twist, queue_size=1, tcp_nodelay=True)
         self.status_pub = rospy.Publisher(status, String, queue_size=10, tcp_nodelay=True)
@@ -143,18 +144,36 @@ class DeployNode:
 
     def _on_odom(self, msg) -> None:
         with self.lock:
+            now = self._now()
+            try:
+                self.ctl.on_odom(*odom_pose(msg), now)
+            except ValueError as exc:  # dropped: the odometry goes stale and the watchdog stops the robot
+                self.rospy.logerr_throttle(5.0, f"odometry ignored: {exc}")
+                return
             self.odom_frame = msg.header.frame_id
-            self.ctl.on_odom(*odom_pose(msg), self._now())
+            if self.goal_frame is not None and self.goal_frame != self.odom_frame.lstrip("/"):
+                self.rospy.logerr(f"goal dropped: frame {self.goal_frame!r}, but the odometry is in "
+                                  f"{self.odom_frame!r} (send the goal in the odometry frame)")
+                self._publish(self.ctl.cancel(now), now)
+            self.goal_frame = None
 
     def _on_goal(self, msg) -> None:
         with self.lock:
-            frame = msg.header.frame_id.lstrip("/")
+            # a goal the node cannot use stops the robot (it was sent to go elsewhere) rather than being ignored
+            frame, now = msg.header.frame_id.lstrip("/"), self._now()
             if frame and self.odom_frame is not None and frame != self.odom_frame.lstrip("/"):
-                self.rospy.logerr(f"goal ignored: frame {frame!r}, but the odometry is in {self.odom_frame!r} "
-                                  "(send the goal in the odometry frame)")
+                self.rospy.logerr(f"goal refused, robot stopped: frame {frame!r}, but the odometry is in "
+                                  f"{self.odom_frame!r} (send the goal in the odometry frame)")
+                self._publish(self.ctl.cancel(now), now)
                 return
-            now = self._now()
-            self.ctl.on_goal(msg.pose.position.x, msg.pose.position.y, now)
+            try:
+                self.ctl.on_goal(msg.pose.position.x, msg.pose.position.y, now)
+            except ValueError as exc:
+                self.rospy.logerr(f"goal refused, robot stopped: {exc}")
+                self._publish(self.ctl.cancel(now), now)
+                return
+            if self.odom_frame is None:  # nothing to check its frame against yet: the first odometry does
+                self.goal_frame = frame or None
             self._publish(None, now)
 
     def _on_people(self, msg) -> None:
@@ -166,9 +185,15 @@ class DeployNode:
 
     def _on_scan(self, msg) -> None:
         with self.lock:
+            if self.rospy.get_rostime().is_zero():  # no time yet: every age would read 0 and the timer never fires
+                self.rospy.logwarn_once("scans ignored: ROS time is 0 (/use_sim_time is set and nothing publishes "
+                                        "/clock: unset it on a real robot, or start the simulator)")
+                return
             now = self._now()
             stamp = msg.header.stamp.to_sec()
             command = self.ctl.on_scan(*scan_args(msg), stamp=stamp, now=now)
+            if command is not None and command.state == "fault":
+                self.rospy.logerr_throttle(5.0, f"scan not usable, robot stopped: {self.ctl.fault}")
             self._publish(command, now, scan_stamp=stamp, answered=command is not None)
 
     def _on_tick(self, _event) -> None:

@@ -45,8 +45,13 @@ def wrap_angle(a: float) -> float:
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Heading (rad) of an orientation quaternion: the rotation about z (ROS's yaw)."""
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    """Heading (rad) of an orientation quaternion: the rotation about z (ROS's yaw), of any length (the
+    unit-length formula's ``1 - 2 (y^2 + z^2)`` turned a quaternion of length 2 at 90 deg into 127 deg).
+    ValueError for a quaternion of length 0 (an orientation never set) or one that is not finite."""
+    norm = w * w + x * x + y * y + z * z
+    if not (math.isfinite(norm) and norm > 1e-12):
+        raise ValueError(f"orientation quaternion ({x}, {y}, {z}, {w}) is not a rotation (length 0 or not finite)")
+    return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,11 @@ by beam, whatever its beam count, angular direction or mounting:
   a sector that no beam covers (a narrower sensor) or whose beams were all invalid reads ``fill``,
   by default ``max_range`` (free, what the simulator shows for open space), with a warning once per
   scan geometry for the sectors the sensor cannot see, and once per sector for those without a valid
-  reading (:attr:`ScanAdapter.invalid_sectors`); a scan without one valid reading in the field of view
-  (:attr:`ScanAdapter.no_valid_reading`) stops the deploy node (``blind``).
+  reading (:attr:`ScanAdapter.invalid_sectors`); a scan without one valid reading in the field of view,
+  whose readings in it are all ``-inf`` (too close: a covered window), or whose beams miss the field of view
+  altogether (a wrong mounting yaw) (:attr:`ScanAdapter.no_valid_reading`) stops the deploy node (``blind``);
+* **limits**: ``range_min`` and ``range_max`` must be finite with ``0 <= range_min < range_max`` (a LaserScan
+  left at its defaults, ``range_max = 0``, would read every wall as "nothing within range", open space).
 """
 
 from __future__ import annotations
@@ -76,7 +79,8 @@ def sector_of(angle: np.ndarray, layout: SectorLayout) -> np.ndarray:
     """Sector index [B] int64 of base-frame angles [B] (radians, any wrap); -1 outside the field of view."""
     fov = math.radians(layout.fov_deg)
     wrapped = np.remainder(np.asarray(angle, np.float64) + math.pi, 2.0 * math.pi) - math.pi
-    idx = np.floor((wrapped + 0.5 * fov) / (fov / layout.sectors)).astype(np.int64)
+    pos = np.nan_to_num((wrapped + 0.5 * fov) / (fov / layout.sectors), nan=-1.0)  # (a NaN angle: outside)
+    idx = np.floor(pos).astype(np.int64)
     return np.where((idx >= 0) & (idx < layout.sectors), idx, -1)
 
 
@@ -96,13 +100,17 @@ class ScanAdapter:
         self._blind: list[int] = []
         self._aimed = np.zeros(0, np.int64)
         self.invalid_sectors: list[int] = []  # the last scan's covered sectors without one valid reading
+        self.too_close_only = False  # the last scan's readings in the field of view were all -inf
+        self._scanned = False
         self._warned_invalid: set[int] = set()
 
     def __call__(self, angle_min: float, angle_increment: float, ranges, range_min: float,
                  range_max: float) -> np.ndarray:
-        r, angle, valid, _ = self._base_frame(angle_min, angle_increment, ranges, range_min, range_max)
+        raw = np.asarray(ranges, dtype=np.float64).reshape(-1)
+        r, angle, valid, _ = self._base_frame(angle_min, angle_increment, raw, range_min, range_max)
         idx = sector_of(angle, self.layout)
         keep = valid & (idx >= 0)
+        self.too_close_only, self._scanned = bool(keep.any() and (raw[keep] == -np.inf).all()), True
         out = np.full(self.layout.sectors, np.inf)
         np.minimum.at(out, idx[keep], r[keep])
         # by the beams' directions (an invalid reading has no end point): the sectors whose every beam was invalid
@@ -122,8 +130,11 @@ class ScanAdapter:
     @property
     def no_valid_reading(self) -> bool:
         """Whether the last scan had not one valid reading in the policy's field of view (a sensor that is
-        dead or covered: its sectors would read the fill value, open space, and the deploy node stops)."""
-        return len(self.invalid_sectors) == self.layout.sectors - len(self._blind) > 0
+        dead or covered: its sectors would read the fill value, open space, and the deploy node stops): no
+        covered sector with a valid reading (none covered at all counts too), or only ``-inf`` readings."""
+        if not self._scanned:
+            return False
+        return len(self.invalid_sectors) == self.layout.sectors - len(self._blind) or self.too_close_only
 
     def beams(self, angle_min: float, angle_increment: float, ranges, range_min: float,
               range_max: float) -> tuple[np.ndarray, np.ndarray]:
@@ -141,6 +152,9 @@ class ScanAdapter:
         if not (math.isfinite(angle_min) and math.isfinite(angle_increment) and angle_increment != 0.0):
             raise ValueError(f"scan angle_min {angle_min} / angle_increment {angle_increment} must be finite, "
                              "the increment non-zero")
+        if not (math.isfinite(range_min) and math.isfinite(range_max) and 0.0 <= range_min < range_max):
+            raise ValueError(f"scan range_min {range_min} / range_max {range_max} must be finite with "
+                             "0 <= range_min < range_max (a LaserScan left at its defaults has range_max 0)")
         m, max_range = self.mount, self.layout.max_range
         sensor_angle = angle_min + angle_increment * np.arange(r.size, dtype=np.float64)
         direction = m.yaw + (-sensor_angle if m.flipped else sensor_angle)  # base frame
