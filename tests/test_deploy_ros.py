@@ -311,6 +311,39 @@ def test_replay_of_a_recorded_bag_gives_the_commands_sent(tmp_path):
         assert float(row["v"]) == pytest.approx(v, abs=1e-6) and float(row["w"]) == pytest.approx(w, abs=1e-6)
 
 
+def test_replay_drops_what_the_node_drops(tmp_path):
+    """An odometry message whose quaternion is all zero (never set) stopped the whole replay with a ValueError;
+    the node drops it, and so does the replay, with one warning."""
+    from flashnav.deploy.controller import Controller
+    from flashnav.deploy.replay import replay_bag
+    from flashnav.deploy.ros1 import import_rospy
+    from flashnav.deploy.runtime import PolicyRuntime
+
+    rospy = import_rospy()
+    import rosbag
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import LaserScan
+
+    fov, n, bag_path = math.radians(270.0), 1080, tmp_path / "bad_odom.bag"
+    with rosbag.Bag(str(bag_path), "w") as bag:
+        for k in range(10):
+            stamp = rospy.Time.from_sec(1.0 + 0.1 * k)
+            odom = Odometry()
+            odom.header.stamp, odom.header.frame_id = stamp, "odom"
+            odom.pose.pose.orientation.w = 0.0 if k == 5 else 1.0
+            scan = LaserScan()
+            scan.header.stamp = stamp
+            scan.angle_increment, scan.angle_min = fov / n, -fov / 2 + fov / n / 2
+            scan.range_min, scan.range_max, scan.ranges = 0.0, 20.0, [3.0] * n
+            bag.write("/odom", odom, stamp)
+            bag.write("/scan", scan, stamp)
+    with pytest.warns(RuntimeWarning, match=r"1 message\(s\) dropped .* /odom at 1\.500 s: orientation quaternion"):
+        count = replay_bag(bag_path, Controller(PolicyRuntime.load(POLICY), timeout=0.3), tmp_path / "c.csv",
+                           goal_at=(3.0, 0.0))
+    rows = list(csv.DictReader((tmp_path / "c.csv").open()))
+    assert count == len(rows) and [r["state"] for r in rows if r["scan_stamp"]] == ["driving"] * 10  # (1.4 s's fresh)
+
+
 def test_cli_errors_are_one_line(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "flashnav.cli", "deploy", "replay", str(tmp_path / "none.bag"),
                           "--policy", str(POLICY), "--out", str(tmp_path / "c.csv"), "--goal-at", "1,1"],
