@@ -4,6 +4,7 @@ scripts/bootstrap.sh installs it on machines with apt-get as root."""
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
@@ -244,8 +245,6 @@ def test_robot_stops_when_the_scan_publisher_goes_away(ros, tmp_path):
 def test_replay_of_a_recorded_bag_gives_the_commands_sent(tmp_path):
     """Record a drive (the controller in the loop with the simulator) as a ROS 1 bag, replay it through
     `flashnav deploy replay`, and get the commands that were sent, step for step."""
-    import csv
-
     import numpy as np
     import torch
 
