@@ -107,7 +107,8 @@ def test_controller_safety_states():
     assert (stop.v, stop.w, stop.state) == (0.0, 0.0, "stale") and ctl.velocity == (0.0, 0.0)
     assert ctl.tick(0.5).state == "stale"  # repeated while stale
     ctl.on_odom(0.0, 0.0, 0.0, now=0.6)
-    again = ctl.on_scan(ranges=_ranges(), stamp=0.6, now=0.6, **SCAN)
+    with pytest.warns(RuntimeWarning, match="scans 0.5 s apart"):  # (the gap that made it stale)
+        again = ctl.on_scan(ranges=_ranges(), stamp=0.6, now=0.6, **SCAN)
     assert again.state == "driving"
     ctl.on_odom(2.9, 0.0, 0.0, now=0.7)  # within the 0.2 m goal radius
     reached = ctl.on_scan(ranges=_ranges(), stamp=0.7, now=0.7, **SCAN)
@@ -429,3 +430,14 @@ def test_node_does_not_drive_while_ros_time_is_zero():
     node._on_scan(_msg(ranges=_ranges(), stamp=0.0, **SCAN))
     node._on_scan(_msg(ranges=_ranges(), stamp=0.0, **SCAN))
     assert node.sent == [] and len(node.rospy.warnings) == 2 and "/use_sim_time" in node.rospy.warnings[0]
+
+
+def test_scans_further_apart_than_the_timeout_are_warned_of_once():
+    ctl = _driving()
+    with pytest.warns(RuntimeWarning, match=r"scans 0\.5 s apart, more than the timeout 0\.3 s"):
+        ctl.on_odom(0.0, 0.0, 0.0, now=0.5)
+        ctl.on_scan(ranges=_ranges(), stamp=0.5, now=0.5, **SCAN)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ctl.on_odom(0.0, 0.0, 0.0, now=1.0)
+        ctl.on_scan(ranges=_ranges(), stamp=1.0, now=1.0, **SCAN)

@@ -72,6 +72,7 @@ Times are seconds on one clock (ROS time: wall or simulated).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,6 +126,7 @@ class Controller:
         self.last_step_stamp = -math.inf
         self.step_time = -math.inf  # when the last control step ran (the ``stuck`` backstop's clock)
         self.fault: str | None = None  # why the last due scan could not be read (state ``fault``)
+        self.slow_scans_warned = False
         self.velocity = (0.0, 0.0)
         self.distance = math.nan
         self.last_action: list[float] | None = None
@@ -180,7 +182,12 @@ class Controller:
                 stamp: float, now: float) -> Command | None:
         """A scan (``stamp``: its header time; ``now``: when it arrived). Returns the command to send, if any."""
         self._clock(now)
-        self.scan_time = float(now)
+        gap, self.scan_time = float(now) - self.scan_time, float(now)
+        if self.timeout < gap < math.inf and self.goal is not None and not self.slow_scans_warned:
+            self.slow_scans_warned = True  # (stale between every two scans: stop and go, with no other sign)
+            warnings.warn(f"scans {gap:.3g} s apart, more than the timeout {self.timeout:g} s: the robot stops between "
+                          "them (a slow or stalling scanner; raise --timeout if it is that slow)", RuntimeWarning,
+                          stacklevel=2)
         if self.owed_stop:
             return self._owed()
         if self.state in ("idle", "stopped", "reached", "clock"):
