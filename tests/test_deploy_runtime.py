@@ -176,24 +176,22 @@ def test_no_ros_master_is_named_with_its_uri(monkeypatch):
         check_master()
 
 
-def test_a_clock_that_moves_backwards_stops_the_robot_and_drops_the_goal():
+def test_a_clock_that_moves_backwards_stops_the_robot_until_fresh_inputs():
     """A simulator restarting /clock (or the wall clock stepped back) while driving: the scans' stamps were all
     'not due' until they caught up with the old clock and the inputs' ages negative (fresh), so the last command
-    stayed in force, unwatched. Now: one zero, the goal dropped, and a new goal drives on the new clock."""
+    stayed in force, unwatched. Now: one zero, the old clock's times and memory forgotten, and the goal driven
+    to again once fresh inputs arrive on the new clock."""
     ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
     ctl.on_odom(0.0, 0.0, 0.0, now=100.0)
     ctl.on_goal(3.0, 0.0, now=100.0)
     assert ctl.on_scan(ranges=_ranges(), stamp=100.0, now=100.0, **SCAN).v > 0
     assert ctl.tick(100.04) is None  # a small step back (threads) is not a jump
     ctl.on_odom(0.0, 0.0, 0.0, now=1.0)  # the clock restarts
-    assert ctl.state == "clock" and ctl.goal is None and ctl.velocity == (0.0, 0.0)
+    assert ctl.state == "stale" and ctl.goal == (3.0, 0.0) and ctl.velocity == (0.0, 0.0)
     stop = ctl.tick(1.01)
     assert (stop.v, stop.w, stop.state) == (0.0, 0.0, "clock")
-    assert ctl.tick(1.02) is None  # sent once
-    assert ctl.on_scan(ranges=_ranges(), stamp=1.05, now=1.05, **SCAN) is None  # no goal: nothing is driven
-    status = ctl.status(1.05)
-    assert status["state"] == "clock" and status["clock_jumps"] == 1 and status["goal"] is None
-    ctl.on_goal(3.0, 0.0, now=1.1)
+    assert ctl.tick(1.02).state == "stale"  # no scan on the new clock yet
+    assert ctl.status(1.02)["clock_jumps"] == 1
     ctl.on_odom(0.0, 0.0, 0.0, now=1.1)
     again = ctl.on_scan(ranges=_ranges(), stamp=1.1, now=1.1, **SCAN)  # due at once: the old stamps are forgotten
     assert again.state == "driving" and again.v > 0
@@ -211,6 +209,20 @@ def test_a_jump_between_a_goal_and_its_first_scan_owes_the_zero_once():
     owed = ctl.on_scan(ranges=_ranges(), stamp=2.0, now=2.0, **SCAN)
     assert (owed.v, owed.w, owed.state) == (0.0, 0.0, "clock") and ctl.state == "driving"
     assert ctl.on_scan(ranges=_ranges(), stamp=2.1, now=2.1, **SCAN).state == "driving"
+
+
+def test_a_goal_sent_just_before_the_node_sees_the_new_clock_is_kept():
+    """The race the ROS test met: the restarted simulator's goal reached the node before its /clock did, so the
+    goal was set on the old clock - and dropping the goal at the jump lost it."""
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
+    ctl.on_odom(0.0, 0.0, 0.0, now=50.0)
+    ctl.on_goal(3.0, 0.0, now=50.0)
+    ctl.on_scan(ranges=_ranges(), stamp=50.0, now=50.0, **SCAN)
+    ctl.on_goal(0.0, 3.0, now=50.05)  # the new goal, on the old clock
+    ctl.on_odom(1.0, 1.0, 0.0, now=1.0)  # then the new clock
+    assert ctl.goal == (0.0, 3.0)
+    assert ctl.on_scan(ranges=_ranges(), stamp=1.0, now=1.0, **SCAN).state == "clock"  # the owed zero
+    assert ctl.on_scan(ranges=_ranges(), stamp=1.1, now=1.1, **SCAN).state == "driving"
 
 
 def test_scan_stamps_that_go_back_are_due_again():
@@ -371,9 +383,11 @@ def _fake_node(now=1.0):
     from flashnav.deploy.ros1 import DeployNode
 
     node = DeployNode.__new__(DeployNode)
-    node.rospy, node.ctl, node.lock = _FakeRospy(now), Controller(PolicyRuntime.load(POLICY), timeout=0.3), threading.Lock()
+    ns = types.SimpleNamespace
+    node.rospy, node.lock = _FakeRospy(now), threading.Lock()
+    node.ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
     node.odom_frame = node.goal_frame = None
-    node.Twist = lambda: types.SimpleNamespace(linear=types.SimpleNamespace(x=0.0), angular=types.SimpleNamespace(z=0.0))
+    node.Twist = lambda: ns(linear=ns(x=0.0), angular=ns(z=0.0))
     node.String = lambda data: data
     node.sent = []
     node.cmd_pub = types.SimpleNamespace(publish=lambda t: node.sent.append((t.linear.x, t.angular.z)))
@@ -441,3 +455,15 @@ def test_scans_further_apart_than_the_timeout_are_warned_of_once():
         warnings.simplefilter("error")
         ctl.on_odom(0.0, 0.0, 0.0, now=1.0)
         ctl.on_scan(ranges=_ranges(), stamp=1.0, now=1.0, **SCAN)
+
+
+def test_an_observation_that_cannot_be_made_stops_the_robot(monkeypatch):
+    ctl = _driving()
+
+    def refuse(*_a, **_k):
+        raise ValueError("observation is not finite")
+
+    monkeypatch.setattr(ctl.rt, "decide", refuse)
+    ctl.on_odom(0.0, 0.0, 0.0, now=0.1)
+    fault = ctl.on_scan(ranges=_ranges(), stamp=0.1, now=0.1, **SCAN)
+    assert (fault.v, fault.state, ctl.fault) == (0.0, "fault", "observation is not finite")

@@ -13,21 +13,25 @@ and the tests all drive this one state machine, so the safety behaviour is writt
   ``range_min``: a dead or covered sensor, which the policy would see as open space; only ``-inf``, too close;
   or no beam in the field of view): zero velocity, sent for every such scan; the next scan with a valid reading
   drives again.
-* ``fault``: the latest due scan could not be read (no ranges, angles or range limits that are not a scan's;
-  :attr:`fault` says why): zero velocity, sent for every such scan; the next readable scan drives again.
+* ``fault``: the latest due scan could not be read (no ranges, angles or range limits that are not a scan's),
+  or its observation could not be made (:attr:`fault` says why): zero velocity, sent for every such scan; the
+  next readable scan drives again.
 * ``stuck``: a command other than zero has been in force for ``timeout`` seconds without a control step while
   the inputs kept arriving (scans whose stamps do not advance - a driver that leaves them at 0 or republishes
   one scan - or anything else that keeps every scan from acting): zero velocity, sent again on every
   :meth:`tick`; the next control step drives again. The watchdog's own backstop: before, the scans counted
   as fresh by their arrival and the last command stayed in force.
 * ``reached``: within the goal radius: zero velocity, sent once; a new goal starts driving again.
-* ``clock``: an input's time was earlier than one seen before by more than ``CLOCK_SLACK`` (a simulator
-  restarted its /clock, a bag looped, the wall clock was stepped back): every input time is on the old clock,
-  so the goal, the pose and what was remembered since the goal are dropped and zero velocity is sent once (by
-  the next :meth:`tick` or scan, if a command was in force); a new goal drives again. Before, scans were
-  ignored as not due until their stamps caught up with the old clock, and the ages came out negative, i.e.
-  fresh: the last command stayed in force, unwatched, for as long as the clock had jumped.
 * ``stopped``: :meth:`shutdown`: zero velocity; nothing after it.
+
+The clock moving backwards (an input's time earlier than one seen before by more than ``CLOCK_SLACK``: a
+simulator restarted its /clock, a bag looped, the wall clock was stepped back) puts every time the controller
+holds on the old clock: they are forgotten, with the pose and what was remembered since the goal (history,
+trail, memory, wall map, the guide's walls), a zero is sent once (state ``clock``, by the next :meth:`tick` or
+scan) if a command may be in force, and the controller is ``stale`` until fresh inputs arrive; the goal stays
+(a new goal sent just before the node's clock caught up would otherwise be lost). Before, scans were ignored as
+not due until their stamps caught up with the old clock, and the ages came out negative, i.e. fresh: the last
+command stayed in force, unwatched, for as long as the clock had jumped.
 
 The velocity state given to the policy is the command the controller sent last (what the simulator
 calls the executed command; a stop counts as (0, 0)); a new goal starts from the robot's measured
@@ -190,10 +194,10 @@ class Controller:
                           stacklevel=2)
         if self.owed_stop:
             return self._owed()
-        if self.state in ("idle", "stopped", "reached", "clock"):
+        if self.state in ("idle", "stopped", "reached"):
             return None
-        if stamp < self.last_step_stamp - self.timeout:  # the scanner's stamps went back (its clock restarted, a
-            self.last_step_stamp = -math.inf  # bag looped without /clock): due now, or none would be until they caught up
+        if stamp < self.last_step_stamp - self.timeout:  # the scanner's stamps went back (its clock restarted, a bag
+            self.last_step_stamp = -math.inf  # looped without /clock): due now, or none is until they catch up
         if stamp < self.last_step_stamp + DUE_FRACTION * self.period:
             return None
         if self._stale(now):
@@ -220,8 +224,12 @@ class Controller:
             memory = self.memory.step(self.pose, angles, beams, self.goal_steps)
         if self.walls is not None:  # the goal's square is the target's (a carrot with guidance)
             walls = self.walls.step(self.pose, angles, beams, target)
-        d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
-                           self._trail(), memory, walls)
+        try:
+            d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
+                               self._trail(), memory, walls)
+        except ValueError as exc:  # (an observation that is not finite, say): stopped, not the last command kept
+            self.fault = str(exc)
+            return self._stop("fault")
         self.last_step_stamp, self.steps, self.goal_steps = float(stamp), self.steps + 1, self.goal_steps + 1
         self.step_time = float(now)
         self.last_obs = d.obs
@@ -276,18 +284,19 @@ class Controller:
             return
         self.latest, self.clock_jumps = now, self.clock_jumps + 1
         self.odom_time = self.scan_time = self.people_time = self.last_step_stamp = self.step_time = -math.inf
-        if self.state == "stopped":
-            return
-        self.owed_stop = self.owed_stop or self.state in ("driving", "stale", "blind", "fault", "stuck")  # a command may be in force
-        self.state, self.goal, self.pose, self.carrot, self.distance = "clock", None, None, None, math.nan
+        if self.state in ("driving", "stale", "blind", "fault", "stuck"):  # a command other than zero may be in force
+            self.owed_stop, self.state = True, "stale"
+        self.pose, self.carrot, self.distance = None, None, math.nan
         self.velocity, self.frames, self.crumbs, self.goal_steps = (0.0, 0.0), [], [], 0
         if self.memory is not None:
             self.memory.forget()
         if self.walls is not None:
             self.walls.forget()
+        if self.guide is not None and self.goal is not None:
+            self.guide.start(self.goal)
 
     def _owed(self) -> Command:
-        """The zero owed since the clock moved backwards (the state stays: a new goal may be driving already)."""
+        """The zero owed since the clock moved backwards (the state stays)."""
         self.owed_stop, self.velocity = False, (0.0, 0.0)
         return Command(0.0, 0.0, "clock")
 
