@@ -1,6 +1,6 @@
 """The local experiment stack: a Ray head (dashboard + jobs API) and an MLflow server, on 127.0.0.1 only.
 
-    flashnav services up [--no-mlflow] [--auth disabled|token] [--dashboard-port 8265] [--mlflow-port 5000]
+    flashnav services up [--no-mlflow] [--auth token|disabled] [--dashboard-port 8265] [--mlflow-port 5000]
     flashnav services status
     flashnav services down
 
@@ -10,20 +10,22 @@ session, with logs, pid files and a state file under ``<runs>/services/``; it wa
 over HTTP. ``down`` stops only the process trees that ``up`` recorded (never ``ray stop``, which would
 kill every Ray process of every user on the machine).
 
-Token auth (Ray >= 2.59): once any local ``ray.init()`` has written ~/.ray/auth_token, a head started
-without RAY_AUTH_MODE turns token auth on and ``ray job submit`` fails "Missing authentication token"
-unless the client sets RAY_AUTH_MODE=token too. The head is therefore started with an explicit mode,
-``disabled`` by default (it binds to 127.0.0.1 only); ``--auth token`` enables it, and then clients
-need ``export RAY_AUTH_MODE=token`` (``flashnav sweep submit`` reads the mode from the state file).
+Token auth (Ray >= 2.59): the head is started with an explicit RAY_AUTH_MODE, ``token`` by default (the token
+is ~/.ray/auth_token, made by ``ray get-auth-token --generate`` when missing), because Ray's dashboard agent
+serves a jobs API of its own on the node's network address whatever the flags: without auth anyone who reaches
+the machine could run commands on it (a probe did, 2026-12-03). Clients then need ``export RAY_AUTH_MODE=token``
+(``up`` and ``status`` print the line; ``flashnav sweep submit`` reads the mode from the state file).
+``--auth disabled`` is for a machine no one else can reach.
 
 The head's environment carries FLASHNAV_RUNS_DIR, FLASHNAV_PROJECT_DIR and MLFLOW_TRACKING_URI (the
 server) down to job drivers, so ``ray job submit --working-dir . -- flashnav sweep run ...`` writes to
 this project's runs/ and to the server, not into the job's temporary working dir.
 
 Binding: the HTTP endpoints people use (dashboard + jobs API, MLflow) listen on 127.0.0.1 only. Ray's
-internal gRPC servers (GCS, raylet, agents) cannot be confined to loopback: Ray maps 127.0.0.1 to the
-node's address and binds them on all interfaces. On a shared network keep them behind a firewall or
-start the head with ``--auth token``.
+internal servers (GCS, raylet, the client server and the dashboard agent, whose HTTP jobs API accepts jobs)
+cannot be confined to loopback: Ray maps 127.0.0.1 to the node's address and binds them on all interfaces
+(``--node-ip-address 127.0.0.1`` too, Ray 2.60). Hence token auth by default; with ``--auth disabled`` keep
+them behind a firewall.
 """
 
 from __future__ import annotations
@@ -224,7 +226,18 @@ def _spawn(name: str, command: list[str], env: dict[str, str]) -> tuple[int, Pat
 # ---------------------------------------------------------------- up / down / status
 
 
-def up(*, mlflow: bool = True, auth: str = "disabled", ray_port: int = 6379, dashboard_port: int = 8265,
+def ensure_token() -> None:
+    """~/.ray/auth_token (or $RAY_AUTH_TOKEN_PATH / $RAY_AUTH_TOKEN), made when missing: ``ray start`` in token
+    mode refuses to start without one."""
+    done = subprocess.run([_tool("ray"), "get-auth-token", "--generate"], env={**os.environ, "RAY_AUTH_MODE": "token"},
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # (it prints the token)
+    if done.returncode:
+        raise RuntimeError(f"could not make Ray's auth token (ray get-auth-token --generate: "
+                           f"{done.stderr.strip()[-300:]}); or start with --auth disabled on a machine no one "
+                           "else can reach")
+
+
+def up(*, mlflow: bool = True, auth: str = "token", ray_port: int = 6379, dashboard_port: int = 8265,
        mlflow_port: int = 5000, ray_temp_dir: str | None = None, num_cpus: int | None = None,
        timeout: float = 120.0, echo=print) -> dict[str, Any]:
     """Start what is not running yet; returns the state (addresses, pids)."""
@@ -251,6 +264,8 @@ def up(*, mlflow: bool = True, auth: str = "disabled", ray_port: int = 6379, das
                 raise RuntimeError(f"port {port} on {HOST} is taken: pass --ray-port / --dashboard-port")
         # This interpreter's bin dir first: job entrypoints (`flashnav`, `python`) resolve to this venv.
         path = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+        if auth == "token":
+            ensure_token()
         env = {**os.environ, "PATH": path, "RAY_AUTH_MODE": auth, "FLASHNAV_RUNS_DIR": str(runs),
                "FLASHNAV_PROJECT_DIR": str(project_dir()), "RAY_USAGE_STATS_ENABLED": "0"}
         if mlflow:
@@ -272,8 +287,9 @@ def up(*, mlflow: bool = True, auth: str = "disabled", ray_port: int = 6379, das
         _wait_healthy("ray head", f"{jobs}/api/version", pid, log, timeout)
         echo(f"ray head up: jobs API {jobs}, cluster {HOST}:{ray_port} (pid {pid}, RAY_AUTH_MODE={auth})")
         if auth == "disabled":
-            echo("note: Ray's internal ports (GCS, raylet, agents) listen on every interface and token auth is off: "
-                 "on a network others can reach, firewall them or use --auth token")
+            echo("warning: token auth is off and Ray's internal ports (GCS, raylet, the dashboard agent's jobs API) "
+                 "listen on every interface: anyone who reaches this machine can run jobs on it; firewall them or "
+                 "leave --auth at token")
     return state
 
 
@@ -316,6 +332,8 @@ def status(echo=print) -> int:
     if state.get("mlflow"):
         echo(f"  export MLFLOW_TRACKING_URI={state['mlflow']['tracking_uri']}")
     if state.get("ray"):
+        if state["ray"].get("auth_mode") == "token":
+            echo("  export RAY_AUTH_MODE=token")
         echo(f"  ray job submit --address {state['ray']['jobs_address']} --working-dir . -- "
              "flashnav sweep run sweeps/quickstart.yaml")
     return 0 if healthy else 3
@@ -342,8 +360,9 @@ def _cmd(args: argparse.Namespace) -> int:
 def _add_commands(sub) -> None:
     start = sub.add_parser("up", help="start a local Ray head and MLflow server on 127.0.0.1")
     start.add_argument("--no-mlflow", action="store_true", help="Ray head only")
-    start.add_argument("--auth", choices=("disabled", "token"), default=os.environ.get("RAY_AUTH_MODE", "disabled"),
-                       help="Ray token auth of the head (default $RAY_AUTH_MODE, else disabled)")
+    start.add_argument("--auth", choices=("token", "disabled"), default=os.environ.get("RAY_AUTH_MODE", "token"),
+                       help="Ray token auth of the head (default $RAY_AUTH_MODE, else token: Ray's dashboard agent "
+                            "accepts jobs on every interface; disabled only where no one else can reach the machine)")
     start.add_argument("--ray-port", type=int, default=6379)
     start.add_argument("--dashboard-port", type=int, default=8265, help="dashboard + jobs API")
     start.add_argument("--mlflow-port", type=int, default=5000)

@@ -10,6 +10,8 @@ import os
 import subprocess
 import tempfile
 import time
+import urllib.error
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -82,7 +84,10 @@ def test_stack_up_job_down(local_stack, capsys):
     runs, state = local_stack
     ray_pid, mlflow_pid = state["ray"]["pid"], state["mlflow"]["pid"]
     tree = [ray_pid, mlflow_pid, *stack.descendants(ray_pid), *stack.descendants(mlflow_pid)]
-    assert state["ray"]["auth_mode"] == "disabled"
+    assert state["ray"]["auth_mode"] == "token"  # Ray's agent takes jobs on every interface: never open by default
+    with pytest.raises(urllib.error.HTTPError) as refused:  # no token, no answer
+        urllib.request.urlopen(state["ray"]["health"], timeout=30)
+    assert refused.value.code == 401
     assert state["ray"]["jobs_address"].startswith("http://127.0.0.1:")
     assert state["mlflow"]["tracking_uri"].startswith("http://127.0.0.1:")
     for name in ("ray", "mlflow"):  # each answers within 30 s (one slow answer on a loaded machine is not a dead
