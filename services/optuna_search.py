@@ -50,12 +50,21 @@ def search_space(sweep: Sweep, algorithm: str) -> dict[str, Any]:
 
 
 def storage(url: str):
-    """An Optuna RDBStorage for ``url`` (an absolute sqlite URL after path resolution)."""
+    """An Optuna RDBStorage for ``url`` (an absolute sqlite URL after path resolution); SweepError naming
+    search.storage when it cannot be opened (a database driver that is not installed, a file that is not a
+    database, a folder that cannot be made)."""
     import optuna
+    import sqlalchemy.exc
 
-    if url.startswith("sqlite:///"):
-        Path(url[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
-    return optuna.storages.RDBStorage(url=url)
+    from services.paths import redact_uri
+
+    try:
+        if url.startswith("sqlite:///"):
+            Path(url[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
+        return optuna.storages.RDBStorage(url=url)
+    except (ImportError, OSError, sqlalchemy.exc.SQLAlchemyError) as exc:
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise SweepError(f"search.storage {redact_uri(url)}: Optuna cannot open it ({reason})") from None
 
 
 def study_name(sweep: Sweep, robot: str, algorithm: str, stamp: str, n_targets: int) -> str:

@@ -89,9 +89,37 @@ def redact_uri(uri: str) -> str:
     return re.sub(r"//[^/@]+@", "//***@", uri)   # never print credentials embedded in a server URI
 
 
-def check_tracking_uri(uri: str, timeout: float = PROBE_TIMEOUT_S) -> None:
-    """ValueError naming the (redacted) URI for a scheme MLflow cannot open, or an http(s) server that
-    does not answer its health check within ``timeout`` seconds."""
+#: the first 16 bytes of every SQLite database file
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def check_sqlite_url(url: str, what: str, *, read_only: bool = False) -> None:
+    """ValueError naming ``what`` (the key or flag) for a ``sqlite:///`` URL whose file cannot be an SQLite
+    database: a folder, a file of another kind (the sweep's own YAML, say), a path under a file; with
+    ``read_only`` also an empty file, which MLflow would fill with its tables. Other URLs pass."""
+    if not url.startswith("sqlite:///") or ":memory:" in url:
+        return
+    path = Path(url[len("sqlite:///"):].split("?")[0])
+    if path.is_dir():
+        raise ValueError(f"{what} {url}: {path} is a folder, not an SQLite database file")
+    if path.exists():
+        with open(path, "rb") as f:
+            head = f.read(len(SQLITE_MAGIC))
+        if head != SQLITE_MAGIC and (head or read_only):
+            raise ValueError(f"{what} {url}: {path} is {'an empty file' if not head else 'not an SQLite database'}")
+        return
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{what} {url}: {parent} is a file, so {path} cannot be made")
+
+
+def check_tracking_uri(uri: str, timeout: float = PROBE_TIMEOUT_S, *, read_only: bool = False,
+                       what: str = "tracking URI") -> None:
+    """ValueError naming the (redacted) URI for a scheme MLflow cannot open, an SQLite file that cannot be an
+    MLflow store (:func:`check_sqlite_url`), or an http(s) server that does not answer its health check within
+    ``timeout`` seconds."""
     import urllib.error
     import urllib.parse
     import urllib.request
@@ -101,8 +129,10 @@ def check_tracking_uri(uri: str, timeout: float = PROBE_TIMEOUT_S) -> None:
     if len(scheme) == 1:  # a Windows drive letter (C:\runs), a plain path to MLflow
         scheme = ""
     if scheme not in URI_SCHEMES:
-        raise ValueError(f"tracking URI {redact_uri(uri)}: unsupported scheme {parsed.scheme!r} (use sqlite:///FILE, "
+        raise ValueError(f"{what} {redact_uri(uri)}: unsupported scheme {parsed.scheme!r} (use sqlite:///FILE, "
                          "http(s)://HOST:PORT, file:///DIR, postgresql://..., mysql://...)")
+    if scheme == "sqlite":
+        check_sqlite_url(uri, what, read_only=read_only)
     if scheme not in ("http", "https"):
         return
     # credentials stay out of the probe URL (urllib cannot parse user:password@host anyway)
@@ -115,5 +145,5 @@ def check_tracking_uri(uri: str, timeout: float = PROBE_TIMEOUT_S) -> None:
         pass  # something answered (an auth proxy, an older server): MLflow reports what follows
     except (urllib.error.URLError, OSError, ValueError) as exc:
         reason = getattr(exc, "reason", None) or exc
-        raise ValueError(f"no MLflow server answers at {redact_uri(uri)} within {timeout:g} s ({reason}); "
-                         "start one (flashnav services up) or fix --tracking-uri") from None
+        raise ValueError(f"{what}: no MLflow server answers at {redact_uri(uri)} within {timeout:g} s ({reason}); "
+                         "start one (flashnav services up) or fix the URI") from None

@@ -150,7 +150,7 @@ def load_runs(tracking_uri: str | None = None, experiment: str | list[str] | Non
     from mlflow import MlflowClient
 
     uri = tracking_uri or default_tracking_uri()
-    check_tracking_uri(uri)
+    check_tracking_uri(uri, read_only=True)  # (an empty file would get MLflow's tables)
     experiments = [experiment] if isinstance(experiment, str) else list(experiment or [])
     sweeps = list(sweeps or [])
     if uri.startswith("sqlite:///") and ":memory:" not in uri and not Path(uri[len("sqlite:///"):]).exists():
@@ -315,6 +315,7 @@ def write_report(tracking_uri: str | None, out_dir: str | Path, experiment: str 
 
 def _cli(args) -> int:
     from mlflow.exceptions import MlflowException
+    from sqlalchemy.exc import SQLAlchemyError
 
     from flashnav.outputs import check_output_dir
 
@@ -351,10 +352,12 @@ def _cli(args) -> int:
                                         formats=formats, invocation=args.invocation,
                                         warn=lambda line: print(f"flashnav report: warning: {line}",
                                                                 file=sys.stderr)))
-    except (NoRunsError, ValueError, MlflowException) as err:
+    except (NoRunsError, ValueError, MlflowException, SQLAlchemyError) as err:
         if getattr(args, "debug", False):
             raise
         message = " ".join(str(getattr(err, "message", err)).split())
+        if isinstance(err, SQLAlchemyError):  # (its text ends in a page of SQL and a link)
+            message = f"--tracking-uri {redact_uri(uri)}: {message.split('[SQL')[0].strip()}"
         print(f"flashnav report: error: {message}", file=sys.stderr)
         return 2
     for name, path in written.items():

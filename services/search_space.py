@@ -60,9 +60,16 @@ class Distribution(Strict):
         return getattr(self, self.kind)
 
     def extremes(self) -> list[Any]:
-        """The values that bound what a trial may draw: every choice, or both ends of a range (what the
-        driver checks before anything runs)."""
-        return list(self.choice) if self.kind == "choice" else list(self.args)
+        """The values that bound what a trial may draw: every choice, or both ends of a range, and for a
+        uniform range one value inside it that is not a whole number (what the driver checks before anything
+        runs: ``uniform: [2, 16]`` for an integer key passed at both ends, 2.0 and 16.0, and failed every trial)."""
+        if self.kind == "choice":
+            return list(self.choice)
+        low, high = self.args
+        if self.kind in ("int", "logint"):
+            return [low, high]
+        inside = low + 0.381966 * (high - low)  # (the golden section: not a whole number for whole-number ends)
+        return [low, high, inside if self.kind == "uniform" else low * (high / low) ** 0.381966]
 
 
 class Search(Strict):

@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from services import optuna_search
-from services.paths import project_dir, resolve_db_url, resolve_storage, resolve_tracking_uri, runs_dir
+from services.paths import (check_sqlite_url, check_tracking_uri, project_dir, resolve_db_url, resolve_storage,
+                            resolve_tracking_uri, runs_dir)
 from services.sweep_schema import Sweep, SweepError, load_sweep, sweep_to_yaml
 
 STATE_FILE = "sweep_state.json"
@@ -81,27 +82,61 @@ def git_commit(where: Path) -> str:
     return "unknown"
 
 
-def _latest_state(sweep: Sweep) -> dict[str, Any]:
+def _latest_state(sweep: Sweep, must: bool = True) -> dict[str, Any]:
+    """The newest invocation's state of this sweep ({} when there is none and not ``must``)."""
     root = runs_dir() / "sweeps" / sweep.name
     states = sorted(root.glob(f"*/{STATE_FILE}")) if root.exists() else []
     if not states:
+        if not must:
+            return {}
         raise SweepError(f"nothing to resume: no {STATE_FILE} under {root}")
     return json.loads(states[-1].read_text())
+
+
+def _changed_keys(old: Any, new: Any, prefix: str = "") -> list[str]:
+    """The dotted keys whose values differ between two JSON-like trees."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [k for key in sorted(set(old) | set(new))
+                for k in _changed_keys(old.get(key), new.get(key), f"{prefix}{key}.")]
+    return [] if old == new else [prefix.rstrip(".") or "(the whole sweep)"]
+
+
+def check_resumable(sweep: Sweep, out_dir: Path, source: str) -> None:
+    """SweepError unless ``sweep`` (the file with its --set values) is the sweep the invocation started with:
+    Tune restores the trials it planned, so new seeds never ran and a new budget applied to the rest only,
+    under the old parameters in MLflow, and the count printed the file's trials as finished."""
+    saved = out_dir / "sweep.yaml"
+    if not saved.is_file():
+        return  # stopped before it started anything
+    changed = _changed_keys(load_sweep(saved).model_dump(mode="json"), sweep.model_dump(mode="json"))
+    if changed:
+        raise SweepError(f"{source} --resume: the sweep differs from the one invocation {out_dir.name} started with "
+                         f"({saved}) in {', '.join(changed)}; a resumed invocation runs what it started with: undo "
+                         "the change (or the --set), or run without --resume for a new invocation")
 
 
 def make_plan(sweep: Sweep, source: str, resume: bool = False) -> Plan:
     """Resolve every location of one invocation (a new one, or the latest one when resuming)."""
     state = _latest_state(sweep) if resume else {}
     stamp = state.get("stamp") or time.strftime("%Y%m%d-%H%M%S")
+    if resume:
+        check_resumable(sweep, runs_dir() / "sweeps" / sweep.name / stamp, source)
     try:
         tracking_uri = state.get("tracking_uri") or resolve_tracking_uri(sweep.tracking.tracking_uri)
+        # before Ray starts (and in a dry run): a server that does not answer hung, a file that is not a database
+        # failed in SQLAlchemy's words once Ray was up
+        check_tracking_uri(tracking_uri, what="tracking URI (tracking.tracking_uri, else $MLFLOW_TRACKING_URI)")
     except ValueError as exc:
-        raise SweepError(str(exc)) from None
+        raise SweepError(f"{source}: {exc}") from None
     ray_storage = state.get("ray_storage") or f"{resolve_storage(sweep.storage).rstrip('/')}/{sweep.name}/{stamp}"
     optuna_url = None
     targets = [Target("grid")]
     if sweep.search:
         optuna_url = state.get("optuna_url") or resolve_db_url(sweep.search.storage, "optuna.db")
+        try:
+            check_sqlite_url(optuna_url, "search.storage")
+        except ValueError as exc:
+            raise SweepError(f"{source}: {exc}") from None
         pairs = [(r, a) for r in sweep.robots for a in sweep.algorithms]
         studies = state.get("studies", {})
         targets = []
@@ -150,7 +185,8 @@ def _search_points(sweep: Sweep, algorithm: str) -> list[tuple[dict[str, Any], s
     for path, dist in space.items():
         for value in dist.extremes():
             if value != first[path]:
-                where = "a choice" if dist.kind == "choice" else "the end of its range"
+                where = ("a choice" if dist.kind == "choice" else "the end of its range" if value in dist.args
+                         else "a value inside its range")
                 points.append(({**first, path: value}, f" with the searched {path}={value!r} ({where})"))
     return points
 
@@ -276,6 +312,18 @@ def trial_completed(result) -> bool:
     return metrics.get("final") == 1.0 and metrics.get("seed") is not None and int(metrics["seed"]) == int(seeds[-1])
 
 
+def unfinished(sweep: Sweep, path: str | Path, echo: Callable[[str], Any]) -> None:
+    """Say so when the newest invocation of this sweep did not finish: a run without --resume starts afresh and
+    trains again what that one finished (and --resume afterwards continues the new one)."""
+    state = _latest_state(sweep, must=False)
+    if state and state.get("parent_run_id"):
+        planned = len(state.get("studies") or {}) or 1
+        if len(state.get("done_targets") or []) < planned:
+            echo(f"note: invocation {state.get('stamp')} of this sweep did not finish; this starts a new one. To "
+                 f"continue that one instead (keeping its finished trials): Ctrl-C, then `flashnav sweep run {path} "
+                 "--resume`")
+
+
 def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, dry_run: bool = False,
               sets: list[str] | None = None, train_fn: Callable | None = None, verbose: int = 1,
               echo: Callable[[str], Any] = print) -> int:
@@ -290,6 +338,8 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = Fa
         if target.study:
             optuna_search.check_fresh(plan.optuna_url, target.study)
     echo(describe(plan))
+    if not resume:
+        unfinished(sweep, path, echo)
     if dry_run:
         return 0
 
@@ -319,10 +369,12 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = Fa
         for target in plan.targets:
             if target.name in plan.state["done_targets"]:
                 continue
-            errors += _fit_target(plan, target, tracker, resume, train_fn, verbose)
+            failed = _fit_target(plan, target, tracker, resume, train_fn, verbose)
+            errors += failed
             if target.study:
                 optuna_search.fail_orphans(plan.optuna_url, target.study)
-            plan.state["done_targets"].append(target.name)
+            if not failed:  # (a target with errored trials stays to do: --resume runs them again)
+                plan.state["done_targets"].append(target.name)
             plan.save_state()
         if sweep.search:
             summaries = [optuna_search.summarize(plan.optuna_url, t.study, sweep, t.robot, t.algorithm)
@@ -334,6 +386,9 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = Fa
         tracker.finish("FINISHED" if errors == 0 else "FAILED")
         echo(f"sweep {sweep.name}: {plan.n_trials - errors}/{plan.n_trials} trials finished; MLflow "
              f"{plan.tracking_uri}, parent run {plan.state['parent_run_id']}")
+        if errors:
+            echo(f"  {errors} trial(s) ended in error (their tracebacks are above and in MLflow); after a fix, "
+                 f"`flashnav sweep run {path} --resume` runs them again and keeps the finished ones")
         return 0 if errors == 0 else 1
     except KeyboardInterrupt:
         if tracker and tracker.run_id:

@@ -66,6 +66,14 @@ class Retry(Strict):
     max_failures: int = Field(1, ge=0, description="retries of a trial that raised (Tune FailureConfig)")
 
 
+def _once(names: list[str], key: str) -> list[str]:
+    """``names`` unless one repeats (every seed would train twice and the report pool them as separate seeds)."""
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise ValueError(f"{key} repeat: {', '.join(twice)} (each would run every seed twice)")
+    return names
+
+
 class Sweep(Strict):
     """A sweep file (see sweeps/*.yaml)."""
 
@@ -114,12 +122,12 @@ class Sweep(Strict):
     def _robots(cls, value: list[str]) -> list[str]:
         for name in value:
             check_robot(name)
-        return value
+        return _once(value, "robots")
 
     @field_validator("algorithms")
     @classmethod
     def _algorithms(cls, value: list[str]) -> list[str]:
-        return known_algorithms(value)
+        return _once(known_algorithms(value), "algorithms")
 
     @field_validator("algorithm_overrides")
     @classmethod

@@ -546,3 +546,18 @@ def test_a_name_twice_a_trailing_dot_and_a_config_as_checkpoint_are_named(tmp_pa
     (tmp_path / "config.yaml").write_text("seed: 0\n")
     line = fails(capsys, "train", "--init-from", str(tmp_path / "config.yaml"), "--out", str(tmp_path / "r"))
     assert "a YAML file (a run's config.yaml: --config takes it), not a learner checkpoint" in line
+
+
+@pytest.mark.parametrize("kind", ["folder", "not_db", "empty"])
+def test_report_refuses_a_store_that_is_not_an_mlflow_database(tmp_path, capsys, kind):
+    """A folder or a text file: SQLAlchemy tracebacks; an empty file: the read-only report wrote MLflow's tables
+    into it."""
+    target = tmp_path / "store"
+    if kind == "folder":
+        target.mkdir()
+    else:
+        target.write_text("" if kind == "empty" else "not a database\n")
+    line = fails(capsys, "report", "--tracking-uri", f"sqlite:///{target}", "--out", str(tmp_path / "r"))
+    said = {"folder": "is a folder", "not_db": "is not an SQLite database", "empty": "is an empty file"}[kind]
+    assert f"tracking URI sqlite:///{target}: {target} {said}" in line
+    assert kind == "folder" or target.read_bytes() in (b"", b"not a database\n")  # left as it was

@@ -140,9 +140,32 @@ def test_trial_that_keeps_failing_fails_the_sweep(tmp_path, runs, ray_session):
         raise RuntimeError("broken")
 
     sweep = write_sweep(tmp_path / "unit.yaml", seeds=1, retry={"max_failures": 0})
-    assert run_sweep(sweep, train_fn=always_fails, verbose=0) == 1
+    said = []
+    assert run_sweep(sweep, train_fn=always_fails, verbose=0, echo=said.append) == 1
     _, parents, _ = runs_of(runs, "unit")
     assert parents[0].info.status == "FAILED" and parents[0].data.tags["errored_trials"] == "1"
+    assert "--resume` runs them again" in said[-1]
+    # --resume after the fix runs the errored trial (it printed "1/1 trials finished", trained nothing and marked the
+    # parent FINISHED with errored_trials 0: the target had been recorded as done)
+    assert run_sweep(sweep, resume=True, train_fn=fake_train, verbose=0, echo=said.append) == 0
+    _, parents, children = runs_of(runs, "unit")
+    assert parents[0].info.status == "FINISHED" and parents[0].data.tags["errored_trials"] == "0"
+    assert [c.data.tags["seed"] for c in children if c.info.status == "FINISHED"] == ["0"]
+
+
+def test_resume_refuses_a_changed_sweep_and_a_new_run_names_the_unfinished_one(tmp_path, runs, ray_session):
+    """--resume with another seed list (or --set) ran the old trials under the old parameters and counted the new
+    file's trials as finished; a run without --resume started afresh without a word about the unfinished one."""
+    def always_fails(config, on_eval=None):  # FAKE
+        raise RuntimeError("broken")
+
+    sweep = write_sweep(tmp_path / "unit.yaml", seeds=1, retry={"max_failures": 0})
+    assert run_sweep(sweep, train_fn=always_fails, verbose=0, echo=lambda _: None) == 1
+    with pytest.raises(SweepError, match=r"--resume: the sweep differs .* in budget\.max_train_seconds, seeds;"):
+        run_sweep(sweep, resume=True, sets=["seeds=[0,7]", "budget.max_train_seconds=3"], train_fn=fake_train)
+    said = []
+    assert run_sweep(sweep, dry_run=True, echo=said.append) == 0
+    assert any("did not finish; this starts a new one" in line for line in said)
 
 
 def test_optuna_sweep_persists_study_and_writes_best_config(tmp_path, runs, ray_session):

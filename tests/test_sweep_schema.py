@@ -377,3 +377,42 @@ def test_startup_trials_reach_the_tpe_sampler():
     with pytest.raises(ValueError, match="startup_trials"):
         parse_sweep(minimal(search={"n_trials": 4, "startup_trials": 0,
                                     "parameters": {"algo.batch_size": {"choice": [256, 512]}}}))
+
+
+@pytest.mark.parametrize("key", ["robots", "algorithms"])
+def test_a_robot_or_algorithm_named_twice_is_refused(tmp_path, key):
+    """algorithms: [fastdsac, fastdsac] trained every seed twice, and the report pooled them as separate seeds."""
+    value = {"robots": "[turtlebot2, turtlebot2]", "algorithms": "[fastdsac, fastdsac]"}[key]
+    path = tmp_path / "dup.yaml"
+    path.write_text(f"name: dup\n{key}: {value}\nseeds: 1\n")
+    with pytest.raises(SweepError, match=f"{key}.*repeat: (turtlebot2|fastdsac)"):
+        load_sweep(path)
+
+
+def test_a_uniform_range_for_an_integer_key_fails_before_ray():
+    """`updates_per_step: {uniform: [2, 16]}` passed the dry run at both ends (2.0 and 16.0) and failed every
+    trial in Ray on 9.1007...: a value inside a uniform range is checked too."""
+    sweep = parse_sweep(minimal(search={"n_trials": 2, "parameters": {"algo.updates_per_step": {"uniform": [2, 16]}}}))
+    with pytest.raises(SweepError, match=r"updates_per_step=7\.3\d* \(a value inside its range\)"):
+        validate_train_configs(SimpleNamespace(sweep=sweep, source="s.yaml"))
+
+
+def test_tracking_and_optuna_stores_are_checked_before_ray(tmp_path, monkeypatch):
+    """A YAML file as the MLflow or Optuna store, a store under a file, an Optuna driver not installed: all
+    passed the dry run and failed once Ray was up, in SQLAlchemy's or Optuna's words (or hung, for a server)."""
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path / "runs"))
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    not_db = tmp_path / "sweep.yaml"
+    not_db.write_text("name: x\n")
+    for uri, said in ((f"sqlite:///{not_db}", "is not an SQLite database"),
+                      (f"sqlite:///{not_db}/mlflow.db", "is a file, so"),
+                      (f"sqlite:///{tmp_path}", "is a folder"),
+                      ("http://127.0.0.1:9/", "no MLflow server answers")):
+        with pytest.raises(SweepError, match=f"s.yaml: tracking URI .*{said}"):
+            make_plan(parse_sweep(minimal(tracking={"tracking_uri": uri})), "s.yaml")
+    space = {"algo.batch_size": {"choice": [256]}}
+    with pytest.raises(SweepError, match="search.storage .* is not an SQLite database"):
+        make_plan(parse_sweep(minimal(search={"n_trials": 2, "parameters": space, "storage": f"sqlite:///{not_db}"})),
+                  "s.yaml")
+    with pytest.raises(SweepError, match=r"search.storage postgresql://\*\*\*@127.0.0.1:9/db: Optuna cannot open it"):
+        optuna_search.storage("postgresql://u:secret@127.0.0.1:9/db")
