@@ -82,6 +82,8 @@ REPLAY_FILE = "replay.pt"
 #: A sweep trial's checkpoint (services/trainable.py writes it; services/tracking.py and ``flashnav bench runs`` read
 #: it): one folder per finished seed with the run's config, curve, best policy and its result (a run folder's metrics).
 TRIAL_SEED_DIR, TRIAL_RESULT_FILE = "seed_{seed}", "result.json"
+#: a sweep invocation's state in its outputs folder (runs/sweeps/NAME/STAMP): ``ray_storage`` is where its trials are
+SWEEP_STATE_FILE = "sweep_state.json"
 #: ``stop_reason`` of a run folder written while its run goes on (a ``--save-every`` snapshot): ``flashnav train``
 #: writes it, ``flashnav eval`` names a policy of such a run.
 SNAPSHOT_STOP_REASON = "running"

@@ -24,12 +24,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from flashnav.names import SWEEP_STATE_FILE
 from services import optuna_search
 from services.paths import (check_sqlite_url, check_tracking_uri, project_dir, resolve_db_url, resolve_storage,
                             resolve_tracking_uri, runs_dir)
 from services.sweep_schema import Sweep, SweepError, load_sweep, sweep_to_yaml
 
-STATE_FILE = "sweep_state.json"
+STATE_FILE = SWEEP_STATE_FILE
 
 
 @dataclass

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import pytest
 
@@ -173,3 +174,32 @@ def test_plot_refuses_an_empty_curve_and_a_bad_ymin(tmp_path, capsys):
         assert "--ymin is the success (%) the axis starts at, in [0, 100)" in capsys.readouterr().err
     assert not png.exists()
     assert cli_main(["bench", "plot", str(ok), "--ymin", "95", "--out", str(png)]) == 0
+
+
+def test_a_sweep_folder_with_several_invocations_or_a_damaged_trial_says_so(tmp_path):
+    """runs/ray/NAME with three invocations counted seed 0 three times without a word; a trial checkpoint
+    without its result was left out silently; a truncated result named only the folder above."""
+    for stamp in ("20261203-100000", "20261203-110000"):
+        _trial(tmp_path / "ray" / "tb2" / stamp / "grid", "train_trial_aa_1_algorithm=fastdsac",
+               {0: [_metrics(0, [0.5, 0.9])]})
+    with pytest.warns(RuntimeWarning, match=r"2 sweep invocations pooled \(20261203-100000, 20261203-110000\)"):
+        assert len(load_runs(tmp_path / "ray" / "tb2")) == 2
+    one = tmp_path / "ray" / "tb2" / "20261203-110000"
+    (one / "grid" / "train_trial_bb_2_algorithm=fastdsac" / "checkpoint_000000").mkdir(parents=True)
+    with pytest.warns(RuntimeWarning, match=r"1 trial checkpoint\(s\) without a seed_\*/result.json, left out: .*bb_2"):
+        assert len(load_runs(one)) == 1
+    bad = one / "grid" / "train_trial_aa_1_algorithm=fastdsac" / "checkpoint_000000" / "seed_0" / "result.json"
+    bad.write_text(bad.read_text()[:40])
+    with pytest.raises(ValueError, match=rf"{bad}: not a trial's result \(JSONDecodeError"), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        load_runs(one)
+
+
+def test_the_outputs_folder_a_sweep_prints_leads_to_its_trials(tmp_path):
+    """`bench runs runs/sweeps/NAME/STAMP` (the "outputs:" folder `sweep run` prints) was refused as no sweep."""
+    trials = tmp_path / "ray" / "tb2" / "20261203-100000"
+    _trial(trials / "grid", "train_trial_aa_1_algorithm=fastdsac", {0: [_metrics(0, [0.5, 0.9])]})
+    outputs = tmp_path / "sweeps" / "tb2" / "20261203-100000"
+    outputs.mkdir(parents=True)
+    (outputs / "sweep_state.json").write_text(json.dumps({"ray_storage": str(trials)}))
+    assert [r["label"] for r in load_runs(outputs)] == ["train_trial_aa_1 seed 0"]

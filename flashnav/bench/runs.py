@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from pathlib import Path
 
 from rich.console import Console
@@ -21,7 +22,7 @@ from rich.table import Table
 
 from flashnav.learn.hparams import paper_budget
 from flashnav.metrics import THRESHOLDS, on_paper_task, over_seeds, within_budget
-from flashnav.names import METRICS_FILE, TRIAL_RESULT_FILE, TRIAL_SEED_DIR
+from flashnav.names import METRICS_FILE, SWEEP_STATE_FILE, TRIAL_RESULT_FILE, TRIAL_SEED_DIR
 from flashnav.yamlio import flatten_dotted
 
 LAST = 10  # the last evaluations read for "steady at the end"
@@ -54,18 +55,36 @@ def sweep_results(folder: Path) -> list[Path]:
         if ckpt.is_dir() and (ckpt.parent not in latest or ckpt.name > latest[ckpt.parent].name):
             latest[ckpt.parent] = ckpt
     pattern = f"{TRIAL_SEED_DIR.format(seed='*')}/{TRIAL_RESULT_FILE}"
-    return [f for c in latest.values() for f in c.glob(pattern)]
+    found, empty = [], []
+    for ckpt in sorted(latest.values()):
+        files = sorted(ckpt.glob(pattern))
+        found += files
+        if not files:
+            empty.append(ckpt)
+    if empty and found:  # (a damaged trial was dropped from the count without a word)
+        warnings.warn(f"{len(empty)} trial checkpoint(s) without a {TRIAL_SEED_DIR.format(seed='*')}/"
+                      f"{TRIAL_RESULT_FILE}, left out: {', '.join(str(c) for c in empty[:3])}"
+                      + (" ..." if len(empty) > 3 else ""), RuntimeWarning, stacklevel=2)
+    return found
 
 
 def _trial_records(found: list[Path]) -> list[dict]:
     """The records of a sweep's result files, labelled with the trial's name (Tune's ``train_trial_<id>_<n>``)
     and seed, sorted by trial folder and seed."""
-    records = []
+    records, invocations = [], set()
     for path in found:
-        trial = path.parent.parent.parent  # <trial>/checkpoint_<i>/seed_<s>/result.json
-        result = json.loads(path.read_text(encoding="utf-8"))
-        label = f"{trial.name.split('_algorithm=')[0]} seed {result['config']['seed']}"
-        records.append((str(trial), _record(result, label)))
+        trial = path.parent.parent.parent  # <stamp>/<target>/<trial>/checkpoint_<i>/seed_<s>/result.json
+        try:
+            result = json.loads(path.read_text(encoding="utf-8"))
+            label = f"{trial.name.split('_algorithm=')[0]} seed {result['config']['seed']}"
+            records.append((str(trial), _record(result, label)))
+        except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:  # the file, not the folder above it
+            raise ValueError(f"{path}: not a trial's result ({type(e).__name__}: {e})") from None
+        invocations.add(trial.parent.parent)
+    if len(invocations) > 1:  # each seed once per invocation: pooled, they count as more seeds
+        warnings.warn(f"{len(invocations)} sweep invocations pooled ({', '.join(sorted(p.name for p in invocations))}"
+                      f"): a seed run by several counts once per run; give one invocation's folder "
+                      f"({sorted(invocations)[-1]}) to count each once", RuntimeWarning, stacklevel=2)
     return [r for _, r in sorted(records, key=lambda x: (x[0], x[1]["seed"]))]
 
 
@@ -107,6 +126,8 @@ def load_runs(source: Path) -> list[dict]:
     (``source``: the file's stem), each with ``robot``, ``algorithm``, ``seed``, ``curve``, the threshold records
     and, from run folders and sweeps, ``config`` (:func:`record_problem`); a ValueError names the source."""
     try:
+        if source.is_dir() and (source / SWEEP_STATE_FILE).is_file():  # the outputs folder `sweep run` prints
+            source = Path(json.loads((source / SWEEP_STATE_FILE).read_text(encoding="utf-8"))["ray_storage"])
         if source.is_dir():
             if not (source / METRICS_FILE).exists() and (found := sweep_results(source)):
                 runs = _trial_records(found)
