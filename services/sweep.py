@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -325,6 +327,15 @@ def unfinished(sweep: Sweep, path: str | Path, echo: Callable[[str], Any]) -> No
                  "--resume`")
 
 
+def _relay_sigterm():
+    """SIGTERM (``kill PID``, a scheduler's stop) as Ctrl-C: Tune saves its state and the sweep stops as interrupted,
+    with the --resume line. Before, Ray's handler aborted the driver (exit 134, a stack dump, the MLflow parent left
+    RUNNING, no hint). Returns the handler it replaced (None off the main thread, where none can be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, lambda *_: os.kill(os.getpid(), signal.SIGINT))
+
+
 def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, dry_run: bool = False,
               sets: list[str] | None = None, train_fn: Callable | None = None, verbose: int = 1,
               echo: Callable[[str], Any] = print) -> int:
@@ -349,7 +360,7 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = Fa
     # Those forced snapshots are cheap (a few kB); Tune would warn about each of them.
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     started = connect(address)
-    tracker = None
+    tracker, relayed = None, _relay_sigterm()
     try:
         try:
             device.check_cluster_fits(sweep.resources.cpu, sweep.resources.gpu)
@@ -400,6 +411,8 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = Fa
             tracker.finish("FAILED")
         raise
     finally:
+        if relayed is not None:
+            signal.signal(signal.SIGTERM, relayed)
         if started:
             import ray
 

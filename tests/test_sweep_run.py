@@ -233,9 +233,10 @@ DRIVER = textwrap.dedent('''
 def test_resume_after_ctrl_c_and_after_kill_reruns_nothing_finished(tmp_path, runs):
     """One sweep of three seeds (one trial at a time), stopped twice and resumed twice (three Ray start-ups, not
     four: the suite's time). First killed (SIGKILL: the driver and its in-process Ray die at once) while seed 1
-    trains. Then ``--resume``, stopped by Ctrl-C while seed 2, the last trial, trains: Tune catches SIGINT, saves
-    its state, marks the stopped trial TERMINATED and returns; the sweep must stop as interrupted (parent KILLED,
-    target not done), not finish (it once counted the stopped trial as finished and said "3/3"). Then
+    trains. Then ``--resume``, stopped by SIGTERM (``kill PID``; the driver relays it as Ctrl-C) while seed 2, the
+    last trial, trains: Tune catches SIGINT, saves its state, marks the stopped trial TERMINATED and returns; the
+    sweep must stop as interrupted (parent KILLED, target not done), not finish (it once counted the stopped trial
+    as finished and said "3/3"). Then
     ``--resume`` again: every seed finished exactly once, the interrupted ones trained again, the finished one
     not."""
     sweep = write_sweep(tmp_path / "unit.yaml", seeds=3, max_concurrent_trials=1, retry={"max_failures": 0})
@@ -254,8 +255,8 @@ def test_resume_after_ctrl_c_and_after_kill_reruns_nothing_finished(tmp_path, ru
                 assert time.monotonic() < deadline and driver.poll() is None, f"the driver never reached seed {seed}"
                 time.sleep(0.2)
             time.sleep(0.6)
-            if stop == "ctrl-c":
-                os.kill(driver.pid, signal.SIGINT)
+            if stop in ("ctrl-c", "term"):  # SIGTERM is relayed as SIGINT: the same graceful stop
+                os.kill(driver.pid, signal.SIGINT if stop == "ctrl-c" else signal.SIGTERM)
                 assert driver.wait(timeout=120) != 0
         finally:
             with contextlib.suppress(ProcessLookupError):  # after ctrl-c the group may be gone already
@@ -263,7 +264,7 @@ def test_resume_after_ctrl_c_and_after_kill_reruns_nothing_finished(tmp_path, ru
             driver.wait()
 
     run_until_seed_starts(1, [], "kill")
-    run_until_seed_starts(2, ["--resume"], "ctrl-c")
+    run_until_seed_starts(2, ["--resume"], "term")  # (it aborted the driver: exit 134, the parent left RUNNING)
     _, parents, _ = runs_of(runs, "unit")
     assert [p.info.status for p in parents] == ["KILLED"]
     (state_file,) = (runs / "sweeps" / "unit").glob("*/sweep_state.json")
