@@ -357,7 +357,7 @@ def _cli(args) -> int:
             raise
         message = " ".join(str(getattr(err, "message", err)).split())
         if isinstance(err, SQLAlchemyError):  # (its text ends in a page of SQL and a link)
-            message = f"--tracking-uri {redact_uri(uri)}: {message.split('[SQL')[0].strip()}"
+            message = f"tracking URI {redact_uri(uri)}: {message.split('[SQL')[0].strip()}"
         print(f"flashnav report: error: {message}", file=sys.stderr)
         return 2
     for name, path in written.items():
