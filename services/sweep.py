@@ -283,10 +283,12 @@ def trial_completed(result) -> bool:
 def _relay_sigterm():
     """SIGTERM (``kill PID``, a scheduler's stop) as Ctrl-C: Tune saves its state and the sweep stops as interrupted,
     with the --resume line. Before, Ray's handler aborted the driver (exit 134, a stack dump, the MLflow parent left
-    RUNNING, no hint). Returns the handler it replaced (None off the main thread, where none can be set)."""
+    RUNNING, no hint). Returns the handler to put back (None off the main thread, where none can be set; the
+    default where the one replaced was not Python's, e.g. Ray's, which Python cannot put back)."""
     if threading.current_thread() is not threading.main_thread():
         return None
-    return signal.signal(signal.SIGTERM, lambda *_: os.kill(os.getpid(), signal.SIGINT))
+    previous = signal.signal(signal.SIGTERM, lambda *_: os.kill(os.getpid(), signal.SIGINT))
+    return signal.SIG_DFL if previous is None else previous
 
 
 def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, dry_run: bool = False,

@@ -127,7 +127,7 @@ class DeployNode:
         rospy.on_shutdown(self._on_shutdown)
         # reset=True: when ROS time moves backwards (a simulator restarts /clock) rospy's Timer raises
         # ROSTimeMovedBackwardsException in its thread and the thread ends - the watchdog with it - unless told to
-        # start over on the new clock (the controller then drops the goal: its state "clock")
+        # start over on the new clock (the controller then forgets the old clock's times: Controller._clock)
         self.timer = rospy.Timer(rospy.Duration(controller.period / 4.0), self._on_tick, reset=True)
 
     def _now(self) -> float:

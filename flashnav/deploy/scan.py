@@ -101,7 +101,6 @@ class ScanAdapter:
         self._aimed = np.zeros(0, np.int64)
         self.invalid_sectors: list[int] = []  # the last scan's covered sectors without one valid reading
         self.too_close_only = False  # the last scan's readings in the field of view were all -inf
-        self._scanned = False
         self._warned_invalid: set[int] = set()
 
     def __call__(self, angle_min: float, angle_increment: float, ranges, range_min: float,
@@ -110,7 +109,7 @@ class ScanAdapter:
         r, angle, valid, _ = self._base_frame(angle_min, angle_increment, raw, range_min, range_max)
         idx = sector_of(angle, self.layout)
         keep = valid & (idx >= 0)
-        self.too_close_only, self._scanned = bool(keep.any() and (raw[keep] == -np.inf).all()), True
+        self.too_close_only = bool(keep.any() and (raw[keep] == -np.inf).all())
         out = np.full(self.layout.sectors, np.inf)
         np.minimum.at(out, idx[keep], r[keep])
         # by the beams' directions (an invalid reading has no end point): the sectors whose every beam was invalid
@@ -132,8 +131,7 @@ class ScanAdapter:
         """Whether the last scan had not one valid reading in the policy's field of view (a sensor that is
         dead or covered: its sectors would read the fill value, open space, and the deploy node stops): no
         covered sector with a valid reading (none covered at all counts too), or only ``-inf`` readings."""
-        if not self._scanned:
-            return False
+        # (before any scan: no sector invalid, none uncovered, so False)
         return len(self.invalid_sectors) == self.layout.sectors - len(self._blind) or self.too_close_only
 
     def beams(self, angle_min: float, angle_increment: float, ranges, range_min: float,
