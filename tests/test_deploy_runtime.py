@@ -303,6 +303,8 @@ def test_a_control_period_longer_than_the_timeout_is_refused():
     rt = PolicyRuntime.load(POLICY)
     with pytest.raises(ValueError, match=r"period 0\.5 s .* shorter than the timeout 0\.3 s"):
         Controller(rt, timeout=0.3, period=0.5)
+    with pytest.raises(ValueError, match=r"at least 0\.01 s \(100 Hz\), got 1e-06 s"):  # a timer at 4 MHz spun a core
+        Controller(rt, timeout=0.3, period=1e-6)
     for timeout in (float("inf"), 1e9, 0.0):
         with pytest.raises(ValueError, match="timeout must be in"):
             Controller(rt, timeout=timeout)
@@ -375,6 +377,8 @@ class _FakeRospy:
     def logwarn_once(self, msg):
         self.warnings.append(msg)
 
+    logwarn = logwarn_once
+
 
 def _fake_node(now=1.0):
     """A DeployNode without ROS: its callbacks on a real controller, its publishers recording."""
@@ -387,6 +391,8 @@ def _fake_node(now=1.0):
     node.rospy, node.lock = _FakeRospy(now), threading.Lock()
     node.ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
     node.odom_frame = node.goal_frame = None
+    node.wall_now = 100.0  # the node's wall clock (time.monotonic in the node), set by the tests
+    node.wall, node.clock_seen, node.active = (lambda: node.wall_now), None, node.wall_now
     node.Twist = lambda: ns(linear=ns(x=0.0), angular=ns(z=0.0))
     node.String = lambda data: data
     node.sent = []
@@ -444,6 +450,46 @@ def test_node_does_not_drive_while_ros_time_is_zero():
     node._on_scan(_msg(ranges=_ranges(), stamp=0.0, **SCAN))
     node._on_scan(_msg(ranges=_ranges(), stamp=0.0, **SCAN))
     assert node.sent == [] and len(node.rospy.warnings) == 2 and "/use_sim_time" in node.rospy.warnings[0]
+
+
+def test_node_stops_the_robot_when_the_simulated_clock_stands_still():
+    """/use_sim_time with a /clock that stopped (a simulator or `rosbag play --clock` died): rospy's timer runs on
+    that clock and every age is read on it, so the last command stayed in force for good. The node's wall-time watch
+    stops the robot once ROS time and the inputs have stood still for the timeout; the next scan drives again."""
+    node = _fake_node(now=1.0)
+    node._on_odom(_msg())
+    node._on_goal(_goal(x=3.0))
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.0, **SCAN))
+    assert node.sent[-1][0] > 0
+    node._check_clock()  # the first look: ROS time 1.0 seen at wall 100
+    for wall in (100.2, 100.3):  # within the timeout (0.3 s) of the last input: nothing
+        node.wall_now = wall
+        node._check_clock()
+    assert len(node.sent) == 1
+    node.wall_now = 100.35
+    node._on_odom(_msg())  # an input arriving counts as the node being live (in lock step a simulator's clock
+    node.wall_now = 100.6  # stands still while it waits for the node's answer)
+    node._check_clock()
+    assert len(node.sent) == 1
+    node.wall_now = 100.7
+    node._check_clock()
+    assert node.sent[-1] == (0.0, 0.0) and node.ctl.state == "frozen" and "stood at 1.000 s" in node.rospy.warnings[-1]
+    node.wall_now = 105.0
+    node._check_clock()  # sent once
+    assert len(node.sent) == 2
+    node.rospy.now = 1.1  # the clock moves again: the next scan drives
+    node._check_clock()
+    node._on_odom(_msg())
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.1, **SCAN))
+    assert node.sent[-1][0] > 0 and node.ctl.state == "driving"
+
+
+def test_a_clock_that_stands_still_while_the_robot_stands_is_no_stop():
+    ctl = _driving()
+    assert ctl.frozen() is not None
+    assert ctl.frozen() is None  # the zero is in force
+    ctl.on_goal(0.0, 0.0, now=0.1)
+    assert ctl.frozen() is None  # a new goal, no command yet
 
 
 def test_scans_further_apart_than_the_timeout_are_warned_of_once():

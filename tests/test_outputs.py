@@ -52,7 +52,8 @@ def test_deploy_replay_never_writes_over_its_bag_or_policy(tmp_path, capsys, whi
 
 @pytest.mark.parametrize("flags, named", [
     (["--timeout", "inf"], "--timeout must be in"),
-    (["--rate", "inf"], "--rate must be a finite number of Hz > 0"),
+    (["--rate", "inf"], "--rate must be in (0, 100] Hz"),
+    (["--rate", "1e6"], "--rate must be in (0, 100] Hz, got 1000000.0"),
     (["--fill", "-5"], "--fill must be a range in metres >= 0"),
     (["--fill", "99"], "--fill 99.0: fill must be in [0, max_range"),
 ])

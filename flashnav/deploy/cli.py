@@ -61,7 +61,8 @@ def _runtime_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=0.3,
                    help="seconds after which a missing scan or odometry stops the robot (default 0.3)")
     p.add_argument("--rate", type=float, default=None,
-                   help="control rate, Hz (default: the policy's, 1 / control_period_s = 10 for the presets)")
+                   help="control rate, Hz, at most 100 (default: the policy's, 1 / control_period_s = 10 for the "
+                        "presets)")
     p.add_argument("--guide", type=float, default=None, metavar="LOOKAHEAD_M",
                    help="mapless guidance (flashnav/mapless.py): aim the policy at the point LOOKAHEAD_M metres along "
                         "a path planned on the walls this goal's scans have shown, not at the goal (e.g. 0.5; no map)")
@@ -117,12 +118,12 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
 
 def make_controller(args):
     """The runtime and controller for parsed `ros` / `replay` arguments."""
-    from flashnav.deploy.controller import MAX_TIMEOUT, Controller
+    from flashnav.deploy.controller import MAX_TIMEOUT, MIN_PERIOD, Controller
     from flashnav.deploy.runtime import PolicyRuntime
 
     # the flags first: loading the policy costs a session
-    if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
-        raise ValueError(f"--rate must be a finite number of Hz > 0, got {args.rate}")
+    if args.rate is not None and not (math.isfinite(args.rate) and 0 < args.rate <= 1 / MIN_PERIOD):
+        raise ValueError(f"--rate must be in (0, {1 / MIN_PERIOD:g}] Hz, got {args.rate}")
     if not (math.isfinite(args.timeout) and 0 < args.timeout <= MAX_TIMEOUT):  # inf: never a stop when scans stop
         raise ValueError(f"--timeout must be in (0, {MAX_TIMEOUT:g}] seconds, got {args.timeout}")
     if args.fill is not None and not (math.isfinite(args.fill) and args.fill >= 0):

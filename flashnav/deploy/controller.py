@@ -21,6 +21,10 @@ and the tests all drive this one state machine, so the safety behaviour is writt
   one scan - or anything else that keeps every scan from acting): zero velocity, sent again on every
   :meth:`tick`; the next control step drives again. The watchdog's own backstop: before, the scans counted
   as fresh by their arrival and the last command stayed in force.
+* ``frozen``: the node saw its clock stand still (simulated time, ``/use_sim_time``, and nothing advancing
+  ``/clock``: a simulator or ``rosbag play --clock`` that died) with no input arriving, for ``timeout`` wall seconds
+  (:meth:`frozen`): zero velocity, sent once; the next due scan drives again. Every age is measured on that clock,
+  so the watchdog above never saw a stale input: the last command stayed in force.
 * ``reached``: within the goal radius: zero velocity, sent once; a new goal starts driving again.
 * ``stopped``: :meth:`shutdown`: zero velocity; nothing after it.
 
@@ -90,6 +94,9 @@ from flashnav.mapless import ScanGuide
 DUE_FRACTION = 0.8
 #: the longest watchdog timeout, seconds (a robot driving on for longer without news is not being watched)
 MAX_TIMEOUT = 10.0
+#: the shortest control period, seconds (100 Hz): a step needs a scan of its own (2D LiDARs scan at 5-50 Hz), and the
+#: watchdog's timer runs at 4x the rate (1 MHz asked for had it spin a core)
+MIN_PERIOD = 0.01
 #: seconds an input's time may lie before the latest time seen (callbacks of several threads read the clock
 #: and then wait for the lock) before it counts as the clock moving backwards (state ``clock``)
 CLOCK_SLACK = 0.05
@@ -115,8 +122,9 @@ class Controller:
         self.shielded = 0  # control steps whose command the shield replaced
         self.carrot: tuple[float, float] | None = None  # the guide's latest point
         self.period = runtime.control_period if period is None else float(period)
-        if not (math.isfinite(self.period) and self.period > 0):
-            raise ValueError(f"period must be > 0 s, got {period}")
+        if not (math.isfinite(self.period) and self.period >= MIN_PERIOD):
+            raise ValueError(f"the control period must be at least {MIN_PERIOD:g} s ({1 / MIN_PERIOD:g} Hz), got "
+                             f"{self.period:g} s")
         if self.period >= self.timeout:  # (a slower rate would stop the robot between every two steps: stuck)
             raise ValueError(f"the control period {self.period:g} s (--rate {1 / self.period:g} Hz) must be shorter "
                              f"than the timeout {self.timeout:g} s (--timeout): raise one of them")
@@ -255,13 +263,20 @@ class Controller:
         self._clock(now)
         if self.owed_stop:
             return self._owed()
-        if self.state in ("driving", "stale", "blind", "fault", "stuck") and self._stale(now):
+        if self.state in ("driving", "stale", "blind", "fault", "stuck", "frozen") and self._stale(now):
             return self._stop("stale")
         if self.state == "stuck" or (self.state == "driving" and self.velocity != (0.0, 0.0)
                                      and now - self.step_time > self.timeout):
             return self._stop("stuck")
         if self.state == "stale":  # fresh again: the next due scan drives
             self.state = "driving"
+        return None
+
+    def frozen(self) -> Command | None:
+        """The node's clock has stood still for ``timeout`` wall seconds with no input (state ``frozen``): zero
+        velocity if a command other than zero is in force, else nothing."""
+        if self.state == "driving" and self.velocity != (0.0, 0.0):
+            return self._stop("frozen")
         return None
 
     def cancel(self, now: float) -> Command:

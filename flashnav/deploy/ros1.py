@@ -19,6 +19,7 @@ precedence and only what the venv lacks (rospy, the message packages, rospkg) co
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
@@ -99,7 +100,8 @@ def odom_pose(msg) -> tuple[float, float, float]:
 
 class DeployNode:
     """The node: subscriptions feed the controller under one lock; a timer at 4x the control rate
-    runs its watchdog; every decision is published with a status message."""
+    runs its watchdog; with ``/use_sim_time`` a thread watches on wall time that the clock moves
+    (:meth:`_check_clock`); every decision is published with a status message."""
 
     def __init__(self, controller: Controller, *, scan: str, odom: str, goal: str, cmd: str, status: str,
                  people: str = "/people", name: str = "flashnav_deploy"):
@@ -129,9 +131,44 @@ class DeployNode:
         # ROSTimeMovedBackwardsException in its thread and the thread ends - the watchdog with it - unless told to
         # start over on the new clock (the controller then forgets the old clock's times: Controller._clock)
         self.timer = rospy.Timer(rospy.Duration(controller.period / 4.0), self._on_tick, reset=True)
+        # that timer runs on ROS time: with /use_sim_time and a /clock that stops, it never fires again, and every
+        # input's age is read on the stopped clock, so a wall-time thread watches the clock itself (Controller.frozen)
+        self.wall, self.clock_seen, self.active = time.monotonic, None, time.monotonic()
+        if rospy.get_param("/use_sim_time", False):
+            threading.Thread(target=self._watch_clock, name="flashnav-clock-watch", daemon=True).start()
 
     def _now(self) -> float:
         return self.rospy.get_time()
+
+    @contextlib.contextmanager
+    def _input(self):
+        """A subscription's callback holds the lock; when it ends, the node was active (the clock watch's
+        "no input" reads this: in lock step a simulator's clock stands still while it waits for the answer)."""
+        with self.lock:
+            try:
+                yield
+            finally:
+                self.active = self.wall()
+
+    def _watch_clock(self) -> None:
+        while not self.rospy.is_shutdown():
+            time.sleep(self.ctl.timeout / 4.0)
+            self._check_clock()
+
+    def _check_clock(self) -> None:
+        """Stop the robot when ROS time has not moved and no input has arrived for the timeout, wall seconds."""
+        with self.lock:
+            now, wall = self._now(), self.wall()
+            if now != self.clock_seen:
+                self.clock_seen, self.active = now, max(self.active, wall)
+                return
+            if wall - self.active > self.ctl.timeout:
+                command = self.ctl.frozen()
+                if command is not None:
+                    self.rospy.logwarn(f"robot stopped: ROS time has stood at {now:.3f} s for {wall - self.active:.2g} "
+                                       "wall seconds with no input (/use_sim_time is set: did the simulator or "
+                                       "`rosbag play --clock` stop?)")
+                    self._publish(command, now)
 
     def _publish(self, command: Command | None, now: float, **extra) -> None:
         """The command (if any), then the status; ``extra`` keys join the status (the scan's stamp and
@@ -143,7 +180,7 @@ class DeployNode:
         self.status_pub.publish(self.String(data=json.dumps(self.ctl.status(now) | extra)))
 
     def _on_odom(self, msg) -> None:
-        with self.lock:
+        with self._input():
             now = self._now()
             try:
                 self.ctl.on_odom(*odom_pose(msg), now)
@@ -158,7 +195,7 @@ class DeployNode:
             self.goal_frame = None
 
     def _on_goal(self, msg) -> None:
-        with self.lock:
+        with self._input():
             # a goal the node cannot use stops the robot (it was sent to go elsewhere) rather than being ignored
             frame, now = msg.header.frame_id.lstrip("/"), self._now()
             if frame and self.odom_frame is not None and frame != self.odom_frame.lstrip("/"):
@@ -177,14 +214,14 @@ class DeployNode:
             self._publish(None, now)
 
     def _on_people(self, msg) -> None:
-        with self.lock:
+        with self._input():
             try:
                 self.ctl.on_people(people_rows(msg), self._now())
             except ValueError as exc:  # a malformed message is dropped (the input goes stale), not fatal
                 self.rospy.logerr(f"people message ignored: {exc}")
 
     def _on_scan(self, msg) -> None:
-        with self.lock:
+        with self._input():
             if self.rospy.get_rostime().is_zero():  # no time yet: every age would read 0 and the timer never fires
                 self.rospy.logwarn_once("scans ignored: ROS time is 0 (/use_sim_time is set and nothing publishes "
                                         "/clock: unset it on a real robot, or start the simulator)")
