@@ -30,7 +30,7 @@ from services import optuna_search
 from services.paths import (check_sqlite_url, check_tracking_uri, project_dir, resolve_db_url, resolve_storage,
                             resolve_tracking_uri, runs_dir)
 from services.sweep_schema import Sweep, SweepError, load_sweep, sweep_to_yaml
-from services.sweep_state import STATE_FILE, check_resumable, latest_state, unfinished
+from services.sweep_state import STAMP_FORMAT, STATE_FILE, check_resumable, invocation_state, unfinished
 
 
 @dataclass
@@ -83,10 +83,11 @@ def git_commit(where: Path) -> str:
     return "unknown"
 
 
-def make_plan(sweep: Sweep, source: str, resume: bool = False) -> Plan:
-    """Resolve every location of one invocation (a new one, or the latest one when resuming)."""
-    state = latest_state(sweep) if resume else {}
-    stamp = state.get("stamp") or time.strftime("%Y%m%d-%H%M%S")
+def make_plan(sweep: Sweep, source: str, resume: bool | str = False) -> Plan:
+    """Resolve every location of one invocation: a new one, or when resuming the newest one (``resume`` True) or
+    the one of that stamp (``resume`` a stamp, e.g. ``20261203-174502``)."""
+    state = invocation_state(sweep, resume if isinstance(resume, str) else None) if resume else {}
+    stamp = state.get("stamp") or time.strftime(STAMP_FORMAT)
     if resume:
         check_resumable(sweep, runs_dir() / "sweeps" / sweep.name / stamp, source)
     try:
@@ -291,7 +292,7 @@ def _relay_sigterm():
     return signal.SIG_DFL if previous is None else previous
 
 
-def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, dry_run: bool = False,
+def run_sweep(path: str | Path, *, address: str | None = None, resume: bool | str = False, dry_run: bool = False,
               sets: list[str] | None = None, train_fn: Callable | None = None, verbose: int = 1,
               echo: Callable[[str], Any] = print) -> int:
     """Run a sweep file to completion; 0 when every trial finished, 1 when some errored after retries.
@@ -355,7 +356,7 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool = Fa
              f"{plan.tracking_uri}, parent run {plan.state['parent_run_id']}")
         if errors:
             echo(f"  {errors} trial(s) ended in error (their tracebacks are above and in MLflow); after a fix, "
-                 f"`flashnav sweep run {path} --resume` runs them again and keeps the finished ones")
+                 f"`flashnav sweep run {path} --resume {plan.stamp}` runs them again and keeps the finished ones")
         return 0 if errors == 0 else 1
     except KeyboardInterrupt:
         if tracker and tracker.run_id:

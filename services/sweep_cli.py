@@ -1,7 +1,7 @@
 """The sweep command line, and ``flashnav sweep submit`` (the Ray Jobs API).
 
-    flashnav sweep run SWEEP.yaml [--address ADDR] [--resume] [--dry-run] [--set KEY=VALUE ...]
-    flashnav sweep submit SWEEP.yaml [--address http://HEAD:8265] [--no-wait] [--resume] [--set ...]
+    flashnav sweep run SWEEP.yaml [--address ADDR] [--resume [STAMP]] [--dry-run] [--set KEY=VALUE ...]
+    flashnav sweep submit SWEEP.yaml [--address http://HEAD:8265] [--no-wait] [--resume [STAMP]] [--set ...]
     python -m services.sweep_cli run|submit ...        (where the console script is missing)
     ray job submit --address http://HEAD:8265 --working-dir . -- flashnav sweep run sweeps/tb2_10seed.yaml
 
@@ -20,6 +20,7 @@ from typing import Any, Callable
 
 from services.sweep import git_commit, run_sweep
 from services.sweep_schema import SweepError, load_sweep
+from services.sweep_state import stamp_arg
 
 HELP = "Ray Tune sweeps (seed grids, Optuna searches) tracked in MLflow"
 
@@ -27,7 +28,8 @@ HELP = "Ray Tune sweeps (seed grids, Optuna searches) tracked in MLflow"
 # ---------------------------------------------------------------- submit (Ray Jobs API)
 
 
-def submit_sweep(path: str | Path, *, address: str | None = None, resume: bool = False, sets: list[str] | None = None,
+def submit_sweep(path: str | Path, *, address: str | None = None, resume: bool | str = False,
+                 sets: list[str] | None = None,
                  env: list[str] | None = None, wait: bool = True, module: bool = False,
                  echo: Callable[[str], Any] = print) -> int:
     """Submit ``flashnav sweep run PATH`` as a Ray job (working_dir ".") and follow its logs."""
@@ -45,7 +47,7 @@ def submit_sweep(path: str | Path, *, address: str | None = None, resume: bool =
     address = address or os.environ.get("RAY_API_SERVER_ADDRESS") or stack.jobs_address()
     stack.align_client_auth()
     command = (["python", "-m", "services.sweep_cli"] if module else ["flashnav", "sweep"]) + ["run", relative.as_posix()]
-    command += ["--resume"] if resume else []
+    command += (["--resume"] + ([resume] if isinstance(resume, str) else [])) if resume else []
     for assignment in sets or []:
         command += ["--set", assignment]
     env_vars = {"FLASHNAV_GIT_COMMIT": git_commit(Path.cwd())}
@@ -79,7 +81,9 @@ def _add_commands(sub) -> None:
     run = sub.add_parser("run", help="run a sweep (in-process Ray here, or the cluster at --address / RAY_ADDRESS)")
     run.add_argument("sweep", help="sweep YAML (see sweeps/)")
     run.add_argument("--address", help="Ray cluster address (HOST:6379, auto); default $RAY_ADDRESS, else in-process")
-    run.add_argument("--resume", action="store_true", help="continue the latest interrupted invocation of this sweep")
+    run.add_argument("--resume", nargs="?", const=True, default=False, type=stamp_arg, metavar="STAMP",
+                     help="continue the newest invocation of this sweep (or the one of STAMP, its folder's name under "
+                          "<runs>/sweeps/NAME/): its finished trials are kept, the rest run")
     run.add_argument("--dry-run", action="store_true", help="validate and print the plan; run nothing")
     run.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                      help="override a sweep key, e.g. --set budget.max_train_seconds=5 (repeatable)")
@@ -88,7 +92,7 @@ def _add_commands(sub) -> None:
     submit.add_argument("sweep", help="sweep YAML inside the current directory (uploaded as working_dir)")
     submit.add_argument("--address", help="jobs API, e.g. http://HEAD:8265; default $RAY_API_SERVER_ADDRESS, "
                                           "else the local stack's")
-    submit.add_argument("--resume", action="store_true")
+    submit.add_argument("--resume", nargs="?", const=True, default=False, type=stamp_arg, metavar="STAMP")
     submit.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     submit.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                         help="environment variable for the job driver (e.g. MLFLOW_TRACKING_URI=http://HEAD:5000)")
@@ -111,7 +115,8 @@ def _guard(fn: Callable[[], int], resume_hint: str | None = None) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     sets = "".join(f" --set {shlex.quote(item)}" for item in args.sets)
-    hint = f"flashnav sweep run {shlex.quote(args.sweep)} --resume{sets}"
+    stamp = f" {args.resume}" if isinstance(args.resume, str) else ""  # (else: this one is the newest)
+    hint = f"flashnav sweep run {shlex.quote(args.sweep)} --resume{stamp}{sets}"
     return _guard(lambda: run_sweep(args.sweep, address=args.address, resume=args.resume,
                                     dry_run=args.dry_run, sets=args.sets), hint)
 

@@ -1,8 +1,10 @@
 """A sweep invocation's state on disk (``<runs>/sweeps/<name>/<stamp>/sweep_state.json`` and the ``sweep.yaml`` it
-ran): the newest one of a sweep, whether a ``--resume`` may continue it, and whether it finished."""
+ran): the newest one of a sweep (or one named by its stamp), whether a ``--resume`` may continue it, and whether it
+finished."""
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 from typing import Any, Callable
@@ -12,12 +14,35 @@ from services.paths import runs_dir
 from services.sweep_schema import Sweep, SweepError, load_sweep
 
 STATE_FILE = SWEEP_STATE_FILE
+#: an invocation's stamp (its folder's name under <runs>/sweeps/<name>/): local time, YYYYMMDD-HHMMSS
+STAMP_FORMAT = "%Y%m%d-%H%M%S"
 
 
-def latest_state(sweep: Sweep, must: bool = True) -> dict[str, Any]:
-    """The newest invocation's state of this sweep ({} when there is none and not ``must``)."""
+def stamp_arg(text: str) -> str:
+    """argparse type of ``--resume STAMP``: a stamp, not a sweep file given after the flag."""
+    import time
+
+    try:
+        time.strptime(text, STAMP_FORMAT)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--resume takes an invocation's stamp (YYYYMMDD-HHMMSS, the folder name "
+                                         f"under <runs>/sweeps/<name>/) or nothing (the newest), got {text!r}; give "
+                                         "the sweep file before --resume") from None
+    return text
+
+
+def invocation_state(sweep: Sweep, stamp: str | None = None, must: bool = True) -> dict[str, Any]:
+    """The state of this sweep's invocation ``stamp``, or of the newest one ({} when there is none and not
+    ``must``)."""
     root = runs_dir() / "sweeps" / sweep.name
     states = sorted(root.glob(f"*/{STATE_FILE}")) if root.exists() else []
+    if stamp is not None:
+        chosen = [s for s in states if s.parent.name == stamp]
+        if not chosen:
+            known = ", ".join(s.parent.name for s in states[-5:]) or "none"
+            raise SweepError(f"--resume {stamp}: sweep {sweep.name} has no invocation {stamp} under {root} "
+                             f"(the newest: {known})")
+        states = chosen
     if not states:
         if not must:
             return {}
@@ -50,10 +75,10 @@ def check_resumable(sweep: Sweep, out_dir: Path, source: str) -> None:
 def unfinished(sweep: Sweep, path: str | Path, echo: Callable[[str], Any]) -> None:
     """Say so when the newest invocation of this sweep did not finish: a run without --resume starts afresh and
     trains again what that one finished (and --resume afterwards continues the new one)."""
-    state = latest_state(sweep, must=False)
+    state = invocation_state(sweep, must=False)
     if state and state.get("parent_run_id"):
         planned = len(state.get("studies") or {}) or 1
         if len(state.get("done_targets") or []) < planned:
-            echo(f"note: invocation {state.get('stamp')} of this sweep did not finish; this starts a new one. To "
-                 f"continue that one instead (keeping its finished trials): Ctrl-C, then `flashnav sweep run {path} "
-                 "--resume`")
+            stamp = state.get("stamp")
+            echo(f"note: invocation {stamp} of this sweep did not finish; this starts a new one. To continue that "
+                 f"one instead (keeping its finished trials): `flashnav sweep run {path} --resume {stamp}`")

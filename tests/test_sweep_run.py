@@ -10,6 +10,7 @@ import contextlib
 import functools
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -144,10 +145,10 @@ def test_trial_that_keeps_failing_fails_the_sweep(tmp_path, runs, ray_session):
     assert run_sweep(sweep, train_fn=always_fails, verbose=0, echo=said.append) == 1
     _, parents, _ = runs_of(runs, "unit")
     assert parents[0].info.status == "FAILED" and parents[0].data.tags["errored_trials"] == "1"
-    assert "--resume` runs them again" in said[-1]
+    stamp = re.search(r"--resume (\d{8}-\d{6})` runs them again", said[-1]).group(1)  # the invocation, by name
     # --resume after the fix runs the errored trial (it printed "1/1 trials finished", trained nothing and marked the
     # parent FINISHED with errored_trials 0: the target had been recorded as done)
-    assert run_sweep(sweep, resume=True, train_fn=fake_train, verbose=0, echo=said.append) == 0
+    assert run_sweep(sweep, resume=stamp, train_fn=fake_train, verbose=0, echo=said.append) == 0
     _, parents, children = runs_of(runs, "unit")
     assert parents[0].info.status == "FINISHED" and parents[0].data.tags["errored_trials"] == "0"
     assert [c.data.tags["seed"] for c in children if c.info.status == "FINISHED"] == ["0"]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -294,6 +296,34 @@ def test_plan_paths_and_study_names(tmp_path, monkeypatch):
     assert plan.n_trials == 60
     with pytest.raises(SweepError, match="nothing to resume"):
         make_plan(sweep, "tb2_optuna.yaml", resume=True)
+
+
+def test_resume_takes_the_newest_invocation_or_the_one_named_by_its_stamp(tmp_path, monkeypatch):
+    """--resume could only continue the newest invocation: once a new run had started (by mistake, or after the
+    note that the last one did not finish), the older one's unfinished trials were out of reach."""
+    import argparse
+
+    from services.sweep_state import STATE_FILE, stamp_arg
+
+    monkeypatch.setenv("FLASHNAV_RUNS_DIR", str(tmp_path))
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    sweep = load_sweep(ROOT / "sweeps/tb2_optuna.yaml")
+    for stamp in ("20261201-100000", "20261202-100000"):
+        plan = make_plan(sweep, "tb2_optuna.yaml")
+        plan.state |= {"stamp": stamp, "studies": {t.name: f"study-{stamp}" for t in plan.targets}}
+        folder = tmp_path / "sweeps" / sweep.name / stamp
+        folder.mkdir(parents=True)
+        (folder / STATE_FILE).write_text(json.dumps(plan.state))
+    assert make_plan(sweep, "tb2_optuna.yaml", resume=True).stamp == "20261202-100000"
+    older = make_plan(sweep, "tb2_optuna.yaml", resume="20261201-100000")
+    assert older.stamp == "20261201-100000" and older.out_dir.name == "20261201-100000"
+    assert [t.study for t in older.targets] == ["study-20261201-100000"] * 2
+    with pytest.raises(SweepError, match=r"no invocation 20261130-100000 .* \(the newest: 20261201-100000, "
+                                         r"20261202-100000\)"):
+        make_plan(sweep, "tb2_optuna.yaml", resume="20261130-100000")
+    assert stamp_arg("20261201-100000") == "20261201-100000"
+    with pytest.raises(argparse.ArgumentTypeError, match="give the sweep file before --resume"):
+        stamp_arg("sweeps/tb2_optuna.yaml")
 
 
 def test_search_space_to_tune_domains():
