@@ -198,37 +198,48 @@ class Sweep(Strict):
 # ---------------------------------------------------------------- loading
 
 
-def format_errors(error: ValidationError, source: str) -> str:
-    """One line per problem: ``<file>: <key.path>: <message>``."""
+def format_errors(error: ValidationError, source: str, sets: dict[tuple[str, ...], str] | None = None) -> str:
+    """One line per problem: ``<file>: <key.path>: <message>``, with ``(from --set K=V)`` where the key, or a
+    section holding it, was given by that ``--set`` (``sets``: the parts of each --set's path -> the assignment)."""
     found = problems(error)
     lines = [f"{source}: invalid sweep ({len(found)} problem{'s' * (len(found) > 1)})"]
     for loc, item in found:
         message = item["msg"].removeprefix("Value error, ")
         # A dotted config key (``algo.batch_size``) is bracketed so the path stays unambiguous.
         path = "".join(f"[{part}]" if "." in part else f".{part}" for part in loc).lstrip(".")
-        lines.append(f"  {path or '<top>'}: {message}")
+        given = [a for parts, a in (sets or {}).items() if tuple(map(str, loc[:len(parts)])) == parts]
+        lines.append(f"  {path or '<top>'}: {message}" + (f" (from --set {given[-1]})" if given else ""))
     return "\n".join(lines)
 
 
-def apply_sets(data: dict, assignments: list[str]) -> dict:
+def _set_parts(path: str) -> list[str]:
+    """A --set key's path as the sweep's keys: under ``overrides`` / ``search.parameters`` (and their per-algorithm
+    maps) the rest of the path is one dotted config key."""
+    parts = path.split(".")
+    for i, part in enumerate(parts[:-1]):
+        if part in _DOTTED_MAPS or (i > 0 and parts[i - 1] in _PER_ALGORITHM_MAPS):
+            return parts[: i + 1] + [".".join(parts[i + 1:])]
+    return parts
+
+
+def apply_sets(data: dict, assignments: list[str]) -> dict[tuple[str, ...], str]:
     """Apply ``KEY.PATH=VALUE`` overrides (VALUE parsed as YAML) to raw sweep data, in place, through
     the project's one dotted setter (:func:`flashnav.yamlio.set_dotted`).
 
     Under ``overrides`` / ``search.parameters`` (and their per-algorithm maps) the rest of the path is
     one dotted config key: ``overrides.algo.batch_size=512`` sets the key ``algo.batch_size``.
+    Returns the parts of each assignment's path -> the assignment (for :func:`format_errors`).
     """
+    given = {}
     for assignment in assignments:
         try:
             path, value = parse_assignment(assignment, "--set")
-            parts = path.split(".")
-            for i, part in enumerate(parts[:-1]):
-                if part in _DOTTED_MAPS or (i > 0 and parts[i - 1] in _PER_ALGORITHM_MAPS):
-                    parts = parts[: i + 1] + [".".join(parts[i + 1:])]
-                    break
+            parts = _set_parts(path)
             set_dotted(data, parts, value, create=True, what="--set")
         except ValueError as exc:
             raise SweepError(str(exc)) from None
-    return data
+        given[tuple(parts)] = assignment
+    return given
 
 
 def load_sweep(path: str | Path, sets: list[str] | None = None) -> Sweep:
@@ -243,15 +254,15 @@ def load_sweep(path: str | Path, sets: list[str] | None = None) -> Sweep:
         raise SweepError(str(exc)) from None
     if not isinstance(data, dict):
         raise SweepError(f"{path}: a sweep is a mapping of keys, got {type(data).__name__}")
-    apply_sets(data, sets or [])
-    return parse_sweep(data, str(path))
+    given = apply_sets(data, sets or [])
+    return parse_sweep(data, str(path), given)
 
 
-def parse_sweep(data: dict, source: str = "<sweep>") -> Sweep:
+def parse_sweep(data: dict, source: str = "<sweep>", sets: dict[tuple[str, ...], str] | None = None) -> Sweep:
     try:
         return Sweep.model_validate(data)
     except ValidationError as exc:
-        raise SweepError(format_errors(exc, source)) from None
+        raise SweepError(format_errors(exc, source, sets)) from None
 
 
 def sweep_to_yaml(sweep: Sweep) -> str:

@@ -156,6 +156,24 @@ def test_apply_sets_dotted_override_keys():
         apply_sets({}, ["budget.max_train_seconds"])
 
 
+def test_a_problem_in_a_set_value_names_the_set(tmp_path):
+    """The error named only the sweep file, which holds a good value: the bad one came from the command line."""
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(minimal(budget={"max_train_seconds": 5})))
+    with pytest.raises(SweepError) as info:
+        load_sweep(path, ["seeds=-3", "budget.max_train_seconds=x", "search.parameters.algo.tau={uniform: [1]}"])
+    lines = str(info.value).splitlines()[1:]
+    assert lines[0] == "  seeds: need at least one seed (from --set seeds=-3)"
+    assert lines[1].startswith("  budget.max_train_seconds: Input should be a valid number")
+    assert lines[1].endswith("(from --set budget.max_train_seconds=x)")
+    assert any(line.startswith("  search.parameters[algo.tau]") and line.endswith(
+        "(from --set search.parameters.algo.tau={uniform: [1]})") for line in lines), lines
+    path.write_text(yaml.safe_dump(minimal(seeds=0)))
+    with pytest.raises(SweepError) as info:  # a problem in the file itself: no --set named
+        load_sweep(path, ["budget.max_train_seconds=7"])
+    assert "seeds: need at least one seed" in str(info.value) and "--set" not in str(info.value)
+
+
 def test_load_sweep_file_errors(tmp_path):
     with pytest.raises(SweepError, match="no such sweep file"):
         load_sweep(tmp_path / "missing.yaml")
