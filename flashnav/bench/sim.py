@@ -69,6 +69,23 @@ def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
             for i in range(count)]
 
 
+def variant_overrides(agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0,
+                      visited: bool = False) -> list[dict]:
+    """The preset overrides of the rows beside the static one, in the table's order (see :func:`time_steps`)."""
+    if visited and not wall_map:
+        raise ValueError("the visited channel's row needs a wall map (wall_map > 0)")
+    rows = []
+    if agents:
+        rows.append({"agents.count": agents})
+        if tracks:
+            rows.append({"agents.count": agents, "observation.agent_tracks": tracks})
+    if memory:
+        rows.append({"observation.memory_frames": memory, "observation.memory_every": 1})
+    for with_visited in ((False, True) if visited else (False,)) if wall_map else ():
+        rows.append({"observation.wall_map": wall_map, "observation.wall_map_visited": with_visited})
+    return rows
+
+
 def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
                max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None,
                agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0,
@@ -86,25 +103,11 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
     their defaults), and with ``visited`` too, one more with that wall map and its visited channel
     (``observation.wall_map_visited``). Returns the bundled-map row first, then the many-map row, then the agents
     row, then the tracks row, then the memory row, then the wall-map rows (those asked for)."""
-    if visited and not wall_map:
-        raise ValueError("the visited channel's row needs a wall map (wall_map > 0)")
     envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
     if maps is not None:
         envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
-    if agents:
-        envs.append(make_env(load_robot(robot, **{"agents.count": agents}), num_envs, device=device, seed=seed,
-                             raycaster=raycaster))
-        if tracks:
-            preset = load_robot(robot, **{"agents.count": agents, "observation.agent_tracks": tracks})
-            envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
-    if memory:
-        preset = load_robot(robot, **{"observation.memory_frames": memory, "observation.memory_every": 1})
-        envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
-    if wall_map:
-        for with_visited in (False, True) if visited else (False,):
-            preset = load_robot(robot, **{"observation.wall_map": wall_map,
-                                          "observation.wall_map_visited": with_visited})
-            envs.append(make_env(preset, num_envs, device=device, seed=seed, raycaster=raycaster))
+    for overrides in variant_overrides(agents, tracks, memory, wall_map, visited):
+        envs.append(make_env(load_robot(robot, **overrides), num_envs, device=device, seed=seed, raycaster=raycaster))
     dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
     actions = [torch.rand(num_envs, 2, generator=gen, device=dev) * 2 - 1 for _ in range(16)]
