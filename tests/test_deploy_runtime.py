@@ -455,24 +455,23 @@ def test_node_does_not_drive_while_ros_time_is_zero():
 def test_node_stops_the_robot_when_the_simulated_clock_stands_still():
     """/use_sim_time with a /clock that stopped (a simulator or `rosbag play --clock` died): rospy's timer runs on
     that clock and every age is read on it, so the last command stayed in force for good. The node's wall-time watch
-    stops the robot once ROS time and the inputs have stood still for the timeout; the next scan drives again."""
+    stops the robot once ROS time has stood still, and no scan has been answered, for the timeout (at least
+    FROZEN_MIN_S = 1 s); the next scan drives again."""
     node = _fake_node(now=1.0)
     node._on_odom(_msg())
     node._on_goal(_goal(x=3.0))
-    node._on_scan(_msg(ranges=_ranges(), stamp=1.0, **SCAN))
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.0, **SCAN))  # answered at wall 100
     assert node.sent[-1][0] > 0
-    node._check_clock()  # the first look: ROS time 1.0 seen at wall 100
-    for wall in (100.2, 100.3):  # within the timeout (0.3 s) of the last input: nothing
+    node._check_clock()  # the first look: ROS time 1.0
+    node.wall_now = 100.9  # past the timeout (0.3 s), within FROZEN_MIN_S: a lock-step simulator may be that slow
+    node._check_clock()
+    assert len(node.sent) == 1
+    node.wall_now = 100.95
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.0, **SCAN))  # not due (its stamp stands): not answered
+    for wall in (101.0, 101.5):  # nor does odometry on a wall timer hold the stop off
         node.wall_now = wall
+        node._on_odom(_msg())
         node._check_clock()
-    assert len(node.sent) == 1
-    node.wall_now = 100.35
-    node._on_odom(_msg())  # an input arriving counts as the node being live (in lock step a simulator's clock
-    node.wall_now = 100.6  # stands still while it waits for the node's answer)
-    node._check_clock()
-    assert len(node.sent) == 1
-    node.wall_now = 100.7
-    node._check_clock()
     assert node.sent[-1] == (0.0, 0.0) and node.ctl.state == "frozen" and "stood at 1.000 s" in node.rospy.warnings[-1]
     node.wall_now = 105.0
     node._check_clock()  # sent once
@@ -484,12 +483,35 @@ def test_node_stops_the_robot_when_the_simulated_clock_stands_still():
     assert node.sent[-1][0] > 0 and node.ctl.state == "driving"
 
 
-def test_a_clock_that_stands_still_while_the_robot_stands_is_no_stop():
+def test_an_answered_scan_holds_the_clock_stop_off():
+    """In lock step the simulator's clock stands still while it waits for the node's answer: a slow answer is not a
+    frozen clock."""
+    node = _fake_node(now=1.0)
+    node._on_odom(_msg())
+    node._on_goal(_goal(x=3.0))
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.0, **SCAN))
+    node._check_clock()
+    node.wall_now = 100.8
+    node._on_scan(_msg(ranges=_ranges(), stamp=1.1, **SCAN))  # due by its stamp: answered at wall 100.8
+    node.wall_now = 101.5
+    node._check_clock()
+    assert len(node.sent) == 2 and node.sent[-1][0] > 0
+
+
+def test_the_clock_stop_sees_the_command_in_force_not_the_velocity_state():
+    """A new goal zeroes the policy's velocity state but sends nothing: the robot still runs the old command, and the
+    frozen-clock stop took it for stopped. A zero owed since the clock jumped back is sent by it too (no tick or scan
+    would come to send it)."""
     ctl = _driving()
-    assert ctl.frozen() is not None
+    ctl.on_goal(5.0, 1.0, now=0.05)
+    assert ctl.velocity == (0.0, 0.0) and ctl.frozen().state == "frozen"
     assert ctl.frozen() is None  # the zero is in force
-    ctl.on_goal(0.0, 0.0, now=0.1)
-    assert ctl.frozen() is None  # a new goal, no command yet
+    ctl = _driving()
+    ctl.on_odom(0.0, 0.0, 0.0, now=-5.0)  # the clock jumped back: a zero owed
+    assert ctl.frozen().state == "clock" and ctl.frozen() is None
+    ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
+    ctl.on_goal(1.0, 0.0, now=0.0)
+    assert ctl.frozen() is None  # nothing sent yet
 
 
 def test_scans_further_apart_than_the_timeout_are_warned_of_once():

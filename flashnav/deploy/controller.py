@@ -22,9 +22,10 @@ and the tests all drive this one state machine, so the safety behaviour is writt
   :meth:`tick`; the next control step drives again. The watchdog's own backstop: before, the scans counted
   as fresh by their arrival and the last command stayed in force.
 * ``frozen``: the node saw its clock stand still (simulated time, ``/use_sim_time``, and nothing advancing
-  ``/clock``: a simulator or ``rosbag play --clock`` that died) with no input arriving, for ``timeout`` wall seconds
-  (:meth:`frozen`): zero velocity, sent once; the next due scan drives again. Every age is measured on that clock,
-  so the watchdog above never saw a stale input: the last command stayed in force.
+  ``/clock``: a simulator or ``rosbag play --clock`` that died) with no scan answered, for ``timeout`` (at least 1 s)
+  wall seconds (:meth:`frozen`): zero velocity, sent once, if a command other than zero is in force (the one sent
+  last, whatever a new goal did to the velocity state); the next due scan drives again. Every age is measured on
+  that clock, so the watchdog above never saw a stale input: the last command stayed in force.
 * ``reached``: within the goal radius: zero velocity, sent once; a new goal starts driving again.
 * ``stopped``: :meth:`shutdown`: zero velocity; nothing after it.
 
@@ -140,6 +141,7 @@ class Controller:
         self.fault: str | None = None  # why the last due scan could not be read (state ``fault``)
         self.slow_scans_warned = False
         self.velocity = (0.0, 0.0)
+        self.in_force = (0.0, 0.0)  # the command sent last (the velocity state is zeroed by a goal, the robot is not)
         self.distance = math.nan
         self.last_action: list[float] | None = None
         self.last_obs: np.ndarray | None = None  # the observation of the last control step
@@ -255,7 +257,7 @@ class Controller:
                 w = min(max(sw, -self.rt.w_limit), self.rt.w_limit)
                 self.shielded += 1
                 self.last_action = played
-        self.state, self.velocity = "driving", (v, w)
+        self.state, self.velocity, self.in_force = "driving", (v, w), (v, w)
         return Command(v, w, "driving")
 
     def tick(self, now: float) -> Command | None:
@@ -265,7 +267,7 @@ class Controller:
             return self._owed()
         if self.state in ("driving", "stale", "blind", "fault", "stuck", "frozen") and self._stale(now):
             return self._stop("stale")
-        if self.state == "stuck" or (self.state == "driving" and self.velocity != (0.0, 0.0)
+        if self.state == "stuck" or (self.state == "driving" and self.in_force != (0.0, 0.0)
                                      and now - self.step_time > self.timeout):
             return self._stop("stuck")
         if self.state == "stale":  # fresh again: the next due scan drives
@@ -274,8 +276,11 @@ class Controller:
 
     def frozen(self) -> Command | None:
         """The node's clock has stood still for ``timeout`` wall seconds with no input (state ``frozen``): zero
-        velocity if a command other than zero is in force, else nothing."""
-        if self.state == "driving" and self.velocity != (0.0, 0.0):
+        velocity if a command other than zero is in force (the zero owed since a backward jump of the clock, if one
+        is: no tick or scan will come to send it), else nothing."""
+        if self.owed_stop:
+            return self._owed()
+        if self.in_force != (0.0, 0.0) and self.state != "stopped":
             return self._stop("frozen")
         return None
 
@@ -312,7 +317,7 @@ class Controller:
 
     def _owed(self) -> Command:
         """The zero owed since the clock moved backwards (the state stays)."""
-        self.owed_stop, self.velocity = False, (0.0, 0.0)
+        self.owed_stop, self.velocity, self.in_force = False, (0.0, 0.0), (0.0, 0.0)
         return Command(0.0, 0.0, "clock")
 
     def _stale(self, now: float) -> bool:
@@ -328,7 +333,7 @@ class Controller:
                                p[:, 4:5]], axis=1)
 
     def _stop(self, state: str) -> Command:
-        self.state, self.velocity, self.frames = state, (0.0, 0.0), []
+        self.state, self.velocity, self.in_force, self.frames = state, (0.0, 0.0), (0.0, 0.0), []
         return Command(0.0, 0.0, state)
 
     def _history(self, sectors: np.ndarray) -> np.ndarray | None:

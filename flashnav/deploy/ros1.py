@@ -19,7 +19,6 @@ precedence and only what the venv lacks (rospy, the message packages, rospkg) co
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import sys
@@ -35,6 +34,9 @@ ROS_DIST_PACKAGES = "/usr/lib/python3/dist-packages"
 #: sends from a thread of its own, and the shutdown hooks that run next close its connections, so without the
 #: wait the zero can be dropped and the robot keeps its last command (seen once in CI, 2026-11-28)
 SHUTDOWN_FLUSH_S = 0.3
+#: the shortest wall time, seconds, that a standing clock stops the robot after (the timeout if longer): a lock-step
+#: simulator that takes a moment between the node's answer and its next /clock must not get a stop
+FROZEN_MIN_S = 1.0
 #: the Debian packages that provide what the node and the harness import
 ROS_APT_PACKAGES = ("ros-core", "python3-rospy", "python3-sensor-msgs", "python3-geometry-msgs",
                     "python3-nav-msgs", "python3-rosbag")
@@ -114,6 +116,8 @@ class DeployNode:
 
         self.Twist, self.String = Twist, String
         self.ctl, self.lock = controller, threading.Lock()
+        # the clock watch's state (before any subscription: a callback reads it)
+        self.wall, self.clock_seen, self.active = time.monotonic, None, time.monotonic()
         self.odom_frame = None
         self.goal_frame = None  # a goal's frame given before any odometry: checked against the first odometry
         rospy.init_node(name)
@@ -133,40 +137,35 @@ class DeployNode:
         self.timer = rospy.Timer(rospy.Duration(controller.period / 4.0), self._on_tick, reset=True)
         # that timer runs on ROS time: with /use_sim_time and a /clock that stops, it never fires again, and every
         # input's age is read on the stopped clock, so a wall-time thread watches the clock itself (Controller.frozen)
-        self.wall, self.clock_seen, self.active = time.monotonic, None, time.monotonic()
         if rospy.get_param("/use_sim_time", False):
             threading.Thread(target=self._watch_clock, name="flashnav-clock-watch", daemon=True).start()
 
     def _now(self) -> float:
         return self.rospy.get_time()
 
-    @contextlib.contextmanager
-    def _input(self):
-        """A subscription's callback holds the lock; when it ends, the node was active (the clock watch's
-        "no input" reads this: in lock step a simulator's clock stands still while it waits for the answer)."""
-        with self.lock:
-            try:
-                yield
-            finally:
-                self.active = self.wall()
-
     def _watch_clock(self) -> None:
         while not self.rospy.is_shutdown():
             time.sleep(self.ctl.timeout / 4.0)
-            self._check_clock()
+            try:
+                self._check_clock()
+            except Exception as exc:  # noqa: BLE001 - the watch must outlive one failed look (a publish at shutdown)
+                self.rospy.logerr_throttle(5.0, f"clock watch: {type(exc).__name__}: {exc}")
 
     def _check_clock(self) -> None:
-        """Stop the robot when ROS time has not moved and no input has arrived for the timeout, wall seconds."""
+        """Stop the robot when ROS time has not moved, and no scan has been answered, for the timeout (at least
+        ``FROZEN_MIN_S``), wall seconds. Only answered scans count as the node being live: in lock step a simulator's
+        clock stands still while it waits for the answer, and other inputs (odometry or people on a wall timer) would
+        hold the stop off for good."""
         with self.lock:
             now, wall = self._now(), self.wall()
             if now != self.clock_seen:
                 self.clock_seen, self.active = now, max(self.active, wall)
                 return
-            if wall - self.active > self.ctl.timeout:
+            if wall - self.active > max(self.ctl.timeout, FROZEN_MIN_S):
                 command = self.ctl.frozen()
                 if command is not None:
                     self.rospy.logwarn(f"robot stopped: ROS time has stood at {now:.3f} s for {wall - self.active:.2g} "
-                                       "wall seconds with no input (/use_sim_time is set: did the simulator or "
+                                       "wall seconds with no scan answered (/use_sim_time is set: did the simulator or "
                                        "`rosbag play --clock` stop?)")
                     self._publish(command, now)
 
@@ -180,7 +179,7 @@ class DeployNode:
         self.status_pub.publish(self.String(data=json.dumps(self.ctl.status(now) | extra)))
 
     def _on_odom(self, msg) -> None:
-        with self._input():
+        with self.lock:
             now = self._now()
             try:
                 self.ctl.on_odom(*odom_pose(msg), now)
@@ -195,7 +194,7 @@ class DeployNode:
             self.goal_frame = None
 
     def _on_goal(self, msg) -> None:
-        with self._input():
+        with self.lock:
             # a goal the node cannot use stops the robot (it was sent to go elsewhere) rather than being ignored
             frame, now = msg.header.frame_id.lstrip("/"), self._now()
             if frame and self.odom_frame is not None and frame != self.odom_frame.lstrip("/"):
@@ -214,14 +213,14 @@ class DeployNode:
             self._publish(None, now)
 
     def _on_people(self, msg) -> None:
-        with self._input():
+        with self.lock:
             try:
                 self.ctl.on_people(people_rows(msg), self._now())
             except ValueError as exc:  # a malformed message is dropped (the input goes stale), not fatal
                 self.rospy.logerr(f"people message ignored: {exc}")
 
     def _on_scan(self, msg) -> None:
-        with self._input():
+        with self.lock:
             if self.rospy.get_rostime().is_zero():  # no time yet: every age would read 0 and the timer never fires
                 self.rospy.logwarn_once("scans ignored: ROS time is 0 (/use_sim_time is set and nothing publishes "
                                         "/clock: unset it on a real robot, or start the simulator)")
@@ -232,6 +231,8 @@ class DeployNode:
             if command is not None and command.state == "fault":
                 self.rospy.logerr_throttle(5.0, f"scan not usable, robot stopped: {self.ctl.fault}")
             self._publish(command, now, scan_stamp=stamp, answered=command is not None)
+            if command is not None:
+                self.active = self.wall()
 
     def _on_tick(self, _event) -> None:
         with self.lock:
