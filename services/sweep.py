@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -355,8 +356,10 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool | st
         echo(f"sweep {sweep.name}: {plan.n_trials - errors}/{plan.n_trials} trials finished; MLflow "
              f"{plan.tracking_uri}, parent run {plan.state['parent_run_id']}")
         if errors:
+            given = "".join(f" --set {shlex.quote(item)}" for item in sets or [])  # (else --resume refuses the sweep)
             echo(f"  {errors} trial(s) ended in error (their tracebacks are above and in MLflow); after a fix, "
-                 f"`flashnav sweep run {path} --resume {plan.stamp}` runs them again and keeps the finished ones")
+                 f"`flashnav sweep run {path} --resume {plan.stamp}{given}` runs them again and keeps the finished "
+                 "ones")
         return 0 if errors == 0 else 1
     except KeyboardInterrupt:
         if tracker and tracker.run_id:

@@ -207,9 +207,18 @@ def format_errors(error: ValidationError, source: str, sets: dict[tuple[str, ...
         message = item["msg"].removeprefix("Value error, ")
         # A dotted config key (``algo.batch_size``) is bracketed so the path stays unambiguous.
         path = "".join(f"[{part}]" if "." in part else f".{part}" for part in loc).lstrip(".")
-        given = [a for parts, a in (sets or {}).items() if tuple(map(str, loc[:len(parts)])) == parts]
-        lines.append(f"  {path or '<top>'}: {message}" + (f" (from --set {given[-1]})" if given else ""))
+        lines.append(f"  {path or '<top>'}: {message}{_set_note(tuple(map(str, loc)), sets or {})}")
     return "\n".join(lines)
+
+
+def _set_note(loc: tuple[str, ...], sets: dict[tuple[str, ...], str]) -> str:
+    """`` (from --set K=V)`` where the problem's key is (or lies under) the last --set of it, `` (the section of
+    --set K=V)`` where a --set's key lies under the problem's section; else nothing."""
+    given = [a for parts, a in sets.items() if loc[:len(parts)] == parts]
+    if given:
+        return f" (from --set {given[-1]})"
+    within = [a for parts, a in sets.items() if loc and parts[:len(loc)] == loc]
+    return f" (the section of --set {within[-1]})" if within else ""
 
 
 def _set_parts(path: str) -> list[str]:
@@ -238,6 +247,7 @@ def apply_sets(data: dict, assignments: list[str]) -> dict[tuple[str, ...], str]
             set_dotted(data, parts, value, create=True, what="--set")
         except ValueError as exc:
             raise SweepError(str(exc)) from None
+        given.pop(tuple(parts), None)  # (the last assignment of a key is the one in force: last in the dict)
         given[tuple(parts)] = assignment
     return given
 

@@ -20,9 +20,12 @@ STAMP_FORMAT = "%Y%m%d-%H%M%S"
 
 def stamp_arg(text: str) -> str:
     """argparse type of ``--resume STAMP``: a stamp, not a sweep file given after the flag."""
+    import re
     import time
 
     try:
+        if not re.fullmatch(r"\d{8}-\d{6}", text):  # (strptime alone takes 2026123-1745)
+            raise ValueError(text)
         time.strptime(text, STAMP_FORMAT)
     except ValueError:
         raise argparse.ArgumentTypeError(f"--resume takes an invocation's stamp (YYYYMMDD-HHMMSS, the folder name "

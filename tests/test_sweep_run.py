@@ -141,14 +141,15 @@ def test_trial_that_keeps_failing_fails_the_sweep(tmp_path, runs, ray_session):
         raise RuntimeError("broken")
 
     sweep = write_sweep(tmp_path / "unit.yaml", seeds=1, retry={"max_failures": 0})
-    said = []
-    assert run_sweep(sweep, train_fn=always_fails, verbose=0, echo=said.append) == 1
+    said, sets = [], ["budget.max_train_seconds=4"]
+    assert run_sweep(sweep, sets=sets, train_fn=always_fails, verbose=0, echo=said.append) == 1
     _, parents, _ = runs_of(runs, "unit")
     assert parents[0].info.status == "FAILED" and parents[0].data.tags["errored_trials"] == "1"
-    stamp = re.search(r"--resume (\d{8}-\d{6})` runs them again", said[-1]).group(1)  # the invocation, by name
+    # the invocation by name, with its --set (without it --resume refuses the sweep as changed)
+    stamp = re.search(r"--resume (\d{8}-\d{6}) --set budget.max_train_seconds=4` runs them again", said[-1]).group(1)
     # --resume after the fix runs the errored trial (it printed "1/1 trials finished", trained nothing and marked the
     # parent FINISHED with errored_trials 0: the target had been recorded as done)
-    assert run_sweep(sweep, resume=stamp, train_fn=fake_train, verbose=0, echo=said.append) == 0
+    assert run_sweep(sweep, resume=stamp, sets=sets, train_fn=fake_train, verbose=0, echo=said.append) == 0
     _, parents, children = runs_of(runs, "unit")
     assert parents[0].info.status == "FINISHED" and parents[0].data.tags["errored_trials"] == "0"
     assert [c.data.tags["seed"] for c in children if c.info.status == "FINISHED"] == ["0"]

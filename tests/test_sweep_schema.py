@@ -168,6 +168,14 @@ def test_a_problem_in_a_set_value_names_the_set(tmp_path):
     assert lines[1].endswith("(from --set budget.max_train_seconds=x)")
     assert any(line.startswith("  search.parameters[algo.tau]") and line.endswith(
         "(from --set search.parameters.algo.tau={uniform: [1]})") for line in lines), lines
+    with pytest.raises(SweepError) as info:  # a key set twice: the last --set is the one in force, and named
+        load_sweep(path, ["seeds=-3", "budget.max_train_seconds=y", "seeds=-4"])
+    assert "  seeds: need at least one seed (from --set seeds=-4)" in str(info.value).splitlines()
+    with pytest.raises(SweepError) as info:  # a problem reported on the section that holds the --set's key
+        load_sweep(path, ["search.n_trials=3", "search.algorithm_parameters.nosuch.algo.lr={uniform: [0.1, 0.2]}"])
+    assert str(info.value).splitlines()[1:] == [
+        "  search.algorithm_parameters: unknown algorithm 'nosuch'; allowed: fastdsac, fastsac, fasttd3 "
+        "(the section of --set search.algorithm_parameters.nosuch.algo.lr={uniform: [0.1, 0.2]})"], str(info.value)
     path.write_text(yaml.safe_dump(minimal(seeds=0)))
     with pytest.raises(SweepError) as info:  # a problem in the file itself: no --set named
         load_sweep(path, ["budget.max_train_seconds=7"])
@@ -340,8 +348,9 @@ def test_resume_takes_the_newest_invocation_or_the_one_named_by_its_stamp(tmp_pa
                                          r"20261202-100000\)"):
         make_plan(sweep, "tb2_optuna.yaml", resume="20261130-100000")
     assert stamp_arg("20261201-100000") == "20261201-100000"
-    with pytest.raises(argparse.ArgumentTypeError, match="give the sweep file before --resume"):
-        stamp_arg("sweeps/tb2_optuna.yaml")
+    for bad in ("sweeps/tb2_optuna.yaml", "2026123-1745"):  # (strptime alone took the second)
+        with pytest.raises(argparse.ArgumentTypeError, match="give the sweep file before --resume"):
+            stamp_arg(bad)
 
 
 def test_search_space_to_tune_domains():
