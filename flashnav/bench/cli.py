@@ -123,8 +123,9 @@ def run_sim(args) -> int:
         raise ValueError("--visited times the wall map's visited channel: it needs --wall-map C")
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
-    flags = {"agents.count": "--agents", "observation.agent_tracks": "--tracks", "observation.memory_frames": "--memory",
-             "observation.wall_map": "--wall-map", "observation.wall_map_visited": "--visited"}
+    flags = {"agents.count": "--agents", "observation.agent_tracks": "--tracks",
+             "observation.memory_frames": "--memory", "observation.wall_map": "--wall-map",
+             "observation.wall_map_visited": "--visited"}
     for robot in robots:  # every row's preset before the first row (--wall-map 1000 failed after the static rows)
         for overrides in sim.variant_overrides(args.agents, args.tracks, args.memory, args.wall_map, args.visited):
             try:
