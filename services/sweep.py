@@ -84,6 +84,15 @@ def git_commit(where: Path) -> str:
     return "unknown"
 
 
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM) during a sweep; ``stamp``: the invocation that ``--resume`` continues, None when
+    nothing of it was recorded yet."""
+
+    def __init__(self, message: str, stamp: str | None):
+        super().__init__(message)
+        self.stamp = stamp
+
+
 def make_plan(sweep: Sweep, source: str, resume: bool | str = False) -> Plan:
     """Resolve every location of one invocation: a new one, or when resuming the newest one (``resume`` True) or
     the one of that stamp (``resume`` a stamp, e.g. ``20261203-174502``)."""
@@ -361,10 +370,11 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool | st
                  f"`flashnav sweep run {path} --resume {plan.stamp}{given}` runs them again and keeps the finished "
                  "ones")
         return 0 if errors == 0 else 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         if tracker and tracker.run_id:
             tracker.finish("KILLED")  # `--resume` reopens it
-        raise
+        # the stamp to resume, once the invocation's state is on disk (before, a bare --resume took an older one)
+        raise SweepInterrupted(str(exc), plan.stamp if plan.state.get("parent_run_id") else None) from exc
     except Exception:
         if tracker and tracker.run_id:
             tracker.finish("FAILED")

@@ -101,22 +101,29 @@ def _add_commands(sub) -> None:
     submit.set_defaults(func=_cmd_submit)
 
 
-def _guard(fn: Callable[[], int], resume_hint: str | None = None) -> int:
+def _guard(fn: Callable[[], int], resume_hint: Callable[[KeyboardInterrupt], str | None] | None = None) -> int:
     try:
         return fn()
     except SweepError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        hint = f"; continue it with: {resume_hint}" if resume_hint else ""
-        print(f"interrupted: finished trials are kept{hint}", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        hint = resume_hint(exc) if resume_hint else None
+        print("interrupted before anything was recorded: nothing to resume" if hint == "" else
+              f"interrupted: finished trials are kept{f'; continue it with: {hint}' if hint else ''}", file=sys.stderr)
         return 130
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     sets = "".join(f" --set {shlex.quote(item)}" for item in args.sets)
-    stamp = f" {args.resume}" if isinstance(args.resume, str) else ""  # (else: this one is the newest)
-    hint = f"flashnav sweep run {shlex.quote(args.sweep)} --resume{stamp}{sets}"
+
+    def hint(exc: KeyboardInterrupt) -> str:
+        """The command that continues the interrupted invocation ("": none was recorded)."""
+        stamp = getattr(exc, "stamp", None) or (args.resume if isinstance(args.resume, str) else None)
+        if stamp is None and not args.resume:
+            return ""
+        return f"flashnav sweep run {shlex.quote(args.sweep)} --resume{f' {stamp}' if stamp else ''}{sets}"
+
     return _guard(lambda: run_sweep(args.sweep, address=args.address, resume=args.resume,
                                     dry_run=args.dry_run, sets=args.sets), hint)
 

@@ -473,3 +473,24 @@ def test_tracking_and_optuna_stores_are_checked_before_ray(tmp_path, monkeypatch
                   "s.yaml")
     with pytest.raises(SweepError, match=r"search.storage postgresql://\*\*\*@127.0.0.1:9/db: Optuna cannot open it"):
         optuna_search.storage("postgresql://u:secret@127.0.0.1:9/db")
+
+
+def test_an_interrupted_sweep_names_the_invocation_to_resume(monkeypatch, capsys):
+    """The Ctrl-C line said a bare --resume, which takes the newest invocation: one interrupted before its state was
+    on disk (Ray starting) sent the user to an older unfinished one."""
+    from services import sweep_cli
+    from services.sweep import SweepInterrupted
+
+    def interrupted(stamp):
+        def run(*_a, **_k):
+            raise SweepInterrupted("stopped", stamp)
+        return run
+
+    quickstart = str(ROOT / "sweeps/quickstart.yaml")
+    monkeypatch.setattr(sweep_cli, "run_sweep", interrupted("20261203-101010"))
+    assert sweep_main(["run", quickstart, "--set", "seeds=3"]) == 130
+    assert f"continue it with: flashnav sweep run {quickstart} --resume 20261203-101010 --set seeds=3" in \
+        capsys.readouterr().err
+    monkeypatch.setattr(sweep_cli, "run_sweep", interrupted(None))
+    assert sweep_main(["run", quickstart]) == 130
+    assert "interrupted before anything was recorded: nothing to resume" in capsys.readouterr().err
