@@ -509,6 +509,10 @@ def test_the_clock_stop_sees_the_command_in_force_not_the_velocity_state():
     ctl = _driving()
     ctl.on_odom(0.0, 0.0, 0.0, now=-5.0)  # the clock jumped back: a zero owed
     assert ctl.frozen().state == "clock" and ctl.frozen() is None
+    ctl = _driving()
+    ctl.on_odom(0.0, 0.0, 0.0, now=-5.0)
+    assert ctl.shutdown().state == "stopped"  # the zero: none owed after it (one was sent after `stopped`)
+    assert ctl.frozen() is None and ctl.tick(-4.9) is None
     ctl = Controller(PolicyRuntime.load(POLICY), timeout=0.3)
     ctl.on_goal(1.0, 0.0, now=0.0)
     assert ctl.frozen() is None  # nothing sent yet

@@ -275,9 +275,10 @@ class Controller:
         return None
 
     def frozen(self) -> Command | None:
-        """The node's clock has stood still for ``timeout`` wall seconds with no input (state ``frozen``): zero
-        velocity if a command other than zero is in force (the zero owed since a backward jump of the clock, if one
-        is: no tick or scan will come to send it), else nothing."""
+        """The node's clock has stood still, with no scan answered, for ``timeout`` (at least 1 s) wall seconds
+        (state ``frozen``, :meth:`flashnav.deploy.ros1.DeployNode._check_clock`): zero velocity if a command other
+        than zero is in force (the zero owed since a backward jump of the clock, if one is: no tick or scan will come
+        to send it), else nothing."""
         if self.owed_stop:
             return self._owed()
         if self.in_force != (0.0, 0.0) and self.state != "stopped":
@@ -334,6 +335,7 @@ class Controller:
 
     def _stop(self, state: str) -> Command:
         self.state, self.velocity, self.in_force, self.frames = state, (0.0, 0.0), (0.0, 0.0), []
+        self.owed_stop = False  # (this is the zero: none owed after it, nor after `stopped`)
         return Command(0.0, 0.0, state)
 
     def _history(self, sectors: np.ndarray) -> np.ndarray | None:
