@@ -88,7 +88,7 @@ class SweepInterrupted(KeyboardInterrupt):
     """Ctrl-C (or SIGTERM) during a sweep; ``stamp``: the invocation that ``--resume`` continues, None when
     nothing of it was recorded yet."""
 
-    def __init__(self, message: str, stamp: str | None):
+    def __init__(self, message: str = "", stamp: str | None = None):
         super().__init__(message)
         self.stamp = stamp
 

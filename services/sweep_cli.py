@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from services.sweep import git_commit, run_sweep
+from services.sweep import SweepInterrupted, git_commit, run_sweep
 from services.sweep_schema import SweepError, load_sweep
 from services.sweep_state import stamp_arg
 
@@ -114,12 +114,21 @@ def _guard(fn: Callable[[], int], resume_hint: Callable[[KeyboardInterrupt], str
         return 130
 
 
+def _interrupted(exc: BaseException | None) -> SweepInterrupted | None:
+    """The sweep's own interrupt, also under a second Ctrl-C that came while it stopped (Python chains it as the
+    context of the second)."""
+    while exc is not None and not isinstance(exc, SweepInterrupted):
+        exc = exc.__context__
+    return exc
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     sets = "".join(f" --set {shlex.quote(item)}" for item in args.sets)
 
     def hint(exc: KeyboardInterrupt) -> str:
         """The command that continues the interrupted invocation ("": none was recorded)."""
-        stamp = getattr(exc, "stamp", None) or (args.resume if isinstance(args.resume, str) else None)
+        recorded = _interrupted(exc)
+        stamp = (recorded.stamp if recorded else None) or (args.resume if isinstance(args.resume, str) else None)
         if stamp is None and not args.resume:
             return ""
         return f"flashnav sweep run {shlex.quote(args.sweep)} --resume{f' {stamp}' if stamp else ''}{sets}"

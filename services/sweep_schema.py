@@ -213,12 +213,12 @@ def format_errors(error: ValidationError, source: str, sets: dict[tuple[str, ...
 
 def _set_note(loc: tuple[str, ...], sets: dict[tuple[str, ...], str]) -> str:
     """`` (from --set K=V)`` where the problem's key is (or lies under) the last --set of it, `` (the section of
-    --set K=V)`` where a --set's key lies under the problem's section; else nothing."""
+    --set K=V, --set ...)`` naming every --set whose key lies under the problem's section; else nothing."""
     given = [a for parts, a in sets.items() if loc[:len(parts)] == parts]
     if given:
         return f" (from --set {given[-1]})"
-    within = [a for parts, a in sets.items() if loc and parts[:len(loc)] == loc]
-    return f" (the section of --set {within[-1]})" if within else ""
+    within = [a for parts, a in sets.items() if loc and parts[:len(loc)] == loc]  # (which of them: not known)
+    return f" (the section of {', '.join(f'--set {a}' for a in within)})" if within else ""
 
 
 def _set_parts(path: str) -> list[str]:

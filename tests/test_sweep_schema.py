@@ -176,6 +176,10 @@ def test_a_problem_in_a_set_value_names_the_set(tmp_path):
     assert str(info.value).splitlines()[1:] == [
         "  search.algorithm_parameters: unknown algorithm 'nosuch'; allowed: fastdsac, fastsac, fasttd3 "
         "(the section of --set search.algorithm_parameters.nosuch.algo.lr={uniform: [0.1, 0.2]})"], str(info.value)
+    with pytest.raises(SweepError) as info:  # which of two --sets under the section is at fault is not known: both
+        load_sweep(path, ["algorithm_overrides.bogus.algo.x=1", "algorithm_overrides.fastdsac.algo.y=2"])
+    assert ("(the section of --set algorithm_overrides.bogus.algo.x=1, --set algorithm_overrides.fastdsac.algo.y=2)"
+            in str(info.value)), str(info.value)
     path.write_text(yaml.safe_dump(minimal(seeds=0)))
     with pytest.raises(SweepError) as info:  # a problem in the file itself: no --set named
         load_sweep(path, ["budget.max_train_seconds=7"])
@@ -494,3 +498,13 @@ def test_an_interrupted_sweep_names_the_invocation_to_resume(monkeypatch, capsys
     monkeypatch.setattr(sweep_cli, "run_sweep", interrupted(None))
     assert sweep_main(["run", quickstart]) == 130
     assert "interrupted before anything was recorded: nothing to resume" in capsys.readouterr().err
+
+    def twice(*_a, **_k):  # a second Ctrl-C while the sweep stopped (Ray shutting down) replaced the sweep's own
+        try:
+            raise SweepInterrupted("stopped", "20261203-101010")
+        finally:
+            raise KeyboardInterrupt  # noqa: B012
+
+    monkeypatch.setattr(sweep_cli, "run_sweep", twice)
+    assert sweep_main(["run", quickstart]) == 130
+    assert "--resume 20261203-101010" in capsys.readouterr().err
