@@ -374,7 +374,7 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool | st
         if tracker and tracker.run_id:
             tracker.finish("KILLED")  # `--resume` reopens it
         # the stamp to resume, once the invocation's state is on disk (before, a bare --resume took an older one)
-        raise SweepInterrupted(str(exc), plan.stamp if plan.state.get("parent_run_id") else None) from exc
+        raise SweepInterrupted(str(exc), plan.stamp if (plan.out_dir / STATE_FILE).is_file() else None) from exc
     except Exception:
         if tracker and tracker.run_id:
             tracker.finish("FAILED")
