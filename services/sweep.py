@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import os
-import shlex
 import signal
 import subprocess
 import sys
@@ -30,7 +29,7 @@ from typing import Any, Callable
 from services import optuna_search
 from services.paths import (check_sqlite_url, check_tracking_uri, project_dir, resolve_db_url, resolve_storage,
                             resolve_tracking_uri, runs_dir)
-from services.sweep_schema import Sweep, SweepError, load_sweep, sweep_to_yaml
+from services.sweep_schema import Sweep, SweepError, load_sweep, set_flags, sweep_to_yaml
 from services.sweep_state import STAMP_FORMAT, STATE_FILE, check_resumable, invocation_state, unfinished
 
 
@@ -365,7 +364,7 @@ def run_sweep(path: str | Path, *, address: str | None = None, resume: bool | st
         echo(f"sweep {sweep.name}: {plan.n_trials - errors}/{plan.n_trials} trials finished; MLflow "
              f"{plan.tracking_uri}, parent run {plan.state['parent_run_id']}")
         if errors:
-            given = "".join(f" --set {shlex.quote(item)}" for item in sets or [])  # (else --resume refuses the sweep)
+            given = set_flags(sets)  # (without them --resume refuses the sweep as changed)
             echo(f"  {errors} trial(s) ended in error (their tracebacks are above and in MLflow); after a fix, "
                  f"`flashnav sweep run {path} --resume {plan.stamp}{given}` runs them again and keeps the finished "
                  "ones")

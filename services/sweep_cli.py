@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from services.sweep import SweepInterrupted, git_commit, run_sweep
-from services.sweep_schema import SweepError, load_sweep
+from services.sweep_schema import SweepError, load_sweep, set_flags
 from services.sweep_state import stamp_arg
 
 HELP = "Ray Tune sweeps (seed grids, Optuna searches) tracked in MLflow"
@@ -123,7 +123,7 @@ def _interrupted(exc: BaseException | None) -> SweepInterrupted | None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    sets = "".join(f" --set {shlex.quote(item)}" for item in args.sets)
+    sets = set_flags(args.sets)
 
     def hint(exc: KeyboardInterrupt) -> str:
         """The command that continues the interrupted invocation ("": none was recorded)."""

@@ -14,6 +14,7 @@ each trial in its own directory, so a relative path would silently land in a fol
 from __future__ import annotations
 
 import re
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -229,6 +230,11 @@ def _set_parts(path: str) -> list[str]:
         if part in _DOTTED_MAPS or (i > 0 and parts[i - 1] in _PER_ALGORITHM_MAPS):
             return parts[: i + 1] + [".".join(parts[i + 1:])]
     return parts
+
+
+def set_flags(assignments: list[str] | None) -> str:
+    """The ``--set`` flags of a command line that repeats ``assignments`` (`` --set K=V`` each, shell-quoted)."""
+    return "".join(f" --set {shlex.quote(item)}" for item in assignments or [])
 
 
 def apply_sets(data: dict, assignments: list[str]) -> dict[tuple[str, ...], str]:

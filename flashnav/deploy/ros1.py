@@ -159,7 +159,7 @@ class DeployNode:
         with self.lock:
             now, wall = self._now(), self.wall()
             if now != self.clock_seen:
-                self.clock_seen, self.active = now, max(self.active, wall)
+                self.clock_seen, self.active = now, wall
                 return
             if wall - self.active > max(self.ctl.timeout, FROZEN_MIN_S):
                 command = self.ctl.frozen()
