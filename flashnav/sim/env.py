@@ -20,13 +20,10 @@ event is a truncation. Finished slots are reset in the same step (Gymnasium's SA
 finished) and ``info["_final_obs"]`` marks the slots that finished, so ``info["final_obs"]`` is always the
 correct next observation for replay.
 
-Frames: the state tensors (``pose``, ``goal``) are float32 metres in the *simulator frame*, world
-coordinates minus ``frame_origin`` (float64). That is (0, 0) - world coordinates as they are - for
-maps within ``flashnav.sim.mapset.FRAME_LIMIT_M`` of the world origin (every bundled map), else the map's origin, so a map
-at UTM coordinates (500000, 4000000) or at 1e12 m simulates exactly like the same map at (0, 0)
-instead of losing the float32 precision of its coordinates. ``set_state`` takes world coordinates
-(give float64 for far maps); ``world_pose`` / ``world_goal`` return them in float64. With several
-maps each map has its own frame, and a slot's pose and goal are in its map's frame.
+Frames: the state tensors (``pose``, ``goal``) are float32 metres in the *simulator frame* of each slot's map
+(:mod:`flashnav.sim.mapset`, "Frames": world coordinates for maps near the world origin, else re-centred);
+``set_state`` takes world coordinates (give float64 for far maps); ``world_pose`` / ``world_goal`` return them in
+float64.
 
 The goal-distance bound of the observation space (``goal_distance_max``) is the map's diagonal, or
 with several maps the largest diagonal among them: one fixed scale for every map.
@@ -51,7 +48,8 @@ from flashnav.sim.agents import AgentWorld
 from flashnav.sim.collision import make_collision_checker
 from flashnav.sim.extras import ObservationExtras
 from flashnav.sim.inputs import as_batch, check_finite, check_num_envs, check_seed, check_slots, check_state
-from flashnav.sim.mapset import MapDraw, as_grids, check_map_scale, sample_on_maps, sim_frame
+from flashnav.sim.mapset import (MapDraw, as_grids, check_map_scale, frame_to_world, sample_on_maps, sim_frame,
+                                 world_to_frame)
 from flashnav.sim.motion import Actuation, action_to_velocity, integrate
 from flashnav.sim.observation import beam_angles, observation_bounds, observe  # noqa: F401 (beam_angles: re-exported)
 from flashnav.sim.raycast import make_raycaster
@@ -266,7 +264,8 @@ class NavVecEnv(VectorEnv):
         be reached; :func:`flashnav.sim.inputs.check_state`)."""
         pose, goal, mi = check_state(self.maps, pose, goal, map_index, self.map_index)
         self.map_index[:] = mi
-        pose, goal = self._world_to_frame(pose, goal)
+        if len(self.maps) > 1 or self.frame_origin != (0.0, 0.0):  # (else the world's frame: as they are)
+            pose, goal = world_to_frame(pose, goal, self._frame_origins[self.map_index])
         self._place(torch.arange(self.num_envs, device=self.device), pose.float(), goal.float())
         self._placed = True
         return self.obs.clone()
@@ -276,22 +275,13 @@ class NavVecEnv(VectorEnv):
             raise RuntimeError("step() before reset(): every robot and goal is still at (0, 0), which would count "
                                "as reached; call env.reset(seed=...) (or set_state) first")
 
-    def _world_to_frame(self, pose: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """World (checked float64 pose [N, 3], goal [N, 2]) -> the simulator frame of each slot's map,
-        still float64 (returned as they are when every frame is the world's)."""
-        if len(self.maps) == 1 and self.frame_origin == (0.0, 0.0):
-            return pose, goal
-        off = self._frame_origins[self.map_index]
-        return torch.cat([pose[:, :2] - off, pose[:, 2:]], dim=1), goal - off
-
     def world_pose(self) -> torch.Tensor:
         """[N, 3] float64: the current poses in world coordinates (x, y m, yaw rad)."""
-        off = self._frame_origins[self.map_index]
-        return self.pose.double() + torch.cat([off, torch.zeros_like(off[:, :1])], dim=1)
+        return frame_to_world(self.pose, self._frame_origins[self.map_index])
 
     def world_goal(self) -> torch.Tensor:
         """[N, 2] float64: the current goals in world coordinates (m)."""
-        return self.goal.double() + self._frame_origins[self.map_index]
+        return frame_to_world(self.goal, self._frame_origins[self.map_index])
 
     def step(self, actions):
         """Advance every slot by one step. ``actions`` [N, 2] in [-1, 1] (clamped); another shape or a

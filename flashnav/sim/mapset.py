@@ -9,8 +9,11 @@ same speed within noise and took 2.2x the memory for 64 maps of 6-20 m (docs/ben
 maps in one env"). Per-map values that the kernels need (offsets, shapes, origins, resolutions) are
 small [M] arrays, gathered per slot.
 
-Each map is simulated in its own frame (:func:`sim_frame`: world coordinates, or the
-map's origin for far maps); a slot's pose and goal are in its map's frame.
+Frames: each map is simulated in its own frame (:func:`sim_frame`), world coordinates minus the frame's origin
+(float64): (0, 0) - world coordinates as they are - for maps within ``FRAME_LIMIT_M`` of the world origin (every
+bundled map), else the map's origin, so a map at UTM coordinates (500000, 4000000) or at 1e12 m simulates exactly like
+the same map at (0, 0) instead of losing the float32 precision of its coordinates. A slot's pose and goal are in its
+map's frame (:func:`world_to_frame`, :func:`frame_to_world`).
 """
 
 from __future__ import annotations
@@ -123,10 +126,22 @@ FRAME_LIMIT_M = 1024.0
 
 
 def sim_frame(grid: OccupancyMap) -> tuple[float, float]:
-    """The world (x, y) of the simulator frame's origin, metres float64 (see :mod:`flashnav.sim.env`, "Frames")."""
+    """The world (x, y) of the simulator frame's origin, metres float64 (module docstring, "Frames")."""
     if max(abs(b) for b in grid.bounds) <= FRAME_LIMIT_M:
         return (0.0, 0.0)
     return grid.origin
+
+
+def world_to_frame(pose: torch.Tensor, goal: torch.Tensor, origins: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """World float64 pose [N, 3] and goal [N, 2] -> each slot's map frame, ``origins`` [N, 2] float64 its frame's
+    origin (still float64)."""
+    return torch.cat([pose[:, :2] - origins, pose[:, 2:]], dim=1), goal - origins
+
+
+def frame_to_world(state: torch.Tensor, origins: torch.Tensor) -> torch.Tensor:
+    """A pose [N, 3] (x, y, yaw) or a point [N, 2] in each slot's map frame -> world coordinates, float64."""
+    xy = state[:, :2].double() + origins
+    return torch.cat([xy, state[:, 2:].double()], dim=1)
 
 
 def check_map_scale(grid: OccupancyMap, preset) -> None:
