@@ -277,7 +277,8 @@ TRACK_FEATURES = ("present", "x", "y", "vx", "vy", "radius")
 MAX_POSE_TRAIL = 32
 #: Largest ``observation.memory_frames``: the memory scan's cost per step grows with the frames kept.
 MAX_MEMORY_FRAMES = 64
-#: Largest ``observation.wall_map`` (squares a side): the map adds 2 (3 with ``wall_map_visited``) x wall_map^2 columns.
+#: Largest ``observation.wall_map`` (squares a side): the map adds 2 (one more with each of ``wall_map_visited`` and
+#: ``wall_map_plan``) x wall_map^2 columns.
 MAX_WALL_MAP = 48
 
 
@@ -315,21 +316,26 @@ class Observation(Strict):
                                    "has been this episode (the grid cells it passed, kept like the hits; on a robot "
                                    "from odometry), so that a policy can tell a dead end it has seen from one it has "
                                    "not; wall_map^2 more columns; needs wall_map > 0")
+    wall_map_plan: bool = Field(False, description="a last channel of the wall map: 1 in the squares of the shortest "
+                                "way from the robot to its goal over the grid cells its LiDAR has not marked as walls "
+                                "(unknown = free; flashnav.maps.seen_plan), recomputed every step from the wall "
+                                "memory alone, no map; wall_map^2 more columns; needs wall_map > 0")
 
     @model_validator(mode="after")
     def _one_square_is_no_image(self):
         if self.wall_map == 1:
             raise ValueError("observation.wall_map must be 0 (none) or at least 2 squares a side, got 1")
-        if self.wall_map_visited and not self.wall_map:
-            raise ValueError("observation.wall_map_visited=true adds a channel to the wall map, but "
-                             "observation.wall_map is 0 (none): set observation.wall_map to at least 2")
+        for key in ("wall_map_visited", "wall_map_plan"):
+            if getattr(self, key) and not self.wall_map:
+                raise ValueError(f"observation.{key}=true adds a channel to the wall map, but "
+                                 "observation.wall_map is 0 (none): set observation.wall_map to at least 2")
         return self
 
     @property
     def wall_map_channels(self) -> int:
         """The wall map's channels: 0 without one, else walls and goal, then the visited squares with
-        ``wall_map_visited``."""
-        return len(wall_map_channel_names(self.wall_map, self.wall_map_visited))
+        ``wall_map_visited``, then the plan's with ``wall_map_plan``."""
+        return len(wall_map_channel_names(self.wall_map, self.wall_map_visited, self.wall_map_plan))
 
 
 class RobotPreset(Strict):

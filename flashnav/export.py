@@ -29,6 +29,7 @@ import flashnav
 from flashnav.checkpoint import is_checkpoint
 from flashnav.config import TRACK_FEATURES, RobotPreset
 from flashnav.learn.networks import Actor, DeterministicActor
+from flashnav.maps.seen_plan import PLAN_MARGIN_M
 from flashnav.names import POLICY_METADATA, POLICY_ONNX, POLICY_TORCHSCRIPT
 from flashnav.observation_samples import sample_observations
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, first_sentence, open_onnx  # noqa: F401
@@ -155,7 +156,8 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                          "grid_m": preset.observation.wall_map_grid, "beyond_m": HIT_BEYOND_M,
                          "columns": [preset.memory_end, preset.obs_dim],
                          "channels": list(wall_map_channel_names(preset.observation.wall_map,
-                                                                preset.observation.wall_map_visited)),
+                                                                preset.observation.wall_map_visited,
+                                                                preset.observation.wall_map_plan)),
                          "order": "channel by channel, then row by row: square (row i, column j) spans "
                                   "[(i - cells / 2) cell_m, (i + 1 - cells / 2) cell_m) to the left of the robot "
                                   "(row 0 rightmost) and [(j - cells / 2) cell_m, (j + 1 - cells / 2) cell_m) ahead",
@@ -163,7 +165,12 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                                     "past its return) during this episode lies in the square, else 0 (unknown reads "
                                     "as free); goal: 1 in the goal's square, clipped onto the edge when farther; "
                                     "visited (when listed): 1 where the centre of a grid_m cell that the robot's "
-                                    "centre was in at a control step of this episode lies in the square",
+                                    "centre was in at a control step of this episode lies in the square; plan "
+                                    "(when listed): 1 where the centre of a grid_m cell of the shortest "
+                                    "8-connected way from the robot's cell to the goal's over the cells not marked "
+                                    "as walls (unknown free; flashnav.maps.seen_plan, within plan_margin_m of both) "
+                                    "lies in the square",
+                         "plan_margin_m": PLAN_MARGIN_M,
                          "reset": "a new episode (goal) forgets every wall (and every visited cell) and marks "
                                   "its first scan (and its start)"},
         },

@@ -145,6 +145,7 @@ def _layout_keys(robot) -> dict[str, Any]:
         "robot.observation.memory_frames (on/off)": robot.observation.memory_frames > 0,
         "robot.observation.wall_map": robot.observation.wall_map,
         "robot.observation.wall_map_visited": robot.observation.wall_map_visited,
+        "robot.observation.wall_map_plan": robot.observation.wall_map_plan,
     }
 
 

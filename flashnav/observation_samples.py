@@ -42,7 +42,7 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
 def _wall_map(preset: RobotPreset, n: int, u) -> torch.Tensor:
     """``[n, 2 C^2]`` wall maps for :func:`sample_observations`: each square a wall with probability 1/5, the
     goal in one square (with ``observation.wall_map_visited``, then ``C^2`` visited squares, each with
-    probability 1/10)."""
+    probability 1/10; with ``observation.wall_map_plan``, then ``C^2`` plan squares, each with probability 1/20)."""
     c = preset.observation.wall_map
     if not c:  # no draws: the other columns stay what they were before the wall map existed
         return torch.zeros(n, 0)
@@ -50,7 +50,8 @@ def _wall_map(preset: RobotPreset, n: int, u) -> torch.Tensor:
     goal = torch.zeros(n, c * c)
     goal[torch.arange(n), (u(n) * c * c).long().clamp(max=c * c - 1)] = 1.0
     visited = [(u(n, c * c) < 0.1).float()] if preset.observation.wall_map_visited else []
-    return torch.cat([walls, goal, *visited], dim=1)
+    plan = [(u(n, c * c) < 0.05).float()] if preset.observation.wall_map_plan else []
+    return torch.cat([walls, goal, *visited, *plan], dim=1)
 
 
 def _tracks(preset: RobotPreset, n: int, u) -> torch.Tensor:

@@ -116,30 +116,40 @@ def memory_scan_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tu
 
 
 #: The wall map's channels in their order, as the metadata's ``observation.wall_map.channels`` lists them: walls and
-#: goal, then the visited squares only with ``observation.wall_map_visited``.
-WALL_MAP_CHANNEL_NAMES = ("walls", "goal", "visited")
+#: goal, then the visited squares only with ``observation.wall_map_visited``, then the plan's only with
+#: ``observation.wall_map_plan``.
+WALL_MAP_CHANNEL_NAMES = ("walls", "goal", "visited", "plan")
 
 
-def wall_map_channel_names(cells: int, visited: bool = False) -> tuple[str, ...]:
+def wall_map_channel_names(cells: int, visited: bool = False, plan: bool = False) -> tuple[str, ...]:
     """The wall map's channels in order, the one rule every reader of the layout uses (the preset's
     ``observation.wall_map_channels``, the networks' ``ObsLayout.wall_channels``, the export and this module's
-    reader): none without a map (``cells`` 0), else walls and goal, then the visited squares with ``visited``."""
-    return WALL_MAP_CHANNEL_NAMES[:(2 + int(visited)) if cells else 0]
+    reader): none without a map (``cells`` 0), else walls and goal, then the visited squares with ``visited``, then
+    the plan's with ``plan``."""
+    if not cells:
+        return ()
+    return WALL_MAP_CHANNEL_NAMES[:2] + ("visited",) * bool(visited) + ("plan",) * bool(plan)
+
+
+def wall_map_channel_list(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[str, ...]:
+    """The policy's wall-map channels by name: none without a wall map, walls and goal (also for a file written before
+    the metadata listed them), then visited and plan where listed. Raises ValueError naming ``path`` for any other
+    list."""
+    if not wall_map_shape(meta, path)[0]:
+        return ()
+    names = _metadata_field(meta, "wall_map", "channels")
+    if names is None:
+        return wall_map_channel_names(1)
+    known = [list(wall_map_channel_names(1, visited, plan)) for plan in (False, True) for visited in (False, True)]
+    if names in known:
+        return tuple(names)
+    raise ValueError(f"{path}: the policy's metadata lists wall-map channels {names!r}; this runtime knows "
+                     f"{', '.join(map(str, known))}")
 
 
 def wall_map_channels(meta: dict[str, Any], path: str | Path = "<policy>") -> int:
-    """The policy's wall-map channels: 0 without a wall map, 2 (walls, goal; also for a file written before the
-    metadata listed them) or 3 (and visited). Raises ValueError naming ``path`` for any other list."""
-    if not wall_map_shape(meta, path)[0]:
-        return 0
-    names = _metadata_field(meta, "wall_map", "channels")
-    if names is None:
-        return 2
-    known = [list(wall_map_channel_names(1, visited)) for visited in (False, True)]
-    if names in known:
-        return len(names)
-    raise ValueError(f"{path}: the policy's metadata lists wall-map channels {names!r}; this runtime knows "
-                     f"{' and '.join(map(str, known))}")
+    """The policy's wall-map channels: 0 without a wall map, else 2 to 4 (:func:`wall_map_channel_list`)."""
+    return len(wall_map_channel_list(meta, path))
 
 
 def wall_map_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, float, float, float]:

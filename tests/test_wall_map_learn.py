@@ -234,12 +234,12 @@ def test_the_robot_wall_image_is_the_simulators():
         np.testing.assert_array_equal(want3[:, :2], want)
 
 
-@pytest.mark.parametrize("visited", [False, True])
-def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scans(tmp_path, visited):
+@pytest.mark.parametrize("channel", [None, "visited", "plan"])
+def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scans(tmp_path, channel):
     """A simulated episode stream fed to the Controller as a robot would (odometry, scans, a goal per episode):
     every control step's observation equals the env's, the wall map included (the robot's grid starts at the
-    odometry origin, the bundled map's at the same point; with the visited channel, where the robot has been),
-    through new goals."""
+    odometry origin, the bundled map's at the same point; with the visited channel, where the robot has been; with
+    the plan's, the plan on the robot's own marks), through new goals."""
     from test_export import random_actor
 
     from flashnav.deploy.controller import Controller
@@ -248,15 +248,19 @@ def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scan
     from flashnav.export import export_policy
     from flashnav.sim.env import make_env
 
-    preset = load_robot("turtlebot2", **{"observation.wall_map": 12, "observation.wall_map_visited": visited})
+    visited = channel == "visited"
+    preset = load_robot("turtlebot2", **{"observation.wall_map": 12, "observation.wall_map_visited": visited,
+                                         "observation.wall_map_plan": channel == "plan"})
     paths = export_policy(random_actor(preset, seed=3), preset, tmp_path)
     ctl = Controller(PolicyRuntime.load(paths["onnx"]), timeout=1.0)
-    assert ctl.rt.wall_channels == (3 if visited else 2) and (ctl.walls.visited is not None) == visited
+    assert ctl.rt.wall_channels == (3 if channel else 2) and (ctl.walls.visited is not None) == visited
+    assert ctl.walls.plan == (channel == "plan")
     env = make_env(preset, 1, seed=4)
     env.reset(seed=4)
     assert env.frame_map.origin == (0.0, 0.0)
     scan = simulator_scan_fields(preset.lidar)
     t, dt, end, goals, walls, differ, been = 0.0, preset.episode.dt, preset.memory_end, 1, 0, 0, 0
+    planned = same_plan = steps = 0
     ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
     for _ in range(150):
         ctl.on_odom(*env.world_pose()[0].tolist(), now=t)
@@ -270,13 +274,19 @@ def test_the_deploy_controller_rebuilds_the_envs_wall_map_from_odometry_and_scan
         been += int(want[end + 288:].sum())
         if visited:  # where the robot has been: from odometry, exactly the env's squares
             np.testing.assert_array_equal(ctl.last_obs[end + 288:], want[end + 288:])
+        steps += 1
+        if channel == "plan":  # the same plan unless a wall's hit fell in another cell (or the map's edge clips it)
+            same_plan += int(np.array_equal(ctl.last_obs[end + 288:], want[end + 288:]))
+            planned += int(want[end + 288:].sum() > 0)
         _, _, terminated, truncated, _ = env.step(torch.tensor([ctl.last_action]))
         t += dt
         if bool(terminated[0] | truncated[0]):
             ctl.on_goal(*env.world_goal()[0].tolist(), now=t)
             goals += 1
     assert walls > 3000 and goals >= 2 and differ <= 0.002 * walls  # (a hit on a cell's edge in float32 / 64)
-    assert len(want) == end + (3 if visited else 2) * 144 and (been > 300 if visited else been == 0)
+    assert len(want) == end + (3 if channel else 2) * 144 and (been > 300 if channel else been == 0)
+    if channel == "plan":
+        assert planned == steps and same_plan >= 0.95 * steps
 
 
 def test_bench_sim_times_the_wall_map_beside_the_static_step(tmp_path, capsys):
@@ -285,16 +295,18 @@ def test_bench_sim_times_the_wall_map_beside_the_static_step(tmp_path, capsys):
     from flashnav.cli import main
 
     out = tmp_path / "sim.json"
-    assert main(["bench", "sim", "--quick", "--raycasters", "exact", "--wall-map", "8", "--visited", "--no-irsim",
-                 "--max-steps", "4", "--json", str(out)]) == 0
+    assert main(["bench", "sim", "--quick", "--raycasters", "exact", "--wall-map", "8", "--visited", "--plan",
+                 "--no-irsim", "--max-steps", "4", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
-    assert [(r["raycaster"], r["wall_map"], r["visited"]) for r in rows] == [("exact", 0, False), ("exact", 8, False),
-                                                                           ("exact", 8, True)]
+    assert [(r["raycaster"], r["wall_map"], r["visited"], r["plan"]) for r in rows] == [
+        ("exact", 0, False, False), ("exact", 8, False, False), ("exact", 8, True, False), ("exact", 8, False, True)]
     assert all(r["steps"] >= 2 and r["env_steps_per_s"] > 0 for r in rows)
     printed = capsys.readouterr().out
-    assert "wall map" in printed and "8+v" in printed
+    assert "wall map" in printed and "8+v" in printed and "8+p" in printed
     assert main(["bench", "sim", "--quick", "--visited", "--no-irsim"]) == 2
     assert "--visited times the wall map's visited channel: it needs --wall-map C" in capsys.readouterr().err
+    assert main(["bench", "sim", "--quick", "--plan", "--no-irsim"]) == 2
+    assert "--plan times the wall map's plan channel: it needs --wall-map C" in capsys.readouterr().err
     assert main(["bench", "sim", "--quick", "--wall-map", "1", "--no-irsim"]) == 2
     assert "--wall-map must be 0 (none) or at least 2 squares a side, got 1" in " ".join(capsys.readouterr().err.split())
 

@@ -49,6 +49,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--visited", action="store_true",
                    help="with --wall-map: also time every row with that wall map and its visited channel "
                         "(observation.wall_map_visited), shown as 'C+v'")
+    p.add_argument("--plan", action="store_true",
+                   help="with --wall-map: also time every row with that wall map and its plan channel "
+                        "(observation.wall_map_plan), shown as 'C+p'")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -119,15 +122,17 @@ def run_sim(args) -> int:
                          f"{args.memory}")
     if args.wall_map < 0 or args.wall_map == 1:
         raise ValueError(f"--wall-map must be 0 (none) or at least 2 squares a side, got {args.wall_map}")
-    if args.visited and not args.wall_map:
-        raise ValueError("--visited times the wall map's visited channel: it needs --wall-map C")
+    for flag, given in (("--visited", args.visited), ("--plan", args.plan)):
+        if given and not args.wall_map:
+            raise ValueError(f"{flag} times the wall map's {flag[2:]} channel: it needs --wall-map C")
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
     flags = {"agents.count": "--agents", "observation.agent_tracks": "--tracks",
              "observation.memory_frames": "--memory", "observation.wall_map": "--wall-map",
-             "observation.wall_map_visited": "--visited"}
+             "observation.wall_map_visited": "--visited", "observation.wall_map_plan": "--plan"}
     for robot in robots:  # every row's preset before the first row (--wall-map 1000 failed after the static rows)
-        for overrides in sim.variant_overrides(args.agents, args.tracks, args.memory, args.wall_map, args.visited):
+        for overrides in sim.variant_overrides(args.agents, args.tracks, args.memory, args.wall_map, args.visited,
+                                               args.plan):
             try:
                 load_robot(robot, **overrides)
             except ValueError as exc:
@@ -151,11 +156,11 @@ def run_sim(args) -> int:
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
                 for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many,
                                           agents=args.agents, tracks=args.tracks, memory=args.memory,
-                                          wall_map=args.wall_map, visited=args.visited):
+                                          wall_map=args.wall_map, visited=args.visited, plan=args.plan):
                     rows.append(row.to_dict(1080))
                     console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d} "
                                   f"tracks={row.tracks:2d} memory={row.memory:2d} "
-                                  f"wall_map={_walls(row.wall_map, row.visited)}: "
+                                  f"wall_map={_walls(row.wall_map, row.visited, row.plan)}: "
                                   f"{row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
@@ -188,14 +193,15 @@ def _many_maps(robot: str, spec: str | None):
     return resolve_maps(spec, robot)
 
 
-def _walls(cells: int, visited: bool) -> str:
-    """A row's wall map as the table shows it: its squares a side, '+v' with the visited channel."""
-    return f"{cells}+v" if visited else str(cells)
+def _walls(cells: int, visited: bool, plan: bool = False) -> str:
+    """A row's wall map as the table shows it: its squares a side, '+v' with the visited channel, '+p' with the
+    plan's."""
+    return f"{cells}" + "+v" * bool(visited) + "+p" * bool(plan)
 
 
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
     key = lambda r: (r["robot"], r["num_envs"], r["maps"], r["agents"], r.get("tracks", 0), r.get("memory", 0),  # noqa: E731
-                     r.get("wall_map", 0), r.get("visited", False))
+                     r.get("wall_map", 0), r.get("visited", False), r.get("plan", False))
     base = {key(r): r["env_steps_per_s"] for r in rows if r["raycaster"] == "march"}
     # the static single-map row of the same robot, size and raycaster: the reference of both ratios
     one = {(r["robot"], r["num_envs"], r["raycaster"]): r["env_steps_per_s"] for r in rows
@@ -218,7 +224,7 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         cells += [str(r["agents"])] if moving else []
         cells += [str(r.get("tracks", 0))] if tracked else []
         cells += [str(r.get("memory", 0))] if remembers else []
-        cells += [_walls(r.get("wall_map", 0), r.get("visited", False))] if walls else []
+        cells += [_walls(r.get("wall_map", 0), r.get("visited", False), r.get("plan", False))] if walls else []
         cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
         single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:

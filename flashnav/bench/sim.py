@@ -39,6 +39,7 @@ class StepRow:
     memory: int = 0  # stored scans of the memory scan (observation.memory_frames)
     wall_map: int = 0  # squares a side of the wall map (observation.wall_map)
     visited: bool = False  # the wall map's visited channel (observation.wall_map_visited)
+    plan: bool = False  # the wall map's plan channel (observation.wall_map_plan)
 
     @property
     def env_steps_per_s(self) -> float:
@@ -70,10 +71,10 @@ def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
 
 
 def variant_overrides(agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0,
-                      visited: bool = False) -> list[dict]:
+                      visited: bool = False, plan: bool = False) -> list[dict]:
     """The preset overrides of the rows beside the static one, in the table's order (see :func:`time_steps`)."""
-    if visited and not wall_map:
-        raise ValueError("the visited channel's row needs a wall map (wall_map > 0)")
+    if (visited or plan) and not wall_map:
+        raise ValueError("the visited and plan channels' rows need a wall map (wall_map > 0)")
     rows = []
     if agents:
         rows.append({"agents.count": agents})
@@ -81,15 +82,19 @@ def variant_overrides(agents: int = 0, tracks: int = 0, memory: int = 0, wall_ma
             rows.append({"agents.count": agents, "observation.agent_tracks": tracks})
     if memory:
         rows.append({"observation.memory_frames": memory, "observation.memory_every": 1})
-    for with_visited in ((False, True) if visited else (False,)) if wall_map else ():
-        rows.append({"observation.wall_map": wall_map, "observation.wall_map_visited": with_visited})
+    if wall_map:
+        rows.append({"observation.wall_map": wall_map})
+        if visited:
+            rows.append({"observation.wall_map": wall_map, "observation.wall_map_visited": True})
+        if plan:
+            rows.append({"observation.wall_map": wall_map, "observation.wall_map_plan": True})
     return rows
 
 
 def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
                max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None,
                agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0,
-               visited: bool = False) -> list[StepRow]:
+               visited: bool = False, plan: bool = False) -> list[StepRow]:
     """Step ``num_envs`` environments with random actions for at least ``min_seconds`` (at least 2
     steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches), on the robot's
     bundled map. With ``maps``, a second env of the same size on those maps (each slot drawing its
@@ -101,12 +106,13 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
     (``observation.memory_frames``, one stored every step); with ``wall_map`` > 0, one more on the bundled map,
     static, with the wall map of that many squares a side (``observation.wall_map``, the other wall-map keys at
     their defaults), and with ``visited`` too, one more with that wall map and its visited channel
-    (``observation.wall_map_visited``). Returns the bundled-map row first, then the many-map row, then the agents
+    (``observation.wall_map_visited``), and with ``plan``, one more with that wall map and its plan channel
+    (``observation.wall_map_plan``). Returns the bundled-map row first, then the many-map row, then the agents
     row, then the tracks row, then the memory row, then the wall-map rows (those asked for)."""
     envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
     if maps is not None:
         envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
-    for overrides in variant_overrides(agents, tracks, memory, wall_map, visited):
+    for overrides in variant_overrides(agents, tracks, memory, wall_map, visited, plan):
         envs.append(make_env(load_robot(robot, **overrides), num_envs, device=device, seed=seed, raycaster=raycaster))
     dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
@@ -127,7 +133,8 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
             seconds[k] += time.perf_counter() - start
     return [StepRow(robot, raycaster, num_envs, str(dev), steps[k], seconds[k], env.num_maps,
                     env.preset.agents.count, env.preset.observation.agent_tracks, env.preset.observation.memory_frames,
-                    env.preset.observation.wall_map, env.preset.observation.wall_map_visited)
+                    env.preset.observation.wall_map, env.preset.observation.wall_map_visited,
+                    env.preset.observation.wall_map_plan)
             for k, env in enumerate(envs)]
 
 

@@ -16,6 +16,11 @@ import math
 import numpy as np
 
 from flashnav.deploy.runtime import robot_frame
+from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
+
+#: Metres along each axis from the robot within which :meth:`WallCells.plan_centres` takes the goal (a farther one is
+#: brought onto that square's edge): the largest generated map's side, which bounds the simulator's plans.
+PLAN_REACH_M = 30.0
 
 
 class ScanMemory:
@@ -75,12 +80,13 @@ class ScanMemory:
 
 
 def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float,
-               visited: np.ndarray | None = None) -> np.ndarray:
+               visited: np.ndarray | None = None, plan: np.ndarray | None = None) -> np.ndarray:
     """[2, cells, cells] float32: :func:`flashnav.sim.memory.wall_image` of one robot in numpy (float64), the
     wall ``points`` [Q, 2] and ``goal`` (x, y) in the frame of ``pose`` (x, y, yaw): channel 0 is 1 in each square
     a point falls in, channel 1 in the goal's square (clipped onto the edge); row = left (row 0 rightmost),
     column = forward (column 0 behind). With ``visited`` [V, 2] (where the robot has been) a third channel
-    [3, cells, cells], drawn as the walls are."""
+    [3, cells, cells], drawn as the walls are; with ``plan`` [L, 2] (the plan's cells' centres) one more channel,
+    last."""
     half = cells * cell / 2
 
     def squares(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -94,12 +100,14 @@ def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float,
         inside = (r >= 0) & (r < cells) & (col >= 0) & (col < cells)
         channel[r[inside].astype(np.int64), col[inside].astype(np.int64)] = 1.0
 
-    out = np.zeros((2 if visited is None else 3, cells, cells), np.float32)
+    out = np.zeros((2 + (visited is not None) + (plan is not None), cells, cells), np.float32)
     mark(out[0], points)
     r, col = squares(np.asarray(goal, np.float64).reshape(1, 2))
     out[1, int(np.clip(r[0], 0, cells - 1)), int(np.clip(col[0], 0, cells - 1))] = 1.0
     if visited is not None:
         mark(out[2], visited)
+    if plan is not None:
+        mark(out[-1], plan)
     return out
 
 
@@ -109,10 +117,11 @@ class WallCells:
     return, since the goal; drawn as the policy's ``cells`` x ``cells`` squares of ``cell`` metres at the marked
     cells' centres. The simulator's grid starts at its map's corner, the robot's at the odometry origin: the
     same kind of grid, placed elsewhere against the walls. With ``visited`` it also keeps the cells the robot's
-    odometry pose has been in at each control step since the goal, drawn as a third channel."""
+    odometry pose has been in at each control step since the goal, drawn as a third channel. With ``plan`` the
+    plan's cells (:meth:`plan_centres`) are drawn as the last channel."""
 
     def __init__(self, cells: int, cell: float, grid: float, max_range: float, beyond: float = 0.0,
-                 visited: bool = False):
+                 visited: bool = False, plan: bool = False):
         if cells < 2 or not (cell > 0 and grid > 0 and max_range > 0 and beyond >= 0):
             raise ValueError(f"WallCells needs >= 2 squares a side, cells and grid > 0 m, max_range > 0 and beyond "
                              f">= 0, got {cells}, {cell}, {grid}, {max_range}, {beyond}")
@@ -120,6 +129,7 @@ class WallCells:
         self.max_range, self.beyond = float(max_range), float(beyond)
         self.known = np.zeros((0, 2), np.int64)  # marked (column, row) pairs, each once
         self.visited = np.zeros((0, 2), np.int64) if visited else None  # the cells the robot has been in
+        self.plan = bool(plan)
 
     def forget(self) -> None:
         """A new goal: no wall is known (and the robot has been nowhere)."""
@@ -137,9 +147,30 @@ class WallCells:
         new = np.stack([np.floor(x / self.grid), np.floor(y / self.grid)], axis=1).astype(np.int64)
         self.known = np.unique(np.concatenate([self.known, new]), axis=0)
 
+    def plan_centres(self, pose, goal) -> np.ndarray:
+        """[L, 2] the centres of the plan's cells from the cell of ``pose`` to the cell of ``goal`` (odometry frame):
+        :func:`flashnav.maps.seen_plan.plan_cells` on the marked cells of the box it searches (the simulator's grid
+        also clips that box onto its map; here a goal farther than :data:`PLAN_REACH_M` along an axis is first
+        brought within it, so that the box stays bounded)."""
+        g = self.grid
+        start = np.floor(np.array([float(pose[1]), float(pose[0])]) / g).astype(np.int64)  # (row, column)
+        reach = int(math.ceil(PLAN_REACH_M / g))
+        goal_rc = np.floor(np.array([float(goal[1]), float(goal[0])]) / g)
+        goal_rc = np.clip(np.nan_to_num(goal_rc, nan=0.0), start - reach, start + reach).astype(np.int64)
+        margin = int(math.ceil(PLAN_MARGIN_M / g - 1e-9))
+        lo, hi = np.minimum(start, goal_rc) - margin, np.maximum(start, goal_rc) + margin
+        h, w = (int(v) for v in hi - lo + 1)
+        known = np.zeros((1, h * w + 1), dtype=bool)
+        r, c = self.known[:, 1] - lo[0], self.known[:, 0] - lo[1]
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        known[0, r[inside] * w + c[inside]] = True
+        out = plan_cells(known, np.zeros(1, np.int64), (start - lo)[None], (goal_rc - lo)[None], (h, w), margin)
+        at = np.flatnonzero(out[0, :-1])
+        return (np.stack([at % w + lo[1], at // w + lo[0]], axis=1) + 0.5) * g
+
     def step(self, pose, angles, ranges, goal) -> np.ndarray:
-        """The wall map's columns [2 cells^2] float32 (3 cells^2 with ``visited``) at ``pose`` after marking this
-        scan (and the pose's cell), with ``goal`` (x, y)."""
+        """The wall map's columns [2 cells^2] float32 (one more channel of cells^2 with each of ``visited`` and
+        ``plan``) at ``pose`` after marking this scan (and the pose's cell), with ``goal`` (x, y)."""
         self.mark(pose, angles, ranges)
         visited = None
         if self.visited is not None:
@@ -147,4 +178,5 @@ class WallCells:
             self.visited = np.unique(np.concatenate([self.visited, here]), axis=0)
             visited = (self.visited + 0.5) * self.grid
         centres = (self.known + 0.5) * self.grid
-        return wall_image(centres, pose, goal, self.cells, self.cell, visited).reshape(-1)
+        plan = self.plan_centres(pose, goal) if self.plan else None
+        return wall_image(centres, pose, goal, self.cells, self.cell, visited, plan).reshape(-1)

@@ -33,7 +33,7 @@ import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
 from flashnav.policy_meta import (agent_track_count, memory_scan_shape, open_onnx, pose_trail_shape,
-                                  scan_history_frames, wall_map_channels, wall_map_shape)
+                                  scan_history_frames, wall_map_channel_list, wall_map_shape)
 
 #: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
 TRACK_WIDTH = 6
@@ -102,9 +102,10 @@ class PolicyRuntime:
         self.memory_frames, self.memory_every, self.memory_points = memory_scan_shape(meta, path)
         memory = self.layout.sectors if self.memory_frames else 0
         # the wall map, after everything: C x C squares of cell_m, hits kept in cells of grid_m, beyond_m past them;
-        # 2 channels (walls, goal) or 3 (and where the robot has been)
+        # channels walls and goal, then where the robot has been and the plan where listed
         self.wall_map, self.wall_cell, self.wall_grid, self.wall_beyond = wall_map_shape(meta, path)
-        self.wall_channels = wall_map_channels(meta, path)
+        self.wall_channel_names = wall_map_channel_list(meta, path)
+        self.wall_channels = len(self.wall_channel_names)
         squares = self.wall_channels * self.wall_map ** 2
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
                               - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory - squares)

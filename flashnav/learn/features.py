@@ -49,6 +49,7 @@ class ObsLayout:
     ``wall_map``: the wall map's squares a side C after the memory scan (2 C^2 columns of 0 / 1, an image read by
     :class:`flashnav.learn.wall_map.WallMapEncoder`, not by IPAPRec; 0 = none).
     ``wall_visited``: the wall map has a third channel, the squares the robot has been in (3 C^2 columns).
+    ``wall_plan``: the wall map has a last channel, the squares of the plan (:mod:`flashnav.maps.seen_plan`).
     ``wall_convs``: the wall-map encoder's convolutions, ``(out channels, stride)`` each (the learners set it from
     their ``wall_map_convs``).
     ``goal_sincos``: the networks see the goal angle as (sin, cos) instead of angle / pi (one feature more than
@@ -69,6 +70,7 @@ class ObsLayout:
     goal_sincos: bool = False
     wall_map: int = 0
     wall_visited: bool = False
+    wall_plan: bool = False
     wall_convs: tuple[tuple[int, int], ...] = WALL_MAP_CONVS
 
     def __post_init__(self) -> None:
@@ -97,8 +99,8 @@ class ObsLayout:
             raise ValueError(f"ObsLayout.memory_sectors must be an integer >= 0, got {self.memory_sectors!r}")
         if not isinstance(self.wall_map, int) or self.wall_map < 0 or self.wall_map == 1:
             raise ValueError(f"ObsLayout.wall_map must be 0 or an integer >= 2, got {self.wall_map!r}")
-        if self.wall_visited and not self.wall_map:
-            raise ValueError("ObsLayout.wall_visited needs a wall map (wall_map >= 2)")
+        if (self.wall_visited or self.wall_plan) and not self.wall_map:
+            raise ValueError("ObsLayout.wall_visited and wall_plan need a wall map (wall_map >= 2)")
 
     @property
     def base_dim(self) -> int:
@@ -128,8 +130,9 @@ class ObsLayout:
 
     @property
     def wall_channels(self) -> int:
-        """The wall map's channels: 0 without one, else 2 (walls, goal), 3 with ``wall_visited``."""
-        return len(wall_map_channel_names(self.wall_map, self.wall_visited))
+        """The wall map's channels: 0 without one, else 2 (walls, goal), one more with each of ``wall_visited`` and
+        ``wall_plan``."""
+        return len(wall_map_channel_names(self.wall_map, self.wall_visited, self.wall_plan))
 
     @property
     def vector_feature_dim(self) -> int:
@@ -167,7 +170,8 @@ class ObsLayout:
                    agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset),
                    pose_trail=preset.observation.pose_trail, trail_scale=trail_bound(preset),
                    memory_sectors=preset.lidar.sectors if preset.observation.memory_frames else 0,
-                   wall_map=preset.observation.wall_map, wall_visited=preset.observation.wall_map_visited)
+                   wall_map=preset.observation.wall_map, wall_visited=preset.observation.wall_map_visited,
+                   wall_plan=preset.observation.wall_map_plan)
 
 
 class IPAPRec(nn.Module):

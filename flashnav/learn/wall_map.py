@@ -68,8 +68,9 @@ class WallMapEncoder(nn.Module):
         super().__init__()
         if cells < 2:
             raise ValueError(f"a wall-map encoder needs at least 2 x 2 squares, got {cells}")
-        if channels not in (2, 3):
-            raise ValueError(f"a wall-map encoder reads 2 channels (walls, goal) or 3 (and visited), got {channels}")
+        if channels not in (2, 3, 4):
+            raise ValueError(f"a wall-map encoder reads 2 channels (walls, goal), 3 or 4 (and visited and / or plan), "
+                             f"got {channels}")
         self.cells, self.channels = cells, channels
         self.convs = tuple((int(c), int(s)) for c, s in convs)
         if not self.convs or bad_conv_layers(self.convs):

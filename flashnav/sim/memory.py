@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from flashnav.sim.trail import to_robot_frame
@@ -70,13 +71,14 @@ def cell_index(r: torch.Tensor, c: torch.Tensor, h: int, w: int) -> torch.Tensor
 
 
 def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float,
-               visited: torch.Tensor | None = None) -> torch.Tensor:
+               visited: torch.Tensor | None = None, plan: torch.Tensor | None = None) -> torch.Tensor:
     """An egocentric image [k, 2, cells, cells] of wall ``points [k, Q, 2]`` (simulator frame, metres; a point
     with a non-finite coordinate is none) seen from ``pose [k, 3]``, with the goal ``goal [k, 2]``: squares of
     ``cell`` metres centred on the robot and turned with its heading, row = left (row 0 rightmost), column =
     forward (column 0 behind); channel 0 is 1 where a point falls in the square, channel 1 is 1 in the goal's
     square (clipped onto the image's edge when farther). Unknown reads as free. With ``visited [k, V, 2]`` (points
-    the robot has been at, drawn as the walls are) a third channel [k, 3, cells, cells]. Computed in the inputs'
+    the robot has been at, drawn as the walls are) a third channel [k, 3, cells, cells]; with ``plan [k, L, 2]`` (the
+    cells of the plan, :mod:`flashnav.maps.seen_plan`, drawn likewise) one more, last. Computed in the inputs'
     dtype, on their device, with no host sync (the same ops whatever the points).
 
     The input of issue 15's behaviour-cloning probe (``scripts/bc_memory_probe.py --wall-map``): drawn from a
@@ -85,6 +87,8 @@ def wall_image(points: torch.Tensor, pose: torch.Tensor, goal: torch.Tensor, cel
     channels = [_point_squares(points, pose, cells, cell), _goal_square(goal, pose, cells, cell, points.dtype)]
     if visited is not None:
         channels.append(_point_squares(visited.to(points.dtype), pose, cells, cell))
+    if plan is not None:
+        channels.append(_point_squares(plan.to(points.dtype), pose, cells, cell))
     return torch.stack(channels, dim=1)
 
 
@@ -224,13 +228,16 @@ class WallGrid:
     along its beam where it is marked (0: the hit itself; half a map cell puts a hit on a wall cell's edge into
     the wall's cell, as :class:`flashnav.mapless.SeenWalls` marks it). With ``visited`` a second grid of the same
     cells keeps where the slot's robot has been: the cell of its centre at the start and after every step (at
-    0.25 m cells and 0.05 m a step at most, the cells of its path, with no gap).
+    0.25 m cells and 0.05 m a step at most, the cells of its path, with no gap). With ``plan`` its image has one more
+    channel, last: the cells of the slot's plan from the robot's cell to its goal's over the cells not marked
+    (:mod:`flashnav.maps.seen_plan`, computed when the image is drawn, on the CPU: a host sync on a GPU).
 
     :meth:`image` draws the marked cells' centres as :func:`wall_image` draws points, reading only the window of
     cells whose centres can fall in the image, so its cost is the image's, not the map's."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], cell: float, max_range: float,
-                 beam_angles: torch.Tensor, device: torch.device, beyond: float = 0.0, visited: bool = False):
+                 beam_angles: torch.Tensor, device: torch.device, beyond: float = 0.0, visited: bool = False,
+                 plan: bool = False):
         h, w = (int(v) for v in shape)
         if num_envs < 1 or h < 1 or w < 1 or not (math.isfinite(cell) and cell > 0):
             raise ValueError(f"WallGrid needs num_envs >= 1, a shape of >= 1 x 1 cells and cells of > 0 metres, "
@@ -244,6 +251,8 @@ class WallGrid:
         self.known = torch.zeros(num_envs, h * w + 1, device=device, dtype=torch.bool)
         #: the cells the robot has been in (same layout and spare cell), None without ``visited``
         self.visited = torch.zeros_like(self.known) if visited else None
+        #: whether :meth:`image` draws the plan channel (:meth:`plan_cells`)
+        self.plan = bool(plan)
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
         self.rows = torch.arange(num_envs, device=device)
         #: how :meth:`image` draws: "numba" (the CPU default: :mod:`flashnav.sim.wall_numba`, the marked cells only)
@@ -252,10 +261,12 @@ class WallGrid:
 
     @classmethod
     def covering(cls, geometry, num_envs: int, cell: float, max_range: float, beam_angles: torch.Tensor,
-                 device: torch.device, beyond: float = 0.0, visited: bool = False) -> "WallGrid":
+                 device: torch.device, beyond: float = 0.0, visited: bool = False,
+                 plan: bool = False) -> "WallGrid":
         """A grid of ``cell`` metres over ``geometry``'s extent (an OccupancyMap: its shape times its
         resolution), every slot's origin at the map's."""
-        grid = cls(num_envs, grid_shape([geometry], cell), cell, max_range, beam_angles, device, beyond, visited)
+        grid = cls(num_envs, grid_shape([geometry], cell), cell, max_range, beam_angles, device, beyond, visited,
+                   plan)
         grid.origin[:] = torch.tensor(geometry.origin, dtype=torch.float32)
         return grid
 
@@ -309,11 +320,29 @@ class WallGrid:
         xy = (torch.stack([c, r], -1).reshape(-1, 2).to(self.origin) + 0.5) * self.cell + self.origin[rows][:, None]
         return torch.where(marks[rows, :-1, None], xy, math.inf)
 
+    def plan_cells(self, idx, pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """[k, H W + 1] bool (the layout of :attr:`known`, the spare column never set; on the grid's device): the cells
+        of the plan of slots ``idx`` from the cell of ``pose [k, 3]`` to the cell of ``goal [k, 2]`` (both clipped onto
+        the grid), :func:`flashnav.maps.seen_plan.plan_cells` within :data:`~flashnav.maps.seen_plan.PLAN_MARGIN_M`."""
+        from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
+
+        rows = self.rows[idx]
+        org = self.origin[rows].to(pose.dtype)
+
+        def cell_of(xy: torch.Tensor) -> np.ndarray:
+            rc = torch.floor((xy[:, [1, 0]] - org[:, [1, 0]]) / self.cell)
+            return torch.nan_to_num(rc, nan=0.0, posinf=1e9, neginf=-1e9).clamp(-1e9, 1e9).long().cpu().numpy()
+
+        out = plan_cells(self.known.cpu().numpy(), rows.cpu().numpy(), cell_of(pose[:, :2]), cell_of(goal),
+                         self.shape, math.ceil(PLAN_MARGIN_M / self.cell - 1e-9))
+        return torch.from_numpy(out).to(self.known.device)
+
     def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
         """:func:`wall_image` [k, 2, cells, cells] of the marked cells' centres of slots ``idx``, seen from
         ``pose [k, 3]`` with goals ``goal [k, 2]`` (and, with ``visited``, the visited cells' centres as a third
-        channel): the same image as from every marked centre, drawn from the square window of cells around the
-        robot that holds every centre within the image's half-diagonal."""
+        channel; with ``plan``, the plan's cells (:meth:`plan_cells`) as the last): the same image as from every
+        marked centre, drawn from the square window of cells around the robot that holds every centre within the
+        image's half-diagonal."""
         check_wall_image(cells, cell)
         h, w = self.shape
         rows = self.rows[idx]
@@ -331,6 +360,10 @@ class WallGrid:
                         _goal_square(goal, pose, cells, cell, pose.dtype)]
             if self.visited is not None:
                 channels.append(torch.from_numpy(wall_squares(self.visited.numpy(), *args)))
+            if self.plan:
+                plan = self.plan_cells(idx, pose, goal).numpy()
+                args = (np.arange(len(rows)),) + args[1:]
+                channels.append(torch.from_numpy(wall_squares(plan, *args)))
             return torch.stack(channels, dim=1)
         step = torch.arange(n, device=pose.device)
         c = (base[:, 0:1] + step)[:, None, :].expand(-1, n, -1)  # [k, n, n]: column varies along the last axis
@@ -341,8 +374,9 @@ class WallGrid:
         at = torch.where(inside, flat, h * w)
         xy = (torch.stack([c, r], -1).reshape(len(rows), -1, 2).to(pose.dtype) + 0.5) * self.cell + org[:, None]
 
-        def centres(marks: torch.Tensor) -> torch.Tensor:
-            return torch.where((torch.gather(marks[rows], 1, at) & inside)[..., None], xy, math.inf)
+        def centres(marks: torch.Tensor) -> torch.Tensor:  # marks: [k, H W + 1], the slots' rows
+            return torch.where((torch.gather(marks, 1, at) & inside)[..., None], xy, math.inf)
 
-        visited = centres(self.visited) if self.visited is not None else None
-        return wall_image(centres(self.known), pose, goal, cells, cell, visited)
+        visited = centres(self.visited[rows]) if self.visited is not None else None
+        plan = centres(self.plan_cells(idx, pose, goal)) if self.plan else None
+        return wall_image(centres(self.known[rows]), pose, goal, cells, cell, visited, plan)

@@ -1,0 +1,237 @@
+"""The wall map's plan channel (observation.wall_map_plan, flashnav/maps/seen_plan.py): on random grids the kernel's
+path is a shortest 8-connected path (no corner cut) from the robot's cell to the goal's over the unmarked cells of its
+box, checked step by step against scipy's Dijkstra on that box, and nothing is marked when the goal is walled off;
+the grid draws it by either kernel as wall_image draws its cells' centres; the env appends it last, every other
+column bit for bit; the robot's WallCells plans the same cells from its own marks; a bad setting names itself."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.sparse.csgraph import dijkstra
+from test_wall_grid import step_pair
+
+from flashnav.maps.graph import grid_graph
+from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
+from flashnav.presets import load_robot
+from flashnav.sim.env import make_env
+from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, wall_image
+from flashnav.sim.observation import beam_angles
+
+CPU = torch.device("cpu")
+MOVES = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
+
+
+def check_shortest(known: np.ndarray, start, goal, margin: int, marks: np.ndarray) -> int:
+    """Asserts that ``marks`` [H W] (one slot's plan on the grid ``known`` [H, W]) is exactly the cells of a shortest
+    8-connected path (no corner cut) from ``start`` to ``goal`` over the unmarked cells of the box around both
+    (the two cells always free), by scipy's Dijkstra on the box; returns the path's cells, 0 where scipy finds none."""
+    h, w = known.shape
+    (sr, sc), (gr, gc) = start, goal
+    r0, r1 = max(0, min(sr, gr) - margin), min(h - 1, max(sr, gr) + margin)
+    c0, c1 = max(0, min(sc, gc) - margin), min(w - 1, max(sc, gc) + margin)
+    free = ~known[r0:r1 + 1, c0:c1 + 1]
+    free[sr - r0, sc - c0] = free[gr - r0, gc - c0] = True
+    bw = c1 - c0 + 1
+    dist = dijkstra(grid_graph(free, 1.0), indices=(gr - r0) * bw + (gc - c0)).reshape(free.shape)
+    marked = {divmod(int(f), w) for f in np.flatnonzero(marks)}
+    if not np.isfinite(dist[sr - r0, sc - c0]):
+        assert not marked
+        return 0
+    assert all(r0 <= r <= r1 and c0 <= c <= c1 and free[r - r0, c - c0] for r, c in marked)
+    at, walked = (sr, sc), [(sr, sc)]
+    while at != (gr, gc):  # the next cell: the marked neighbour nearest the goal; each step a shortest one
+        steps = [(dist[at[0] + di - r0, at[1] + dj - c0], di, dj) for di, dj in MOVES
+                 if (at[0] + di, at[1] + dj) in marked and (at[0] + di, at[1] + dj) not in walked
+                 and (not (di and dj) or (free[at[0] + di - r0, at[1] - c0] and free[at[0] - r0, at[1] + dj - c0]))]
+        assert steps, f"the plan breaks off at {at}"
+        d, di, dj = min(steps)
+        assert math.isclose(dist[at[0] - r0, at[1] - c0] - d, math.hypot(di, dj), abs_tol=1e-9)
+        at = (at[0] + di, at[1] + dj)
+        walked.append(at)
+    assert set(walked) == marked
+    return len(walked)
+
+
+@pytest.mark.parametrize("density", [0.15, 0.3, 0.45])
+def test_the_plan_is_a_shortest_path_over_the_unmarked_cells_of_its_box_against_scipy(density):
+    rng = np.random.default_rng(int(density * 100))
+    num, (h, w) = 40, (30, 45)
+    known = np.zeros((num, h * w + 1), dtype=bool)
+    known[:, :-1] = rng.random((num, h * w)) < density
+    known[:, -1] = True  # the spare cell: never read
+    rows = rng.permutation(num)[:30]
+    start = np.stack([rng.integers(0, h, 30), rng.integers(0, w, 30)], 1)
+    goal = np.clip(start + rng.integers(-12, 13, (30, 2)), 0, [h - 1, w - 1])
+    margin = int(rng.integers(0, 6))
+    out = plan_cells(known, rows, start, goal, (h, w), margin)
+    assert out.shape == (30, h * w + 1) and not out[:, -1].any()
+    lengths = [check_shortest(known[r, :-1].reshape(h, w), start[i], goal[i], margin, out[i, :-1])
+               for i, r in enumerate(rows)]
+    assert sum(n > 0 for n in lengths) >= 5 and max(lengths) > 8  # paths found, some long
+
+
+def test_a_walled_off_goal_gets_no_plan_and_an_open_grid_the_straight_way():
+    h = w = 20
+    known = np.zeros((2, h * w + 1), dtype=bool)
+    ring = np.zeros((h, w), dtype=bool)
+    ring[8:13, 8:13] = True
+    ring[9:12, 9:12] = False
+    known[1, :-1] = ring.reshape(-1)  # slot 1: the goal (10, 10) inside a closed ring
+    out = plan_cells(known, np.array([0, 1]), np.array([[2, 3], [2, 3]]), np.array([[10, 10], [10, 10]]), (h, w), 3)
+    assert not out[1].any()
+    cells = {divmod(int(f), w) for f in np.flatnonzero(out[0])}
+    assert (2, 3) in cells and (10, 10) in cells and len(cells) == 9  # 7 diagonal moves and 1 straight one
+    # a goal or a start off the grid is brought onto its edge; so is a margin past the grid
+    out = plan_cells(known[:1], np.array([0]), np.array([[-5, 3]]), np.array([[50, 3]]), (h, w), 100)
+    assert {divmod(int(f), w) for f in np.flatnonzero(out[0])} == {(r, 3) for r in range(h)}
+    with pytest.raises(ValueError, match="known must be \\[N, 401\\] for a 20 x 20 grid"):
+        plan_cells(known[:, :-1], np.array([0]), np.array([[0, 0]]), np.array([[1, 1]]), (h, w), 1)
+
+
+def random_plan_grid(rng, num: int, shape, plan: bool = True) -> WallGrid:
+    grid = WallGrid(num, shape, 0.25, 8.0, beam_angles(360.0, 8), CPU, plan=plan)
+    grid.origin[:] = torch.as_tensor(rng.uniform(-3, 3, (num, 2)), dtype=torch.float32)
+    grid.known[:, :-1] = torch.from_numpy(rng.random((num, shape[0] * shape[1])) < 0.2)
+    return grid
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_plan_channel_is_the_image_of_the_plans_centres_by_either_kernel(dtype):
+    rng = np.random.default_rng(7)
+    num, shape, cells, cell = 50, (40, 50), 12, 0.5
+    grid = random_plan_grid(rng, num, shape)
+    o = grid.origin.double().numpy()
+    xy = o + rng.uniform(0.1, 0.9, (num, 2)) * np.array([shape[1], shape[0]]) * 0.25
+    pose = torch.as_tensor(np.concatenate([xy, rng.uniform(-math.pi, math.pi, (num, 1))], 1), dtype=dtype)
+    goal = torch.as_tensor(xy + rng.uniform(-4, 4, (num, 2)), dtype=dtype)
+    idx = torch.from_numpy(rng.permutation(num))
+    got = grid.image(idx, pose, goal, cells, cell)
+    grid.kernel = "torch"
+    assert torch.equal(grid.image(idx, pose, goal, cells, cell), got)
+    marks = grid.plan_cells(idx, pose, goal)
+    h, w = shape
+    r, c = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    centres = (torch.stack([c, r], -1).reshape(-1, 2).double() + 0.5) * 0.25 + grid.origin[idx].double()[:, None]
+    plan = torch.where(marks[:, :-1, None], centres, math.inf).to(dtype)
+    want = wall_image(grid.centres(idx).to(dtype), pose, goal, cells, cell, plan=plan)
+    assert got.shape == (num, 3, cells, cells) and got.dtype == dtype
+    torch.testing.assert_close(got, want, rtol=0, atol=0)
+    assert got[:, 2].sum() > 200 and torch.equal(got[:, :2], WallGrid.image(
+        _without_plan(grid), idx, pose, goal, cells, cell))
+    # the plan's own cells: a shortest path on each slot's grid (the cells of pose and goal, as the grid takes them)
+    org = grid.origin[idx].to(dtype)
+    for i in range(0, num, 7):
+        rc = [tuple(torch.floor((p[[1, 0]] - org[i, [1, 0]]) / 0.25).long().clamp(0, max(shape) - 1).tolist())
+              for p in (pose[i, :2], goal[i])]
+        rc = [(min(a, h - 1), min(b, w - 1)) for a, b in rc]
+        check_shortest(grid.known[idx[i], :-1].reshape(h, w).numpy(), rc[0], rc[1],
+                       math.ceil(PLAN_MARGIN_M / 0.25 - 1e-9), marks[i, :-1].numpy())
+
+
+def _without_plan(grid: WallGrid) -> WallGrid:
+    grid.plan = False
+    return grid
+
+
+def test_the_env_appends_the_plan_squares_last_and_keeps_every_other_column():
+    """The env's wall map with the plan channel: every earlier column (the wall map's first two channels included)
+    is the 2-channel env's, bit for bit (and so are rewards and ends); the last is the plan of a grid fed each slot's
+    scans from outside, through resets, to the env's goals."""
+    n, seed, cells, cell = 6, 3, 10, 0.4
+    over = {"observation.wall_map": cells, "observation.wall_map_cell": cell, "observation.wall_map_grid": 0.2}
+    plain_preset = load_robot("turtlebot2", **over)
+    preset = load_robot("turtlebot2", **over, **{"observation.wall_map_plan": True})
+    assert preset.obs_dim == plain_preset.obs_dim + cells * cells and preset.observation.wall_map_channels == 3
+    plain, env = make_env(plain_preset, n, seed=seed), make_env(preset, n, seed=seed)
+    assert env.extras.walls.plan and not plain.extras.walls.plan
+    d = plain.obs_dim
+    ref = WallGrid(n, env.extras.walls.shape, 0.2, preset.lidar.max_range, env.beam_angles, CPU, HIT_BEYOND_M,
+                   plan=True)
+    origin = torch.tensor([env.frame_map.origin], dtype=torch.float32).expand(n, 2)
+    every = torch.arange(n)
+    obs0, _ = plain.reset(seed=seed)
+    obs1, _ = env.reset(seed=seed)
+    ref.start(every, env.pose, env.scan(), origin)
+    gen = torch.Generator().manual_seed(seed)
+    resets = drawn = 0
+    for _ in range(40):
+        assert torch.equal(obs1[:, :d], obs0)
+        want = ref.image(every, env.pose, env.goal, cells, cell)[:, 2].reshape(n, -1)
+        assert torch.equal(obs1[:, d:], want)
+        assert env.single_observation_space.contains(obs1[0].numpy())
+        drawn += int(obs1[:, d:].sum())
+        obs0, obs1, ended = step_pair(plain, env, ref, gen, lambda: origin)
+        resets += ended
+    assert resets >= 2 and drawn > 200
+
+
+def test_the_robots_wall_cells_plan_the_grids_cells():
+    """The deploy side (flashnav/deploy/memory.py): from the same marks, WallCells plans the cells the simulator's grid
+    plans (the grid at the odometry origin, robot and goal away from its edges, where the grid clips the box)."""
+    from flashnav.deploy.memory import WallCells
+
+    rng = np.random.default_rng(3)
+    shape, g = (60, 60), 0.25
+    grid = random_plan_grid(rng, 12, shape)
+    grid.origin[:] = 0.0
+    found = 0
+    for slot in range(12):
+        xy = rng.uniform(6.5, 8.5, 2)
+        pose, goal = np.array([*xy, 0.3]), xy + rng.uniform(-2.5, 2.5, 2)
+        marks = grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))[0, :-1]
+        want = {(int(f) % shape[1], int(f) // shape[1]) for f in torch.nonzero(marks).flatten()}
+        robot = WallCells(12, 0.5, g, 8.0, plan=True)
+        at = torch.nonzero(grid.known[slot, :-1]).flatten().numpy()
+        robot.known = np.stack([at % shape[1], at // shape[1]], 1)
+        got = {tuple(int(v) for v in np.floor(c / g)) for c in robot.plan_centres(pose, goal)}
+        assert got == want
+        found += bool(want)
+        image = robot.step(pose, np.zeros(0), np.zeros(0), goal).reshape(3, 12, 12)
+        assert image[2].sum() >= 1 if want else image[2].sum() == 0
+    assert found >= 6
+
+
+def test_the_setting_needs_a_wall_map_and_the_metadata_lists_the_plan():
+    from flashnav.export import policy_metadata
+    from flashnav.learn.features import ObsLayout
+    from flashnav.policy_meta import wall_map_channel_list, wall_map_channels
+
+    with pytest.raises(ValueError, match="observation.wall_map_plan=true .*observation.wall_map is 0"):
+        load_robot("turtlebot2", **{"observation.wall_map_plan": True})
+    for visited, names in ((False, ["walls", "goal", "plan"]), (True, ["walls", "goal", "visited", "plan"])):
+        preset = load_robot("turtlebot2", **{"observation.wall_map": 4, "observation.wall_map_visited": visited,
+                                             "observation.wall_map_plan": True})
+        meta = policy_metadata(preset)
+        assert meta["observation"]["wall_map"]["channels"] == names
+        assert meta["observation"]["wall_map"]["plan_margin_m"] == PLAN_MARGIN_M
+        assert wall_map_channel_list(meta) == tuple(names) and wall_map_channels(meta) == len(names)
+        assert preset.observation.wall_map_channels == ObsLayout.from_robot(preset, 14.0).wall_channels == len(names)
+    meta["observation"]["wall_map"]["channels"] = ["walls", "goal", "plan", "visited"]
+    with pytest.raises(ValueError, match="policy.onnx: .*wall-map channels \\['walls', 'goal', 'plan', 'visited'\\]"):
+        wall_map_channels(meta, "policy.onnx")
+
+
+def test_a_run_with_the_plan_channel_trains_keeps_it_as_bits_and_exports_it(tmp_path):
+    from flashnav import train
+    from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.export import load_policy
+    from flashnav.learn.artefacts import save_run
+    from tests.test_train import TINY, tiny
+
+    over = {**TINY, "robot.observation.wall_map": 6, "robot.observation.wall_map_plan": True,
+            "algo.mirror": 0.5, "algo.wall_shift": 1}
+    result = train(tiny(overrides=over), keep_replay=True)
+    walls = result.learner.state.actor.walls
+    assert walls.channels == 3 and walls.squares == 108 and walls.conv_weights[0].shape[1] == 3
+    bits = result.replay.obs_bits
+    rows = bits[: result.replay.size // result.replay.num_envs]
+    assert bits.dtype == torch.uint8 and bits.shape[-1] == 108 and rows[..., 72:].sum() > 0  # plans were drawn
+    out = save_run(result, tmp_path / "run")
+    _, meta = load_policy(out / "policy.onnx")
+    assert meta["observation"]["wall_map"]["channels"] == ["walls", "goal", "plan"]
+    rt = PolicyRuntime.load(out / "policy.onnx")
+    assert rt.wall_channel_names == ("walls", "goal", "plan") and rt.wall_channels == 3
