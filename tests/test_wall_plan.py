@@ -2,7 +2,7 @@
 path is a shortest 8-connected path (no corner cut) from the robot's cell to the goal's over the unmarked cells of its
 box, checked step by step against scipy's Dijkstra on that box, and nothing is marked when the goal is walled off;
 the grid draws it by either kernel as wall_image draws its cells' centres; the env appends it last, every other
-column bit for bit; the robot's WallCells plans the same cells from its own marks; a bad setting names itself."""
+column bit for bit; the robot's WallCells plans the same cells from its own marks; a bad setting names itself; tests/test_wall_visited.py trains and exports a run with it.
 
 from __future__ import annotations
 
@@ -12,13 +12,12 @@ import numpy as np
 import pytest
 import torch
 from scipy.sparse.csgraph import dijkstra
-from test_wall_grid import step_pair
+from test_wall_visited import env_third_channel
 
 from flashnav.maps.graph import grid_graph
 from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
 from flashnav.presets import load_robot
-from flashnav.sim.env import make_env
-from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, wall_image
+from flashnav.sim.memory import WallGrid, wall_image
 from flashnav.sim.observation import beam_angles
 
 CPU = torch.device("cpu")
@@ -141,31 +140,7 @@ def test_the_env_appends_the_plan_squares_last_and_keeps_every_other_column():
     """The env's wall map with the plan channel: every earlier column (the wall map's first two channels included)
     is the 2-channel env's, bit for bit (and so are rewards and ends); the last is the plan of a grid fed each slot's
     scans from outside, through resets, to the env's goals."""
-    n, seed, cells, cell = 6, 3, 10, 0.4
-    over = {"observation.wall_map": cells, "observation.wall_map_cell": cell, "observation.wall_map_grid": 0.2}
-    plain_preset = load_robot("turtlebot2", **over)
-    preset = load_robot("turtlebot2", **over, **{"observation.wall_map_plan": True})
-    assert preset.obs_dim == plain_preset.obs_dim + cells * cells and preset.observation.wall_map_channels == 3
-    plain, env = make_env(plain_preset, n, seed=seed), make_env(preset, n, seed=seed)
-    assert env.extras.walls.plan and not plain.extras.walls.plan
-    d = plain.obs_dim
-    ref = WallGrid(n, env.extras.walls.shape, 0.2, preset.lidar.max_range, env.beam_angles, CPU, HIT_BEYOND_M,
-                   plan=True)
-    origin = torch.tensor([env.frame_map.origin], dtype=torch.float32).expand(n, 2)
-    every = torch.arange(n)
-    obs0, _ = plain.reset(seed=seed)
-    obs1, _ = env.reset(seed=seed)
-    ref.start(every, env.pose, env.scan(), origin)
-    gen = torch.Generator().manual_seed(seed)
-    resets = drawn = 0
-    for _ in range(40):
-        assert torch.equal(obs1[:, :d], obs0)
-        want = ref.image(every, env.pose, env.goal, cells, cell)[:, 2].reshape(n, -1)
-        assert torch.equal(obs1[:, d:], want)
-        assert env.single_observation_space.contains(obs1[0].numpy())
-        drawn += int(obs1[:, d:].sum())
-        obs0, obs1, ended = step_pair(plain, env, ref, gen, lambda: origin)
-        resets += ended
+    resets, drawn = env_third_channel("observation.wall_map_plan", plan=True)
     assert resets >= 2 and drawn > 200
 
 
@@ -214,24 +189,3 @@ def test_the_setting_needs_a_wall_map_and_the_metadata_lists_the_plan():
     with pytest.raises(ValueError, match="policy.onnx: .*wall-map channels \\['walls', 'goal', 'plan', 'visited'\\]"):
         wall_map_channels(meta, "policy.onnx")
 
-
-def test_a_run_with_the_plan_channel_trains_keeps_it_as_bits_and_exports_it(tmp_path):
-    from flashnav import train
-    from flashnav.deploy.runtime import PolicyRuntime
-    from flashnav.export import load_policy
-    from flashnav.learn.artefacts import save_run
-    from tests.test_train import TINY, tiny
-
-    over = {**TINY, "robot.observation.wall_map": 6, "robot.observation.wall_map_plan": True,
-            "algo.mirror": 0.5, "algo.wall_shift": 1}
-    result = train(tiny(overrides=over), keep_replay=True)
-    walls = result.learner.state.actor.walls
-    assert walls.channels == 3 and walls.squares == 108 and walls.conv_weights[0].shape[1] == 3
-    bits = result.replay.obs_bits
-    rows = bits[: result.replay.size // result.replay.num_envs]
-    assert bits.dtype == torch.uint8 and bits.shape[-1] == 108 and rows[..., 72:].sum() > 0  # plans were drawn
-    out = save_run(result, tmp_path / "run")
-    _, meta = load_policy(out / "policy.onnx")
-    assert meta["observation"]["wall_map"]["channels"] == ["walls", "goal", "plan"]
-    rt = PolicyRuntime.load(out / "policy.onnx")
-    assert rt.wall_channel_names == ("walls", "goal", "plan") and rt.wall_channels == 3

@@ -97,35 +97,43 @@ def test_the_visited_channel_is_the_image_of_every_visited_centre_by_either_kern
     assert got[:, 2].sum() > 300 and not torch.equal(got[:, 2], got[:, 0])
 
 
-def test_the_env_appends_the_visited_squares_and_keeps_every_other_column():
-    """The env's wall map with the visited channel: its first two channels and every earlier column are the
-    2-channel env's, bit for bit (and so are rewards and ends); the third is the image of a grid fed each slot's
-    poses from outside, through resets."""
+def env_third_channel(key: str, **grid_kwargs) -> tuple[int, int]:
+    """Steps a 2-channel wall-map env beside one with the wall map's extra channel ``key`` (an observation key) and a
+    reference grid (``grid_kwargs``: that channel on) fed each slot's scans and poses from outside, through resets:
+    every earlier column of the env is the 2-channel env's, bit for bit (and so are rewards and ends), the last
+    channel the reference's. Returns (episodes ended, squares drawn in the channel)."""
     n, seed, cells, cell = 6, 3, 10, 0.4
     over = {"observation.wall_map": cells, "observation.wall_map_cell": cell, "observation.wall_map_grid": 0.2}
     plain_preset = load_robot("turtlebot2", **over)
-    preset = load_robot("turtlebot2", **over, **{"observation.wall_map_visited": True})
-    assert preset.obs_dim == plain_preset.obs_dim + cells * cells
+    preset = load_robot("turtlebot2", **over, **{key: True})
+    assert preset.obs_dim == plain_preset.obs_dim + cells * cells and preset.observation.wall_map_channels == 3
     plain, env = make_env(plain_preset, n, seed=seed), make_env(preset, n, seed=seed)
-    assert env.extras.walls.visited is not None and plain.extras.walls.visited is None
     d = plain.obs_dim
     ref = WallGrid(n, env.extras.walls.shape, 0.2, preset.lidar.max_range, env.beam_angles, CPU, HIT_BEYOND_M,
-                   visited=True)
+                   **grid_kwargs)
     origin = torch.tensor([env.frame_map.origin], dtype=torch.float32).expand(n, 2)
     every = torch.arange(n)
     obs0, _ = plain.reset(seed=seed)
     obs1, _ = env.reset(seed=seed)
     ref.start(every, env.pose, env.scan(), origin)
     gen = torch.Generator().manual_seed(seed)
-    resets = been = 0
+    resets = drawn = 0
     for _ in range(40):
         assert torch.equal(obs1[:, :d], obs0)
         want = ref.image(every, env.pose, env.goal, cells, cell)[:, 2].reshape(n, -1)
         assert torch.equal(obs1[:, d:], want)
         assert env.single_observation_space.contains(obs1[0].numpy())
-        been += int(obs1[:, d:].sum())
+        drawn += int(obs1[:, d:].sum())
         obs0, obs1, ended = step_pair(plain, env, ref, gen, lambda: origin)
         resets += ended
+    return resets, drawn
+
+
+def test_the_env_appends_the_visited_squares_and_keeps_every_other_column():
+    """The env's wall map with the visited channel: its first two channels and every earlier column are the
+    2-channel env's, bit for bit (and so are rewards and ends); the third is the image of a grid fed each slot's
+    poses from outside, through resets."""
+    resets, been = env_third_channel("observation.wall_map_visited", visited=True)
     assert resets >= 2 and been > 200
 
 
@@ -149,7 +157,9 @@ def test_the_preset_the_networks_and_the_export_count_the_same_channels(cells, v
     assert preset.observation.wall_map_channels == ObsLayout.from_robot(preset, 14.0).wall_channels == n
 
 
-def test_a_run_with_the_visited_channel_trains_keeps_it_as_bits_and_exports_three_channels(tmp_path):
+@pytest.mark.parametrize("channel", ["visited", "plan"])
+def test_a_run_with_a_third_channel_trains_keeps_it_as_bits_and_exports_three_channels(tmp_path, channel):
+    """With the visited channel or the plan's (tests/test_wall_plan.py)."""
     from flashnav import train
     from flashnav.deploy.runtime import PolicyRuntime
     from flashnav.export import load_policy
@@ -157,26 +167,26 @@ def test_a_run_with_the_visited_channel_trains_keeps_it_as_bits_and_exports_thre
     from flashnav.observation_samples import sample_observations
     from tests.test_train import TINY, tiny
 
-    over = {**TINY, "robot.observation.wall_map": 6, "robot.observation.wall_map_visited": True,
+    over = {**TINY, "robot.observation.wall_map": 6, f"robot.observation.wall_map_{channel}": True,
             "algo.mirror": 0.5, "algo.wall_shift": 1}
     result = train(tiny(overrides=over), keep_replay=True)
     walls = result.learner.state.actor.walls
     assert walls.channels == 3 and walls.squares == 108 and walls.conv_weights[0].shape[1] == 3
-    bits = result.replay.obs_bits  # all three channels' 108 squares as uint8, the robot's own path among them
+    bits = result.replay.obs_bits  # all three channels' 108 squares as uint8, the robot's own path (or plan) among them
     assert bits.dtype == torch.uint8 and bits.shape[-1] == 108 and result.replay.obs.shape[-1] == 34
     rows = bits[: result.replay.size // result.replay.num_envs]
     assert set(rows.unique().tolist()) == {0, 1} and rows[..., 72:].sum() > 0
     out = save_run(result, tmp_path / "run")
     policy, meta = load_policy(out / "policy.onnx")
     wm = meta["observation"]["wall_map"]
-    assert wm["channels"] == ["walls", "goal", "visited"] and wm["columns"] == [34, 34 + 108]
+    assert wm["channels"] == ["walls", "goal", channel] and wm["columns"] == [34, 34 + 108]
     assert meta["obs_dim"] == 34 + 108
     torch_policy, _ = load_policy(out / "policy.pt")
     obs = sample_observations(result.spec.robot, 5, torch.Generator().manual_seed(0), 14.0)
     assert obs.shape[1] == 142
     torch.testing.assert_close(torch.as_tensor(policy(obs)), torch_policy(obs), atol=1e-5, rtol=0)
     rt = PolicyRuntime.load(out / "policy.onnx")
-    assert rt.wall_channels == 3
+    assert rt.wall_channels == 3 and rt.wall_channel_names == ("walls", "goal", channel)
     sectors, pose, goal, vel = np.full(30, 2.0, np.float32), (0.0, 0.0, 0.0), (1.0, 0.0), (0.0, 0.0)
     assert rt.observation(sectors, pose, goal, vel, wall_map=np.zeros(108)).shape == (142,)
     with pytest.raises(ValueError, match="wall_map must be 108 squares of 0 or 1 .*got 72"):
