@@ -2,7 +2,8 @@
 path is a shortest 8-connected path (no corner cut) from the robot's cell to the goal's over the unmarked cells of its
 box, checked step by step against scipy's Dijkstra on that box, and nothing is marked when the goal is walled off;
 the grid draws it by either kernel as wall_image draws its cells' centres; the env appends it last, every other
-column bit for bit; the robot's WallCells plans the same cells from its own marks; a bad setting names itself; tests/test_wall_visited.py trains and exports a run with it.
+column bit for bit; the robot's WallCells plans the same cells from its own marks; a bad setting names itself;
+tests/test_wall_visited.py trains and exports a run with it.
 
 from __future__ import annotations
 
