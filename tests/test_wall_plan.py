@@ -3,7 +3,7 @@ path is a shortest 8-connected path (no corner cut) from the robot's cell to the
 box, checked step by step against scipy's Dijkstra on that box, and nothing is marked when the goal is walled off;
 the grid draws it by either kernel as wall_image draws its cells' centres; the env appends it last, every other
 column bit for bit; the robot's WallCells plans the same cells from its own marks; a bad setting names itself;
-tests/test_wall_visited.py trains and exports a run with it.
+tests/test_wall_visited.py trains and exports a run with it."""
 
 from __future__ import annotations
 
@@ -190,3 +190,21 @@ def test_the_setting_needs_a_wall_map_and_the_metadata_lists_the_plan():
     with pytest.raises(ValueError, match="policy.onnx: .*wall-map channels \\['walls', 'goal', 'plan', 'visited'\\]"):
         wall_map_channels(meta, "policy.onnx")
 
+
+
+def test_the_runtime_refuses_a_plan_drawn_within_another_margin(tmp_path):
+    import copy
+
+    from test_export import random_actor
+
+    from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.export import export_policy
+
+    preset = load_robot("turtlebot2", **{"observation.wall_map": 6, "observation.wall_map_plan": True})
+    rt = PolicyRuntime.load(export_policy(random_actor(preset, seed=1), preset, tmp_path)["onnx"])
+    assert rt.wall_channel_names == ("walls", "goal", "plan")
+    meta = copy.deepcopy(rt.meta)
+    meta["observation"]["wall_map"]["plan_margin_m"] = 5.0
+    with pytest.raises(ValueError, match="policy.onnx: the policy's plan channel was drawn within plan_margin_m 5.0 "
+                                         "of the robot and the goal; this runtime plans within 3.0 m"):
+        PolicyRuntime(rt.session, meta, "policy.onnx")

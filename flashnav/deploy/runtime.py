@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
+from flashnav.maps.seen_plan import PLAN_MARGIN_M
 from flashnav.policy_meta import (agent_track_count, memory_scan_shape, open_onnx, pose_trail_shape,
                                   scan_history_frames, wall_map_channel_list, wall_map_shape)
 
@@ -106,6 +107,11 @@ class PolicyRuntime:
         self.wall_map, self.wall_cell, self.wall_grid, self.wall_beyond = wall_map_shape(meta, path)
         self.wall_channel_names = wall_map_channel_list(meta, path)
         self.wall_channels = len(self.wall_channel_names)
+        if "plan" in self.wall_channel_names:  # the box the plan searched in training is this runtime's
+            margin = (meta["observation"]["wall_map"] or {}).get("plan_margin_m")
+            if margin != PLAN_MARGIN_M:
+                raise ValueError(f"{path}: the policy's plan channel was drawn within plan_margin_m {margin!r} of the "
+                                 f"robot and the goal; this runtime plans within {PLAN_MARGIN_M} m")
         squares = self.wall_channels * self.wall_map ** 2
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
                               - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory - squares)
