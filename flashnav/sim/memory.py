@@ -270,13 +270,17 @@ class WallGrid:
         grid.origin[:] = torch.tensor(geometry.origin, dtype=torch.float32)
         return grid
 
+    def _cell_rc(self, xy: torch.Tensor, origin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Row and column [...] of the cells of points ``xy [..., 2]`` on grids of origins ``origin [..., 2]``
+        (broadcast against ``xy``), as floats, unclipped (``nan`` / ``inf`` kept)."""
+        c = torch.floor((xy[..., 0] - origin[..., 0]) / self.cell)
+        return torch.floor((xy[..., 1] - origin[..., 1]) / self.cell), c
+
     def _flat(self, xy: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
         """Flat cell index [k, Q] of points ``xy [k, Q, 2]`` on grids of origins ``origin [k, 2]``; a point off
         the grid or not finite gets the spare cell."""
         h, w = self.shape
-        c = torch.floor((xy[..., 0] - origin[:, 0:1]) / self.cell)
-        r = torch.floor((xy[..., 1] - origin[:, 1:2]) / self.cell)
-        flat = cell_index(r, c, h, w)
+        flat = cell_index(*self._cell_rc(xy, origin[:, None]), h, w)
         return torch.where(flat >= 0, flat, h * w)
 
     def hits(self, pose: torch.Tensor, ranges: torch.Tensor) -> torch.Tensor:
@@ -330,7 +334,7 @@ class WallGrid:
         org = self.origin[rows].to(pose.dtype)
 
         def cell_of(xy: torch.Tensor) -> np.ndarray:
-            rc = torch.floor((xy[:, [1, 0]] - org[:, [1, 0]]) / self.cell)
+            rc = torch.stack(self._cell_rc(xy, org), -1)
             return torch.nan_to_num(rc, nan=0.0, posinf=1e9, neginf=-1e9).clamp(-1e9, 1e9).long().cpu().numpy()
 
         out = plan_cells(self.known.cpu().numpy(), rows.cpu().numpy(), cell_of(pose[:, :2]), cell_of(goal),
