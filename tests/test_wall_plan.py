@@ -13,15 +13,13 @@ import numpy as np
 import pytest
 import torch
 from scipy.sparse.csgraph import dijkstra
-from test_wall_visited import env_third_channel
+from test_wall_visited import env_third_channel, random_marked_grid, random_poses
 
 from flashnav.maps.graph import grid_graph
 from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
 from flashnav.presets import load_robot
 from flashnav.sim.memory import WallGrid, wall_image
-from flashnav.sim.observation import beam_angles
 
-CPU = torch.device("cpu")
 MOVES = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 
 
@@ -92,23 +90,12 @@ def test_a_walled_off_goal_gets_no_plan_and_an_open_grid_the_straight_way():
         plan_cells(known[:, :-1], np.array([0]), np.array([[0, 0]]), np.array([[1, 1]]), (h, w), 1)
 
 
-def random_plan_grid(rng, num: int, shape, plan: bool = True) -> WallGrid:
-    grid = WallGrid(num, shape, 0.25, 8.0, beam_angles(360.0, 8), CPU, plan=plan)
-    grid.origin[:] = torch.as_tensor(rng.uniform(-3, 3, (num, 2)), dtype=torch.float32)
-    grid.known[:, :-1] = torch.from_numpy(rng.random((num, shape[0] * shape[1])) < 0.2)
-    return grid
-
-
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_the_plan_channel_is_the_image_of_the_plans_centres_by_either_kernel(dtype):
     rng = np.random.default_rng(7)
     num, shape, cells, cell = 50, (40, 50), 12, 0.5
-    grid = random_plan_grid(rng, num, shape)
-    o = grid.origin.double().numpy()
-    xy = o + rng.uniform(0.1, 0.9, (num, 2)) * np.array([shape[1], shape[0]]) * 0.25
-    pose = torch.as_tensor(np.concatenate([xy, rng.uniform(-math.pi, math.pi, (num, 1))], 1), dtype=dtype)
-    goal = torch.as_tensor(xy + rng.uniform(-4, 4, (num, 2)), dtype=dtype)
-    idx = torch.from_numpy(rng.permutation(num))
+    grid = random_marked_grid(rng, num, shape, plan=True)
+    pose, goal, idx = random_poses(rng, grid, (0.1, 0.9), 4.0, dtype)
     got = grid.image(idx, pose, goal, cells, cell)
     grid.kernel = "torch"
     assert torch.equal(grid.image(idx, pose, goal, cells, cell), got)
@@ -152,7 +139,7 @@ def test_the_robots_wall_cells_plan_the_grids_cells():
 
     rng = np.random.default_rng(3)
     shape, g = (60, 60), 0.25
-    grid = random_plan_grid(rng, 12, shape)
+    grid = random_marked_grid(rng, 12, shape, plan=True)
     grid.origin[:] = 0.0
     found = 0
     for slot in range(12):

@@ -73,20 +73,34 @@ def test_the_grid_keeps_the_cell_of_every_pose_of_each_slots_episode_and_the_sam
         plain.centres(every, visited=True)
 
 
+def random_marked_grid(rng: np.random.Generator, num: int, shape, **kwargs) -> WallGrid:
+    """A grid of 0.25 m cells whose slots have random origins and a fifth of their cells marked (``kwargs``: the
+    grid's ``visited`` / ``plan``)."""
+    grid = WallGrid(num, shape, 0.25, 8.0, beam_angles(360.0, 8), CPU, **kwargs)
+    grid.origin[:] = torch.as_tensor(rng.uniform(-3, 3, (num, 2)), dtype=torch.float32)
+    grid.known[:, :-1] = torch.from_numpy(rng.random((num, shape[0] * shape[1])) < 0.2)
+    return grid
+
+
+def random_poses(rng: np.random.Generator, grid: WallGrid, span: tuple[float, float], reach: float, dtype):
+    """Poses [N, 3] at fractions ``span`` of each slot's grid, goals within ``reach`` metres per axis of them, and
+    the slots in a random order."""
+    h, w = grid.shape
+    num = grid.origin.shape[0]
+    xy = grid.origin.double().numpy() + rng.uniform(*span, (num, 2)) * np.array([w, h]) * grid.cell
+    pose = torch.as_tensor(np.concatenate([xy, rng.uniform(-math.pi, math.pi, (num, 1))], 1), dtype=dtype)
+    goal = torch.as_tensor(xy + rng.uniform(-reach, reach, (num, 2)), dtype=dtype)
+    return pose, goal, torch.from_numpy(rng.permutation(num))
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_the_visited_channel_is_the_image_of_every_visited_centre_by_either_kernel(dtype):
     rng = np.random.default_rng(5)
     num, shape, cells, cell = 60, (40, 50), 12, 0.5
-    grid = WallGrid(num, shape, 0.25, 8.0, beam_angles(360.0, 8), CPU, visited=True)
-    grid.origin[:] = torch.as_tensor(rng.uniform(-3, 3, (num, 2)), dtype=torch.float32)
-    grid.known[:, :-1] = torch.from_numpy(rng.random((num, shape[0] * shape[1])) < 0.2)
+    grid = random_marked_grid(rng, num, shape, visited=True)
     grid.visited[:, :-1] = torch.from_numpy(rng.random((num, shape[0] * shape[1])) < 0.1)
     grid.visited[:, -1] = True  # the spare cell is never drawn
-    o = grid.origin.double().numpy()
-    xy = o + rng.uniform(-0.2, 1.2, (num, 2)) * np.array([shape[1], shape[0]]) * 0.25
-    pose = torch.as_tensor(np.concatenate([xy, rng.uniform(-math.pi, math.pi, (num, 1))], 1), dtype=dtype)
-    goal = torch.as_tensor(xy + rng.uniform(-9, 9, (num, 2)), dtype=dtype)
-    idx = torch.from_numpy(rng.permutation(num))
+    pose, goal, idx = random_poses(rng, grid, (-0.2, 1.2), 9.0, dtype)
     got = grid.image(idx, pose, goal, cells, cell)
     grid.kernel = "torch"
     assert torch.equal(grid.image(idx, pose, goal, cells, cell), got)
