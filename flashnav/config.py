@@ -320,6 +320,11 @@ class Observation(Strict):
                                 "way from the robot to its goal over the grid cells its LiDAR has not marked as walls "
                                 "(unknown = free; flashnav.maps.seen_plan), recomputed every step from the wall "
                                 "memory alone, no map; wall_map^2 more columns; needs wall_map > 0")
+    wall_map_plan_penalty: float = Field(0.0, ge=0, le=100.0, description="with wall_map_plan: the plan is the "
+                                         "cheapest way, not the shortest, where a move into a cell beside a marked "
+                                         "cell costs its length times 1 + this (a costmap's inflation, one cell "
+                                         "wide), so that it keeps off the walls where there is room; 0 = the "
+                                         "shortest way")
 
     @model_validator(mode="after")
     def _one_square_is_no_image(self):
@@ -329,6 +334,9 @@ class Observation(Strict):
             if getattr(self, key) and not self.wall_map:
                 raise ValueError(f"observation.{key}=true adds a channel to the wall map, but "
                                  "observation.wall_map is 0 (none): set observation.wall_map to at least 2")
+        if self.wall_map_plan_penalty and not self.wall_map_plan:
+            raise ValueError(f"observation.wall_map_plan_penalty={self.wall_map_plan_penalty:g} prices the plan "
+                             "channel's cells, but observation.wall_map_plan is false: set it true, or the penalty 0")
         return self
 
     @property

@@ -168,9 +168,11 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                                     "centre was in at a control step of this episode lies in the square; plan "
                                     "(when listed): 1 where the centre of a grid_m cell of the shortest "
                                     "8-connected way from the robot's cell to the goal's over the cells not marked "
-                                    "as walls (unknown free; flashnav.maps.seen_plan, within plan_margin_m of both) "
-                                    "lies in the square",
+                                    "as walls (unknown free; flashnav.maps.seen_plan, within plan_margin_m of both; "
+                                    "with plan_penalty > 0 the cheapest way, a move into a cell beside a marked one "
+                                    "costing 1 + plan_penalty times its length) lies in the square",
                          "plan_margin_m": PLAN_MARGIN_M,
+                         "plan_penalty": preset.observation.wall_map_plan_penalty,
                          "reset": "a new episode (goal) forgets every wall (and every visited cell) and marks "
                                   "its first scan (and its start)"},
         },

@@ -296,17 +296,20 @@ def test_bench_sim_times_the_wall_map_beside_the_static_step(tmp_path, capsys):
 
     out = tmp_path / "sim.json"
     assert main(["bench", "sim", "--quick", "--raycasters", "exact", "--wall-map", "8", "--visited", "--plan",
-                 "--no-irsim", "--max-steps", "4", "--json", str(out)]) == 0
+                 "--plan-penalty", "2", "--no-irsim", "--max-steps", "4", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
-    assert [(r["raycaster"], r["wall_map"], r["visited"], r["plan"]) for r in rows] == [
-        ("exact", 0, False, False), ("exact", 8, False, False), ("exact", 8, True, False), ("exact", 8, False, True)]
+    assert [(r["raycaster"], r["wall_map"], r["visited"], r["plan"], r["plan_penalty"]) for r in rows] == [
+        ("exact", 0, False, False, 0), ("exact", 8, False, False, 0), ("exact", 8, True, False, 0),
+        ("exact", 8, False, True, 0), ("exact", 8, False, True, 2)]
     assert all(r["steps"] >= 2 and r["env_steps_per_s"] > 0 for r in rows)
     printed = capsys.readouterr().out
-    assert "wall map" in printed and "8+v" in printed and "8+p" in printed
+    assert "wall map" in printed and "8+v" in printed and "8+p" in printed and "8+p2" in printed
     assert main(["bench", "sim", "--quick", "--visited", "--no-irsim"]) == 2
     assert "--visited times the wall map's visited channel: it needs --wall-map C" in capsys.readouterr().err
     assert main(["bench", "sim", "--quick", "--plan", "--no-irsim"]) == 2
     assert "--plan times the wall map's plan channel: it needs --wall-map C" in capsys.readouterr().err
+    assert main(["bench", "sim", "--quick", "--wall-map", "8", "--plan-penalty", "2", "--no-irsim"]) == 2
+    assert "--plan-penalty 2 prices the plan channel's cells: it needs --plan" in capsys.readouterr().err
     assert main(["bench", "sim", "--quick", "--wall-map", "1", "--no-irsim"]) == 2
     assert "--wall-map must be 0 (none) or at least 2 squares a side, got 1" in " ".join(capsys.readouterr().err.split())
 

@@ -23,10 +23,11 @@ from flashnav.sim.memory import WallGrid, wall_image
 MOVES = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 
 
-def check_shortest(known: np.ndarray, start, goal, margin: int, marks: np.ndarray) -> int:
+def check_shortest(known: np.ndarray, start, goal, margin: int, marks: np.ndarray, penalty: float = 0.0) -> int:
     """Asserts that ``marks`` [H W] (one slot's plan on the grid ``known`` [H, W]) is exactly the cells of a shortest
     8-connected path (no corner cut) from ``start`` to ``goal`` over the unmarked cells of the box around both
-    (the two cells always free), by scipy's Dijkstra on the box; returns the path's cells, 0 where scipy finds none."""
+    (the two cells always free), by scipy's Dijkstra on the box - the cheapest, with a cell beside a marked cell of
+    the box costing 1 + ``penalty`` times a move into it; returns the path's cells, 0 where scipy finds none."""
     h, w = known.shape
     (sr, sc), (gr, gc) = start, goal
     r0, r1 = max(0, min(sr, gr) - margin), min(h - 1, max(sr, gr) + margin)
@@ -34,28 +35,36 @@ def check_shortest(known: np.ndarray, start, goal, margin: int, marks: np.ndarra
     free = ~known[r0:r1 + 1, c0:c1 + 1]
     free[sr - r0, sc - c0] = free[gr - r0, gc - c0] = True
     bw = c1 - c0 + 1
-    dist = dijkstra(grid_graph(free, 1.0), indices=(gr - r0) * bw + (gc - c0)).reshape(free.shape)
+    walls = np.pad(~free, 1, constant_values=False)  # a cell beside a marked cell of the box, by brute force
+    near = np.zeros_like(free)
+    for di, dj in MOVES:
+        near |= walls[1 + di: 1 + di + free.shape[0], 1 + dj: 1 + dj + free.shape[1]]
+    cost = 1.0 + penalty * near
+    dist = dijkstra(grid_graph(free, 1.0, cost), indices=(gr - r0) * bw + (gc - c0)).reshape(free.shape)
     marked = {divmod(int(f), w) for f in np.flatnonzero(marks)}
     if not np.isfinite(dist[sr - r0, sc - c0]):
         assert not marked
         return 0
     assert all(r0 <= r <= r1 and c0 <= c <= c1 and free[r - r0, c - c0] for r, c in marked)
     at, walked = (sr, sc), [(sr, sc)]
-    while at != (gr, gc):  # the next cell: the marked neighbour nearest the goal; each step a shortest one
+    while at != (gr, gc):  # the next cell: a marked neighbour one step of a cheapest way nearer the goal
+        here = dist[at[0] - r0, at[1] - c0]
         steps = [(dist[at[0] + di - r0, at[1] + dj - c0], di, dj) for di, dj in MOVES
                  if (at[0] + di, at[1] + dj) in marked and (at[0] + di, at[1] + dj) not in walked
-                 and (not (di and dj) or (free[at[0] + di - r0, at[1] - c0] and free[at[0] - r0, at[1] + dj - c0]))]
+                 and (not (di and dj) or (free[at[0] + di - r0, at[1] - c0] and free[at[0] - r0, at[1] + dj - c0]))
+                 and math.isclose(here - dist[at[0] + di - r0, at[1] + dj - c0],
+                                  math.hypot(di, dj) * cost[at[0] - r0, at[1] - c0], abs_tol=1e-9)]
         assert steps, f"the plan breaks off at {at}"
-        d, di, dj = min(steps)
-        assert math.isclose(dist[at[0] - r0, at[1] - c0] - d, math.hypot(di, dj), abs_tol=1e-9)
+        _, di, dj = min(steps)
         at = (at[0] + di, at[1] + dj)
         walked.append(at)
     assert set(walked) == marked
     return len(walked)
 
 
+@pytest.mark.parametrize("penalty", [0.0, 2.0])
 @pytest.mark.parametrize("density", [0.15, 0.3, 0.45])
-def test_the_plan_is_a_shortest_path_over_the_unmarked_cells_of_its_box_against_scipy(density):
+def test_the_plan_is_a_shortest_path_over_the_unmarked_cells_of_its_box_against_scipy(density, penalty):
     rng = np.random.default_rng(int(density * 100))
     num, (h, w) = 40, (30, 45)
     known = np.zeros((num, h * w + 1), dtype=bool)
@@ -65,9 +74,9 @@ def test_the_plan_is_a_shortest_path_over_the_unmarked_cells_of_its_box_against_
     start = np.stack([rng.integers(0, h, 30), rng.integers(0, w, 30)], 1)
     goal = np.clip(start + rng.integers(-12, 13, (30, 2)), 0, [h - 1, w - 1])
     margin = int(rng.integers(0, 6))
-    out = plan_cells(known, rows, start, goal, (h, w), margin)
+    out = plan_cells(known, rows, start, goal, (h, w), margin, penalty)
     assert out.shape == (30, h * w + 1) and not out[:, -1].any()
-    lengths = [check_shortest(known[r, :-1].reshape(h, w), start[i], goal[i], margin, out[i, :-1])
+    lengths = [check_shortest(known[r, :-1].reshape(h, w), start[i], goal[i], margin, out[i, :-1], penalty)
                for i, r in enumerate(rows)]
     assert sum(n > 0 for n in lengths) >= 5 and max(lengths) > 8  # paths found, some long
 
@@ -88,6 +97,27 @@ def test_a_walled_off_goal_gets_no_plan_and_an_open_grid_the_straight_way():
     assert {divmod(int(f), w) for f in np.flatnonzero(out[0])} == {(r, 3) for r in range(h)}
     with pytest.raises(ValueError, match="known must be \\[N, 401\\] for a 20 x 20 grid"):
         plan_cells(known[:, :-1], np.array([0]), np.array([[0, 0]]), np.array([[1, 1]]), (h, w), 1)
+
+
+def test_a_penalty_keeps_the_plan_off_the_walls_where_there_is_room_and_through_the_only_gap():
+    h, w = 9, 30
+    corridor = np.zeros((h, w), dtype=bool)
+    corridor[0, :] = corridor[-1, :] = True  # walls along rows 0 and 8: rows 2-6 are beside none
+    crossed = corridor.copy()
+    crossed[:4, 15] = crossed[5:, 15] = True  # slot 1: a wall across column 15 but for one cell, (4, 15)
+    known = np.stack([np.append(g.reshape(-1), False) for g in (corridor, crossed)])
+    start, goal = np.array([[1, 1], [1, 1]]), np.array([[1, 28], [1, 28]])  # both beside the wall of row 0
+
+    def cells(penalty):
+        out = plan_cells(known, np.array([0, 1]), start, goal, (h, w), 3, penalty)[:, :-1].reshape(2, h, w)
+        return [{tuple(int(v) for v in rc) for rc in np.argwhere(o)} for o in out]
+
+    (plain, plain_gap), (dear, dear_gap) = cells(0.0), cells(2.0)
+    assert plain == {(1, c) for c in range(1, 29)}  # the straight way, every cell beside the wall
+    assert {r for r, _ in dear} == {1, 2} and sum(r == 1 for r, _ in dear) == 2  # one row off it, but its ends
+    assert (4, 15) in plain_gap and (4, 15) in dear_gap  # the only gap (inside the box, rows 0-4): both pass it
+    with pytest.raises(ValueError, match="penalty must be a finite number >= 0, got -1.0"):
+        plan_cells(known, np.array([0]), start[:1], goal[:1], (h, w), 3, -1.0)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -130,16 +160,21 @@ def test_the_env_appends_the_plan_squares_last_and_keeps_every_other_column():
     scans from outside, through resets, to the env's goals."""
     resets, drawn = env_third_channel("observation.wall_map_plan", plan=True)
     assert resets >= 2 and drawn > 200
+    # the penalty reaches the env's grid: its plan is a reference grid's at the same penalty
+    resets, drawn = env_third_channel("observation.wall_map_plan", {"observation.wall_map_plan_penalty": 2.0},
+                                      plan=True, plan_penalty=2.0)
+    assert resets >= 2 and drawn > 200
 
 
-def test_the_robots_wall_cells_plan_the_grids_cells():
+@pytest.mark.parametrize("penalty", [0.0, 2.0])
+def test_the_robots_wall_cells_plan_the_grids_cells(penalty):
     """The deploy side (flashnav/deploy/memory.py): from the same marks, WallCells plans the cells the simulator's grid
     plans (the grid at the odometry origin, robot and goal away from its edges, where the grid clips the box)."""
     from flashnav.deploy.memory import WallCells
 
     rng = np.random.default_rng(3)
     shape, g = (60, 60), 0.25
-    grid = random_marked_grid(rng, 12, shape, plan=True)
+    grid = random_marked_grid(rng, 12, shape, plan=True, plan_penalty=penalty)
     grid.origin[:] = 0.0
     found = 0
     for slot in range(12):
@@ -147,7 +182,7 @@ def test_the_robots_wall_cells_plan_the_grids_cells():
         pose, goal = np.array([*xy, 0.3]), xy + rng.uniform(-2.5, 2.5, 2)
         marks = grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))[0, :-1]
         want = {(int(f) % shape[1], int(f) // shape[1]) for f in torch.nonzero(marks).flatten()}
-        robot = WallCells(12, 0.5, g, 8.0, plan=True)
+        robot = WallCells(12, 0.5, g, 8.0, plan=True, plan_penalty=penalty)
         at = torch.nonzero(grid.known[slot, :-1]).flatten().numpy()
         robot.known = np.stack([at % shape[1], at // shape[1]], 1)
         got = {tuple(int(v) for v in np.floor(c / g)) for c in robot.plan_centres(pose, goal)}
@@ -165,12 +200,15 @@ def test_the_setting_needs_a_wall_map_and_the_metadata_lists_the_plan():
 
     with pytest.raises(ValueError, match="observation.wall_map_plan=true .*observation.wall_map is 0"):
         load_robot("turtlebot2", **{"observation.wall_map_plan": True})
+    with pytest.raises(ValueError, match="observation.wall_map_plan_penalty=2 .*observation.wall_map_plan is false"):
+        load_robot("turtlebot2", **{"observation.wall_map": 4, "observation.wall_map_plan_penalty": 2.0})
     for visited, names in ((False, ["walls", "goal", "plan"]), (True, ["walls", "goal", "visited", "plan"])):
         preset = load_robot("turtlebot2", **{"observation.wall_map": 4, "observation.wall_map_visited": visited,
                                              "observation.wall_map_plan": True})
         meta = policy_metadata(preset)
         assert meta["observation"]["wall_map"]["channels"] == names
         assert meta["observation"]["wall_map"]["plan_margin_m"] == PLAN_MARGIN_M
+        assert meta["observation"]["wall_map"]["plan_penalty"] == 0.0
         assert wall_map_channel_list(meta) == tuple(names) and wall_map_channels(meta) == len(names)
         assert preset.observation.wall_map_channels == ObsLayout.from_robot(preset, 14.0).wall_channels == len(names)
     meta["observation"]["wall_map"]["channels"] = ["walls", "goal", "plan", "visited"]
@@ -195,3 +233,25 @@ def test_the_runtime_refuses_a_plan_drawn_within_another_margin(tmp_path):
     with pytest.raises(ValueError, match="policy.onnx: the policy's plan channel was drawn within plan_margin_m 5.0 "
                                          "of the robot and the goal; this runtime plans within 3.0 m"):
         PolicyRuntime(rt.session, meta, "policy.onnx")
+
+
+def test_the_runtime_plans_at_the_policys_penalty_and_names_a_bad_one(tmp_path):
+    import copy
+
+    from test_export import random_actor
+
+    from flashnav.deploy.controller import Controller
+    from flashnav.deploy.runtime import PolicyRuntime
+    from flashnav.export import export_policy
+
+    preset = load_robot("turtlebot2", **{"observation.wall_map": 6, "observation.wall_map_plan": True,
+                                         "observation.wall_map_plan_penalty": 1.5})
+    rt = PolicyRuntime.load(export_policy(random_actor(preset, seed=1), preset, tmp_path)["onnx"])
+    assert rt.plan_penalty == 1.5 and Controller(rt).walls.plan_penalty == 1.5
+    meta = copy.deepcopy(rt.meta)
+    del meta["observation"]["wall_map"]["plan_penalty"]  # a policy exported before the key: the shortest way
+    assert PolicyRuntime(rt.session, meta, "policy.onnx").plan_penalty == 0.0
+    for bad in (-1.0, "2", float("nan"), True):
+        meta["observation"]["wall_map"]["plan_penalty"] = bad
+        with pytest.raises(ValueError, match="policy.onnx: observation.wall_map.plan_penalty must be a number >= 0"):
+            PolicyRuntime(rt.session, meta, "policy.onnx")

@@ -111,15 +111,16 @@ def test_the_visited_channel_is_the_image_of_every_visited_centre_by_either_kern
     assert got[:, 2].sum() > 300 and not torch.equal(got[:, 2], got[:, 0])
 
 
-def env_third_channel(key: str, **grid_kwargs) -> tuple[int, int]:
-    """Steps a 2-channel wall-map env beside one with the wall map's extra channel ``key`` (an observation key) and a
-    reference grid (``grid_kwargs``: that channel on) fed each slot's scans and poses from outside, through resets:
+def env_third_channel(key: str, extra: dict | None = None, **grid_kwargs) -> tuple[int, int]:
+    """Steps a 2-channel wall-map env beside one with the wall map's extra channel ``key`` (an observation key; more
+    robot keys in ``extra``) and a reference grid (``grid_kwargs``: that channel on) fed each slot's scans and poses
+    from outside, through resets:
     every earlier column of the env is the 2-channel env's, bit for bit (and so are rewards and ends), the last
     channel the reference's. Returns (episodes ended, squares drawn in the channel)."""
     n, seed, cells, cell = 6, 3, 10, 0.4
     over = {"observation.wall_map": cells, "observation.wall_map_cell": cell, "observation.wall_map_grid": 0.2}
     plain_preset = load_robot("turtlebot2", **over)
-    preset = load_robot("turtlebot2", **over, **{key: True})
+    preset = load_robot("turtlebot2", **over, **{key: True}, **(extra or {}))
     assert preset.obs_dim == plain_preset.obs_dim + cells * cells and preset.observation.wall_map_channels == 3
     plain, env = make_env(plain_preset, n, seed=seed), make_env(preset, n, seed=seed)
     d = plain.obs_dim

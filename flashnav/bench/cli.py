@@ -52,6 +52,9 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plan", action="store_true",
                    help="with --wall-map: also time every row with that wall map and its plan channel "
                         "(observation.wall_map_plan), shown as 'C+p'")
+    p.add_argument("--plan-penalty", type=float, default=0.0, metavar="X",
+                   help="with --plan: one more row whose plan is the cheapest way at that penalty "
+                        "(observation.wall_map_plan_penalty), shown as 'C+pX'")
     p.set_defaults(func=run_sim)
     bench.set_defaults(func=lambda args: bench.print_help() or 2)
     from flashnav.bench import evaluation as bench_eval
@@ -125,14 +128,17 @@ def run_sim(args) -> int:
     for flag, given in (("--visited", args.visited), ("--plan", args.plan)):
         if given and not args.wall_map:
             raise ValueError(f"{flag} times the wall map's {flag[2:]} channel: it needs --wall-map C")
+    if args.plan_penalty and not args.plan:
+        raise ValueError(f"--plan-penalty {args.plan_penalty:g} prices the plan channel's cells: it needs --plan")
     if args.tracks and not args.agents:
         raise ValueError(f"--tracks {args.tracks} needs --agents K > 0 (the tracks are of those agents)")
     flags = {"agents.count": "--agents", "observation.agent_tracks": "--tracks",
              "observation.memory_frames": "--memory", "observation.wall_map": "--wall-map",
-             "observation.wall_map_visited": "--visited", "observation.wall_map_plan": "--plan"}
+             "observation.wall_map_visited": "--visited", "observation.wall_map_plan": "--plan",
+             "observation.wall_map_plan_penalty": "--plan-penalty"}
     for robot in robots:  # every row's preset before the first row (--wall-map 1000 failed after the static rows)
         for overrides in sim.variant_overrides(args.agents, args.tracks, args.memory, args.wall_map, args.visited,
-                                               args.plan):
+                                               args.plan, args.plan_penalty):
             try:
                 load_robot(robot, **overrides)
             except ValueError as exc:
@@ -156,11 +162,12 @@ def run_sim(args) -> int:
                 max_steps = 3 if rc == "march" and n >= 64 else args.max_steps
                 for row in sim.time_steps(robot, rc, n, args.device, seconds, max_steps, maps=many,
                                           agents=args.agents, tracks=args.tracks, memory=args.memory,
-                                          wall_map=args.wall_map, visited=args.visited, plan=args.plan):
+                                          wall_map=args.wall_map, visited=args.visited, plan=args.plan,
+                                          plan_penalty=args.plan_penalty):
                     rows.append(row.to_dict(1080))
                     console.print(f"  {robot:10s} {rc:12s} N={n:5d} maps={row.maps:3d} agents={row.agents:2d} "
                                   f"tracks={row.tracks:2d} memory={row.memory:2d} "
-                                  f"wall_map={_walls(row.wall_map, row.visited, row.plan)}: "
+                                  f"wall_map={_walls(row.wall_map, row.visited, row.plan, row.plan_penalty)}: "
                                   f"{row.env_steps_per_s:12,.0f} env-steps/s")
         for rc in raycasters:
             if rc != "exact":
@@ -193,10 +200,10 @@ def _many_maps(robot: str, spec: str | None):
     return resolve_maps(spec, robot)
 
 
-def _walls(cells: int, visited: bool, plan: bool = False) -> str:
+def _walls(cells: int, visited: bool, plan: bool = False, penalty: float = 0.0) -> str:
     """A row's wall map as the table shows it: its squares a side, '+v' with the visited channel, '+p' with the
-    plan's."""
-    return f"{cells}" + "+v" * bool(visited) + "+p" * bool(plan)
+    plan's ('+pX' at a plan penalty X)."""
+    return f"{cells}" + "+v" * bool(visited) + "+p" * bool(plan) + (f"{penalty:g}" if plan and penalty else "")
 
 
 def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer: list[dict]) -> None:
@@ -224,7 +231,8 @@ def _print_tables(console: Console, rows: list[dict], accuracy: list[dict], peer
         cells += [str(r["agents"])] if moving else []
         cells += [str(r.get("tracks", 0))] if tracked else []
         cells += [str(r.get("memory", 0))] if remembers else []
-        cells += [_walls(r.get("wall_map", 0), r.get("visited", False), r.get("plan", False))] if walls else []
+        cells += [_walls(r.get("wall_map", 0), r.get("visited", False), r.get("plan", False),
+                         r.get("plan_penalty", 0.0))] if walls else []
         cells += [f"{r['env_steps_per_s']:,.0f}", f"{r['rays_per_s']:,.3g}", ratio]
         single = one.get((r["robot"], r["num_envs"], r["raycaster"]))
         if many:

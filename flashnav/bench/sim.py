@@ -40,6 +40,7 @@ class StepRow:
     wall_map: int = 0  # squares a side of the wall map (observation.wall_map)
     visited: bool = False  # the wall map's visited channel (observation.wall_map_visited)
     plan: bool = False  # the wall map's plan channel (observation.wall_map_plan)
+    plan_penalty: float = 0.0  # its cost beside a wall (observation.wall_map_plan_penalty)
 
     @property
     def env_steps_per_s(self) -> float:
@@ -71,7 +72,7 @@ def bench_maps(robot: str, count: int, seed: int = 1000) -> list[OccupancyMap]:
 
 
 def variant_overrides(agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0,
-                      visited: bool = False, plan: bool = False) -> list[dict]:
+                      visited: bool = False, plan: bool = False, plan_penalty: float = 0.0) -> list[dict]:
     """The preset overrides of the rows beside the static one, in the table's order (see :func:`time_steps`)."""
     if (visited or plan) and not wall_map:
         raise ValueError("the visited and plan channels' rows need a wall map (wall_map > 0)")
@@ -88,13 +89,16 @@ def variant_overrides(agents: int = 0, tracks: int = 0, memory: int = 0, wall_ma
             rows.append({"observation.wall_map": wall_map, "observation.wall_map_visited": True})
         if plan:
             rows.append({"observation.wall_map": wall_map, "observation.wall_map_plan": True})
+            if plan_penalty:
+                rows.append({"observation.wall_map": wall_map, "observation.wall_map_plan": True,
+                             "observation.wall_map_plan_penalty": plan_penalty})
     return rows
 
 
 def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_seconds: float,
                max_steps: int, seed: int = 0, maps: list[OccupancyMap] | None = None,
                agents: int = 0, tracks: int = 0, memory: int = 0, wall_map: int = 0,
-               visited: bool = False, plan: bool = False) -> list[StepRow]:
+               visited: bool = False, plan: bool = False, plan_penalty: float = 0.0) -> list[StepRow]:
     """Step ``num_envs`` environments with random actions for at least ``min_seconds`` (at least 2
     steps, at most ``max_steps``) after 2 warm-up steps (JIT compilation, caches), on the robot's
     bundled map. With ``maps``, a second env of the same size on those maps (each slot drawing its
@@ -107,12 +111,13 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
     static, with the wall map of that many squares a side (``observation.wall_map``, the other wall-map keys at
     their defaults), and with ``visited`` too, one more with that wall map and its visited channel
     (``observation.wall_map_visited``), and with ``plan``, one more with that wall map and its plan channel
-    (``observation.wall_map_plan``). Returns the bundled-map row first, then the many-map row, then the agents
+    (``observation.wall_map_plan``), and with ``plan_penalty`` too, one more with that plan at that penalty
+    (``observation.wall_map_plan_penalty``). Returns the bundled-map row first, then the many-map row, then the agents
     row, then the tracks row, then the memory row, then the wall-map rows (those asked for)."""
     envs = [make_env(robot, num_envs, device=device, seed=seed, raycaster=raycaster)]
     if maps is not None:
         envs.append(make_env(robot, num_envs, maps=maps, device=device, seed=seed, raycaster=raycaster))
-    for overrides in variant_overrides(agents, tracks, memory, wall_map, visited, plan):
+    for overrides in variant_overrides(agents, tracks, memory, wall_map, visited, plan, plan_penalty):
         envs.append(make_env(load_robot(robot, **overrides), num_envs, device=device, seed=seed, raycaster=raycaster))
     dev = envs[0].device
     gen = torch.Generator(device=dev).manual_seed(seed)
@@ -134,7 +139,7 @@ def time_steps(robot: str, raycaster: str, num_envs: int, device: str, min_secon
     return [StepRow(robot, raycaster, num_envs, str(dev), steps[k], seconds[k], env.num_maps,
                     env.preset.agents.count, env.preset.observation.agent_tracks, env.preset.observation.memory_frames,
                     env.preset.observation.wall_map, env.preset.observation.wall_map_visited,
-                    env.preset.observation.wall_map_plan)
+                    env.preset.observation.wall_map_plan, env.preset.observation.wall_map_plan_penalty)
             for k, env in enumerate(envs)]
 
 

@@ -153,7 +153,8 @@ class Controller:
         self.memory = (ScanMemory(rt.memory_frames, rt.memory_every, rt.layout.sectors, rt.memory_points,
                                   rt.layout.fov_deg, rt.layout.max_range) if rt.memory_frames else None)
         self.walls = (WallCells(rt.wall_map, rt.wall_cell, rt.wall_grid, rt.layout.max_range, rt.wall_beyond,
-                                visited="visited" in rt.wall_channel_names, plan="plan" in rt.wall_channel_names)
+                                visited="visited" in rt.wall_channel_names, plan="plan" in rt.wall_channel_names,
+                                plan_penalty=rt.plan_penalty)
                       if rt.wall_map else None)
 
     # ---- inputs ---------------------------------------------------------------------------------

@@ -121,7 +121,7 @@ class WallCells:
     plan's cells (:meth:`plan_centres`) are drawn as the last channel."""
 
     def __init__(self, cells: int, cell: float, grid: float, max_range: float, beyond: float = 0.0,
-                 visited: bool = False, plan: bool = False):
+                 visited: bool = False, plan: bool = False, plan_penalty: float = 0.0):
         if cells < 2 or not (cell > 0 and grid > 0 and max_range > 0 and beyond >= 0):
             raise ValueError(f"WallCells needs >= 2 squares a side, cells and grid > 0 m, max_range > 0 and beyond "
                              f">= 0, got {cells}, {cell}, {grid}, {max_range}, {beyond}")
@@ -130,6 +130,7 @@ class WallCells:
         self.known = np.zeros((0, 2), np.int64)  # marked (column, row) pairs, each once
         self.visited = np.zeros((0, 2), np.int64) if visited else None  # the cells the robot has been in
         self.plan = bool(plan)
+        self.plan_penalty = float(plan_penalty)  # seen_plan.plan_cells' penalty: the policy's, from its metadata
 
     def forget(self) -> None:
         """A new goal: no wall is known (and the robot has been nowhere)."""
@@ -164,7 +165,8 @@ class WallCells:
         r, c = self.known[:, 1] - lo[0], self.known[:, 0] - lo[1]
         inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
         known[0, r[inside] * w + c[inside]] = True
-        out = plan_cells(known, np.zeros(1, np.int64), (start - lo)[None], (goal_rc - lo)[None], (h, w), margin)
+        out = plan_cells(known, np.zeros(1, np.int64), (start - lo)[None], (goal_rc - lo)[None], (h, w), margin,
+                         self.plan_penalty)
         at = np.flatnonzero(out[0, :-1])
         return (np.stack([at % w + lo[1], at // w + lo[0]], axis=1) + 0.5) * g
 

@@ -112,6 +112,11 @@ class PolicyRuntime:
             if margin != PLAN_MARGIN_M:
                 raise ValueError(f"{path}: the policy's plan channel was drawn within plan_margin_m {margin!r} of the "
                                  f"robot and the goal; this runtime plans within {PLAN_MARGIN_M} m")
+        # what a move beside a wall cost the plan (0 = the shortest way: also every policy exported before the key)
+        penalty = (meta["observation"].get("wall_map") or {}).get("plan_penalty", 0.0)
+        if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not 0 <= penalty < math.inf:
+            raise ValueError(f"{path}: observation.wall_map.plan_penalty must be a number >= 0, got {penalty!r}")
+        self.plan_penalty = float(penalty)
         squares = self.wall_channels * self.wall_map ** 2
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
                               - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory - squares)

@@ -15,7 +15,9 @@ cost whatever the map's size. The path is traced back from the robot's cell thro
 shortest way (the least distance plus the move; the first of equals in a fixed order; steepest descent alone can cut
 onto a diagonal that is not one), marked cell by cell from the robot's cell to the goal's; no cell is marked
 when the goal cannot be reached inside the box. The plan ignores the robot's body (a gap of one free cell counts
-as open): it is a direction, and the policy keeps to the walls it sees.
+as open): it is a direction, and the policy keeps to the walls it sees. ``observation.wall_map_plan_penalty``
+(``penalty`` here) makes a cell beside a marked one dearer, as a costmap's inflation does: the plan then runs down
+the middle of a corridor and through the wider of two gaps, and takes a narrow gap only where it is the way.
 
 numpy and numba only (the deploy side has no torch): the simulator's :class:`flashnav.sim.memory.WallGrid` and a
 robot's :class:`flashnav.deploy.memory.WallCells` call the same kernel.
@@ -39,7 +41,19 @@ def _free(known, slot, w, r, c, sr, sc, gr, gc):
 
 
 @njit(cache=True)
-def _plan_paths(known, rows, start, goal, h, w, margin, out):
+def _cost(known, slot, w, r, c, sr, sc, gr, gc, r0, r1, c0, c1, penalty):
+    """What entering cell (r, c) costs a move's length times: 1, or 1 + ``penalty`` beside a marked cell of the box."""
+    if penalty == 0.0:
+        return 1.0
+    for k in range(8):
+        ii, jj = r + _DI[k], c + _DJ[k]
+        if r0 <= ii <= r1 and c0 <= jj <= c1 and not _free(known, slot, w, ii, jj, sr, sc, gr, gc):
+            return 1.0 + penalty
+    return 1.0
+
+
+@njit(cache=True)
+def _plan_paths(known, rows, start, goal, h, w, margin, penalty, out):
     step = np.empty(8)
     for k in range(8):
         step[k] = np.sqrt(float(_DI[k] * _DI[k] + _DJ[k] * _DJ[k]))
@@ -77,7 +91,7 @@ def _plan_paths(known, rows, start, goal, h, w, margin, out):
                                                          and _free(known, slot, w, ui, jj, sr, sc, gr, gc)):
                     continue
                 n = ii * w + jj
-                nd = d + step[k]
+                nd = d + step[k] * _cost(known, slot, w, ii, jj, sr, sc, gr, gc, r0, r1, c0, c1, penalty)
                 if nd < dist[n]:
                     dist[n] = nd
                     size = _push(keys, nodes, size, nd, n)
@@ -88,6 +102,7 @@ def _plan_paths(known, rows, start, goal, h, w, margin, out):
         here = dist[target]
         while here > 0.0:
             best, bi, bj = np.inf, -1, -1
+            entered = _cost(known, slot, w, r, c, sr, sc, gr, gc, r0, r1, c0, c1, penalty)  # this cell's, from each
             for k in range(8):
                 ii, jj = r + _DI[k], c + _DJ[k]
                 if ii < r0 or ii > r1 or jj < c0 or jj > c1 or not done[ii * w + jj]:
@@ -95,7 +110,7 @@ def _plan_paths(known, rows, start, goal, h, w, margin, out):
                 if _DI[k] != 0 and _DJ[k] != 0 and not (_free(known, slot, w, ii, c, sr, sc, gr, gc)
                                                          and _free(known, slot, w, r, jj, sr, sc, gr, gc)):
                     continue
-                through = dist[ii * w + jj] + step[k]
+                through = dist[ii * w + jj] + step[k] * entered
                 if dist[ii * w + jj] < here and through < best:
                     best, bi, bj = through, ii, jj
             if bi < 0:
@@ -105,11 +120,17 @@ def _plan_paths(known, rows, start, goal, h, w, margin, out):
 
 
 def plan_cells(known: np.ndarray, rows: np.ndarray, start: np.ndarray, goal: np.ndarray, shape: tuple[int, int],
-               margin: int) -> np.ndarray:
+               margin: int, penalty: float = 0.0) -> np.ndarray:
     """[k, H W + 1] bool: the cells of the plan (the module's docstring) of each slot ``rows[i]`` of the grids
     ``known [N, H W + 1]`` (bool, row-major cells of ``shape`` (H, W); the last column a spare, never read, never
     marked), from the robot's cell ``start[i]`` to the goal's ``goal[i]`` ((row, column) on the grid; clipped onto
-    it), within ``margin`` cells around both."""
+    it), within ``margin`` cells around both. With ``penalty`` > 0 the way is the cheapest, not the shortest: a
+    move into a cell beside a marked cell of the box (8-neighbourhood) costs its length times 1 + ``penalty`` (the
+    inflation cost of a costmap, one cell wide), so the plan keeps off the walls where there is room and still
+    passes every gap the plain plan passes."""
+    penalty = float(penalty)
+    if not (np.isfinite(penalty) and penalty >= 0.0):
+        raise ValueError(f"plan_cells: penalty must be a finite number >= 0, got {penalty}")
     h, w = (int(v) for v in shape)
     known = np.ascontiguousarray(known, dtype=np.bool_)
     if known.ndim != 2 or known.shape[1] != h * w + 1:
@@ -121,5 +142,5 @@ def plan_cells(known: np.ndarray, rows: np.ndarray, start: np.ndarray, goal: np.
     goal = np.clip(np.asarray(goal, dtype=np.int64).reshape(k, 2), 0, lim)
     out = np.zeros((k, h * w + 1), dtype=np.bool_)
     if k:
-        _plan_paths(known, rows, start, goal, h, w, max(0, int(margin)), out)
+        _plan_paths(known, rows, start, goal, h, w, max(0, int(margin)), penalty, out)
     return out

@@ -34,7 +34,8 @@ class ObservationExtras:
         if not o.wall_map:
             return
         self.walls = WallGrid(self.n, grid_shape(maps, o.wall_map_grid), o.wall_map_grid, self.preset.lidar.max_range,
-                              self.beam_angles, self.device, HIT_BEYOND_M, o.wall_map_visited, o.wall_map_plan)
+                              self.beam_angles, self.device, HIT_BEYOND_M, o.wall_map_visited, o.wall_map_plan,
+                              o.wall_map_plan_penalty)
         self._origins = torch.tensor([g.origin for g in maps], dtype=torch.float32, device=self.device)
 
     def append(self, obs: torch.Tensor, sel, agents, pose: torch.Tensor, ranges: torch.Tensor, start: bool,

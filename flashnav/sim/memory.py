@@ -230,14 +230,15 @@ class WallGrid:
     cells keeps where the slot's robot has been: the cell of its centre at the start and after every step (at
     0.25 m cells and 0.05 m a step at most, the cells of its path, with no gap). With ``plan`` its image has one more
     channel, last: the cells of the slot's plan from the robot's cell to its goal's over the cells not marked
-    (:mod:`flashnav.maps.seen_plan`, computed when the image is drawn, on the CPU: a host sync on a GPU).
+    (:mod:`flashnav.maps.seen_plan`, computed when the image is drawn, on the CPU: a host sync on a GPU), the
+    cheapest way with ``plan_penalty`` > 0 (a cell beside a marked one dearer).
 
     :meth:`image` draws the marked cells' centres as :func:`wall_image` draws points, reading only the window of
     cells whose centres can fall in the image, so its cost is the image's, not the map's."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], cell: float, max_range: float,
                  beam_angles: torch.Tensor, device: torch.device, beyond: float = 0.0, visited: bool = False,
-                 plan: bool = False):
+                 plan: bool = False, plan_penalty: float = 0.0):
         h, w = (int(v) for v in shape)
         if num_envs < 1 or h < 1 or w < 1 or not (math.isfinite(cell) and cell > 0):
             raise ValueError(f"WallGrid needs num_envs >= 1, a shape of >= 1 x 1 cells and cells of > 0 metres, "
@@ -253,6 +254,8 @@ class WallGrid:
         self.visited = torch.zeros_like(self.known) if visited else None
         #: whether :meth:`image` draws the plan channel (:meth:`plan_cells`)
         self.plan = bool(plan)
+        #: what a move into a cell beside a marked one costs the plan on top of its length, times it
+        self.plan_penalty = float(plan_penalty)
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
         self.rows = torch.arange(num_envs, device=device)
         #: how :meth:`image` draws: "numba" (the CPU default: :mod:`flashnav.sim.wall_numba`, the marked cells only)
@@ -327,7 +330,8 @@ class WallGrid:
     def plan_cells(self, idx, pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """[k, H W + 1] bool (the layout of :attr:`known`, the spare column never set; on the grid's device): the cells
         of the plan of slots ``idx`` from the cell of ``pose [k, 3]`` to the cell of ``goal [k, 2]`` (both clipped onto
-        the grid), :func:`flashnav.maps.seen_plan.plan_cells` within :data:`~flashnav.maps.seen_plan.PLAN_MARGIN_M`."""
+        the grid), :func:`flashnav.maps.seen_plan.plan_cells` within :data:`~flashnav.maps.seen_plan.PLAN_MARGIN_M`
+        (at :attr:`plan_penalty`)."""
         from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
 
         rows = self.rows[idx]
@@ -338,7 +342,7 @@ class WallGrid:
             return torch.nan_to_num(rc, nan=0.0, posinf=1e9, neginf=-1e9).clamp(-1e9, 1e9).long().cpu().numpy()
 
         out = plan_cells(self.known.cpu().numpy(), rows.cpu().numpy(), cell_of(pose[:, :2]), cell_of(goal),
-                         self.shape, math.ceil(PLAN_MARGIN_M / self.cell - 1e-9))
+                         self.shape, math.ceil(PLAN_MARGIN_M / self.cell - 1e-9), self.plan_penalty)
         return torch.from_numpy(out).to(self.known.device)
 
     def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
