@@ -17,13 +17,17 @@ ALGORITHMS = ("fastdsac", "fastsac", "fasttd3")
 #: Display names of the learners (tables, figures).
 ALGORITHM_LABELS = {"fastdsac": "FastDSAC", "fastsac": "FastSAC", "fasttd3": "FastTD3"}
 #: Hyperparameter recipes in ``flashnav/presets/<algorithm>.yaml``: ``paper`` is appendix A (GPU),
-#: ``cpu`` the departures measured for a 2-core CPU, ``paper-mirror`` (FastDSAC; FastSAC and FastTD3 on TurtleBot2) the paper
-#: recipe with 5-step returns, gamma 0.99, mirrored replay and (TurtleBot2) the goal angle as sine and cosine (the
-#: departures with which TurtleBot2 reaches 100 % within the paper's budget in 8 of 10 seeds), ``generalist`` (FastDSAC, TurtleBot2) training for unseen
-#: buildings, with its training setup (maps, evaluation, task) in ``presets/setups.yaml``.
-#: ``crowd`` (FastDSAC, TurtleBot2) training among moving people, with its setup (agents, their tracks, the turn rate and
-#: reverse of the platform, a 360-deg LiDAR) in ``presets/setups.yaml``.
-RECIPES = ("paper", "cpu", "paper-mirror", "generalist", "crowd")
+#: ``cpu`` the departures measured for a 2-core CPU, ``paper-mirror`` (FastDSAC; FastSAC and FastTD3 on
+#: TurtleBot2) the paper recipe with 5-step returns, gamma 0.99, mirrored replay and (TurtleBot2) the goal angle as
+#: sine and cosine (the departures with which TurtleBot2 reaches 100 % within the paper's budget in 8 of 10 seeds),
+#: ``generalist`` (FastDSAC, TurtleBot2 and Go2) training for unseen buildings, with its training setup (maps,
+#: evaluation, task) in ``presets/setups.yaml``.
+#: ``generalist-map`` (FastDSAC, TurtleBot2) the generalist that also sees a map of the walls its scans hit with its
+#: own plan drawn in (``observation.wall_map``, ``wall_map_plan``, ``wall_map_plan_penalty``; setup in
+#: ``presets/setups.yaml``).
+#: ``crowd`` (FastDSAC, TurtleBot2) training among moving people, with its setup (agents, their tracks, the turn rate
+#: and reverse of the platform, a 360-deg LiDAR) in ``presets/setups.yaml``.
+RECIPES = ("paper", "cpu", "paper-mirror", "generalist", "generalist-map", "crowd")
 #: What a user may ask for: a recipe, or ``auto`` (``paper`` on a GPU, ``cpu`` otherwise).
 RECIPE_CHOICES = ("auto", *RECIPES)
 #: What ``--robot`` takes, for help texts.
@@ -31,10 +35,13 @@ ROBOT_HELP = f"{', '.join(ROBOTS)} or a preset YAML (default {DEFAULT_ROBOT})"
 #: What a ``--device`` that defaults to ``auto`` takes, for help texts.
 DEVICE_HELP = "auto (default), cpu, cuda, cuda:N"
 #: The choices in one line, for help texts (``--recipe``, ``TrainConfig.recipe``).
-RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC, and FastSAC and "
-               "FastTD3 on TurtleBot2: paper + 5-step returns, gamma 0.99, mirrored replay; TurtleBot2: goal angle as sin/cos), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also "
-               "sets its maps, evaluation and task: presets/setups.yaml), crowd (FastDSAC, TurtleBot2, among moving people: "
-               "paper-mirror without the sin/cos, 8 agents and 4 tracks, the platform's turn rate and reverse, a 360-deg LiDAR)")
+RECIPE_HELP = ("paper (appendix A, GPU), cpu (2 CPU cores), auto (by device), paper-mirror (FastDSAC, and "
+               "FastSAC and FastTD3 on TurtleBot2: paper + 5-step returns, gamma 0.99, mirrored replay; TurtleBot2: "
+               "goal angle as sin/cos), generalist (FastDSAC on many maps, TurtleBot2 or Go2; also sets its maps, "
+               "evaluation and task: presets/setups.yaml), generalist-map (FastDSAC, the TurtleBot2 generalist with a "
+               "map of the walls it has scanned and its plan to the goal drawn in), crowd (FastDSAC, TurtleBot2, "
+               "among moving people: paper-mirror without the sin/cos, 8 agents and 4 tracks, the platform's turn "
+               "rate and reverse, a 360-deg LiDAR)")
 #: LiDAR raycasters (:func:`flashnav.sim.raycast.make_raycaster`); the first is the default.
 RAYCASTERS = ("exact", "exact-torch", "march", "exact-cuda")
 DEFAULT_RAYCASTER = RAYCASTERS[0]
