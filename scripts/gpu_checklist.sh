@@ -6,14 +6,15 @@
 #      check of the GPU paths;
 #   2. the wall map's update cost on the GPU (`flashnav bench update --wall-map 24`, eager and cuda-graph, each beside
 #      the same update without the map; on the 2-core CPU it costs ~11x the update since session 55's shared
-#      encoder: docs/benchmarks.md);
-#   3. issue 15 DM2's reinforcement-learning run with the wall map to the whole budget (observation.wall_map; session
-#      55 ran seed 0 on the CPU to 171,264 env steps: a faster climb, no higher plateau; session 56 added DrQ's
-#      random shift of the map, algo.wall_shift=1, to 162,944: the best policy yet, docs/benchmarks.md): the
-#      TurtleBot2 `generalist` recipe, FastDSAC seed 0, with a 24 x 24 wall map shifted by up to one square and,
-#      beside it, without the map (the recipe itself), both to the recipe's 409,600 env steps, then each on the
-#      held-out suite (256 episodes a map);
-#      the runs' validation curves are `flashnav bench runs OUT/gen-*/`;
+#      encoder; session 71 on an H200: 2.3x with the CUDA graph), and the env step with the map and its plan at
+#      penalty 2 beside the step without them (`flashnav bench sim --wall-map 24 --plan --plan-penalty 2`: the plan
+#      runs on the CPU, a host sync a step on a GPU);
+#   3. issue 15 DM2's best recipe, `generalist-map` (the TurtleBot2 generalist with the wall map, its plan at penalty 2
+#      and DrQ's shift; four seeds on the CPU to its 163,840 env steps: held-out 98.0-99.1 %, mazes_900002 under 95 %
+#      on every seed, docs/benchmarks.md "The plan at a price beside the walls"), seeds 0 and 1 at once to the
+#      generalist's 409,600 env steps (does more data lift the maze?), then each on the held-out suite (128 episodes
+#      a map, as on the CPU; the plan runs on the host); their validation curves, with the 163,840 point, are
+#      `flashnav bench runs OUT/gen-*/`;
 #   4. with what time is left, FastDSAC's `paper-mirror` on Go2 (issue 16 DM1's Go2 bar, 20/30 on the CPU) for seeds
 #      2-7 to the whole budget of 401,408 env steps (session 50 ran seeds 0-1 to it: 1/2), three lanes.
 # Read every seconds figure as shared-GPU seconds (lanes run at once).
@@ -34,10 +35,11 @@ export PYTHONUNBUFFERED=1
 PY=${PY:-python3}
 FN="$PY -m flashnav.cli"
 if [ -n "${DRY:-}" ]; then
-  DEV=cpu; EPISODES=16; HELDOUT=4; BENCH_S=0.2; TINY="algo.num_envs=32 algo.updates_per_step=2 algo.batch_size=64 \
-algo.learning_start=64 budget.max_env_steps=1024 eval.every=8"; GEN_TINY="$TINY eval.episodes=24 maps.count=2"
+  DEV=cpu; EPISODES=16; HELDOUT=4; BENCH_S=0.2; SIM_ENVS=32
+  TINY="algo.num_envs=32 algo.updates_per_step=2 algo.batch_size=64 algo.learning_start=64 budget.max_env_steps=1024"
+  TINY="$TINY eval.every=8"; GEN_TINY="$TINY eval.episodes=24 maps.count=2"
 else
-  DEV=cuda; EPISODES=1024; HELDOUT=256; BENCH_S=5; TINY=""; GEN_TINY=""
+  DEV=cuda; EPISODES=1024; HELDOUT=128; BENCH_S=5; SIM_ENVS=128,1024; TINY=""; GEN_TINY=""
 fi
 T0=$(date +%s); el() { echo "[+$(( $(date +%s) - T0 )) s]"; }
 left() { echo $(( ${END:-540} - ($(date +%s) - T0) )); }
@@ -54,15 +56,22 @@ echo "== 2. the wall map's update cost $(el)"
 timeout 120 $FN bench update --device $DEV --ways eager,cuda-graph --seconds $BENCH_S --warmup 8 --wall-map 24 \
     --json "$OUT/update-wallmap.json" > "$OUT/update-wallmap.txt" 2>&1; echo "exit $?"; tail -12 "$OUT/update-wallmap.txt"
 
-echo "== 3. generalist with and without the wall map, seed 0, $(left) s left $(el)"
-gen() { NAME=$1; shift
-  timeout -s TERM -k 20 "$(( $(left) - 60 ))" $FN train --algo fastdsac --robot turtlebot2 --recipe generalist --seed 0 \
-      --device $DEV threads=1 "$@" $GEN_TINY --out "$OUT/gen-$NAME-s0" --overwrite > "$OUT/gen-$NAME-s0.log" 2>&1
-  echo "train $NAME exit $?"
-  [ -f "$OUT/gen-$NAME-s0/policy.pt" ] && timeout 50 $FN eval "$OUT/gen-$NAME-s0/policy.pt" --maps heldout \
-      --episodes $HELDOUT --device $DEV --label "$NAME/s0" --json "$OUT/heldout-$NAME-s0.json" \
-      > "$OUT/heldout-$NAME-s0.txt" 2>&1; }
-gen wallmap robot.observation.wall_map=24 algo.wall_shift=1 & gen plain &
+echo "== 2b. the env step with the wall map and its plan $(el)"
+timeout 120 $FN bench sim --device $DEV --robots turtlebot2 --num-envs $SIM_ENVS --raycasters exact-torch \
+    --seconds 2 --no-irsim --wall-map 24 --plan --plan-penalty 2 --json "$OUT/sim-plan.json" \
+    > "$OUT/sim-plan.txt" 2>&1; echo "exit $?"
+tail -12 "$OUT/sim-plan.txt"
+
+echo "== 3. generalist-map, seeds 0 and 1 to 409,600 env steps, $(left) s left $(el)"
+gen() { S=$1; shift
+  timeout -s TERM -k 20 "$(( $(left) - 170 ))" $FN train --algo fastdsac --robot turtlebot2 --recipe generalist-map \
+      --seed "$S" --device $DEV threads=1 budget.max_env_steps=409600 "$@" $GEN_TINY --out "$OUT/gen-map-s$S" \
+      --overwrite > "$OUT/gen-map-s$S.log" 2>&1
+  echo "train seed $S exit $?"
+  [ -f "$OUT/gen-map-s$S/policy.pt" ] && timeout 140 $FN eval "$OUT/gen-map-s$S/policy.pt" --maps heldout \
+      --episodes $HELDOUT --device $DEV --label "map/s$S" --json "$OUT/heldout-map-s$S.json" \
+      > "$OUT/heldout-map-s$S.txt" 2>&1; }
+gen 0 & gen 1 &
 wait
 $FN bench runs "$OUT"/gen-*/ --json "$OUT/gen.json" > "$OUT/gen.txt" 2>&1; tail -12 "$OUT/gen.txt"
 tail -n 3 "$OUT"/heldout-*.txt
