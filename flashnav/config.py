@@ -280,6 +280,8 @@ MAX_MEMORY_FRAMES = 64
 #: Largest ``observation.wall_map`` (squares a side): the map adds 2 (one more with each of ``wall_map_visited`` and
 #: ``wall_map_plan``) x wall_map^2 columns.
 MAX_WALL_MAP = 48
+#: Largest ``observation.wall_map_carrot``, metres: within the plan's margin (seen_plan.PLAN_MARGIN_M).
+MAX_WALL_MAP_CARROT = 3.0
 
 
 class Observation(Strict):
@@ -325,6 +327,12 @@ class Observation(Strict):
                                          "cell costs its length times 1 + this (a costmap's inflation, one cell "
                                          "wide), so that it keeps off the walls where there is room; 0 = the "
                                          "shortest way")
+    wall_map_carrot: float = Field(0.0, ge=0, le=MAX_WALL_MAP_CARROT, description="with wall_map_plan: two more "
+                                   "columns after the pose trail, the point this many metres of path along the plan "
+                                   "from the robot (the goal where the plan is shorter or there is none), x and y "
+                                   "in the robot frame, brought within this many metres of the robot "
+                                   "(flashnav.maps.seen_plan.carrot_points): the plan's direction as numbers; 0 = "
+                                   "none")
 
     @model_validator(mode="after")
     def _one_square_is_no_image(self):
@@ -334,6 +342,9 @@ class Observation(Strict):
             if getattr(self, key) and not self.wall_map:
                 raise ValueError(f"observation.{key}=true adds a channel to the wall map, but "
                                  "observation.wall_map is 0 (none): set observation.wall_map to at least 2")
+        if self.wall_map_carrot and not self.wall_map_plan:
+            raise ValueError(f"observation.wall_map_carrot={self.wall_map_carrot:g} is a point along the plan, but "
+                             "observation.wall_map_plan is false: set it true, or the carrot 0")
         if self.wall_map_plan_penalty and not self.wall_map_plan:
             raise ValueError(f"observation.wall_map_plan_penalty={self.wall_map_plan_penalty:g} prices the plan "
                              "channel's cells, but observation.wall_map_plan is false: set it true, or the penalty 0")
@@ -378,19 +389,26 @@ class RobotPreset(Strict):
 
     @property
     def trail_end(self) -> int:
-        """End column of the pose trail: where the memory scan starts."""
+        """End column of the pose trail: where the carrot starts."""
         return self.tracks_end + 2 * self.observation.pose_trail
+
+    @property
+    def carrot_end(self) -> int:
+        """End column of the carrot (``observation.wall_map_carrot``: 2 columns, else none): where the memory scan
+        starts."""
+        return self.trail_end + (2 if self.observation.wall_map_carrot else 0)
 
     @property
     def memory_end(self) -> int:
         """End column of the memory scan: where the wall map starts."""
-        return self.trail_end + (self.lidar.sectors if self.observation.memory_frames else 0)
+        return self.carrot_end + (self.lidar.sectors if self.observation.memory_frames else 0)
 
     @property
     def obs_dim(self) -> int:
         """The paper's observation, then ``observation.scan_history`` previous frames of ``sectors`` each,
         then ``observation.agent_tracks`` tracks of ``len(TRACK_FEATURES)`` columns each, then
-        ``observation.pose_trail`` breadcrumbs of 2 columns each, then the memory scan's ``sectors`` columns
+        ``observation.pose_trail`` breadcrumbs of 2 columns each, then the carrot's 2 with
+        ``observation.wall_map_carrot`` > 0, then the memory scan's ``sectors`` columns
         with ``observation.memory_frames`` > 0, then the wall map's ``observation.wall_map_channels`` x
         ``observation.wall_map``^2 columns (the walls' squares row by row, then the goal's, then the visited ones)."""
         return self.memory_end + self.observation.wall_map_channels * self.observation.wall_map ** 2

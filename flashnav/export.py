@@ -140,10 +140,18 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                            "order": "breadcrumb j (0-based) newest first; a breadcrumb is the position after "
                                     "every 'every'-th control step of the episode",
                            "reset": "a new episode (goal) sets every breadcrumb to the start position"},
+            # always written (0 = none): the point along the wall map's plan (flashnav.maps.seen_plan.carrot_points)
+            "carrot": {"length_m": preset.observation.wall_map_carrot,
+                       "columns": [preset.trail_end, preset.carrot_end], "features": ["x", "y"], "units": "m",
+                       "frame": "robot frame of the current pose: x ahead, y to the left",
+                       "meaning": "the centre of the first grid_m cell of the wall map's plan at least length_m "
+                                  "of path (moves of 1 and sqrt 2 cells) from the robot's cell; the goal where the "
+                                  "plan is shorter or there is none; brought within length_m of the robot along "
+                                  "its bearing"},
             # always written (0 = none): the memory scan of remembered wall hits (flashnav.sim.memory)
             "memory_scan": {"frames": preset.observation.memory_frames, "every": preset.observation.memory_every,
                             "points_per_frame": points_per_frame(preset),
-                            "columns": [preset.trail_end, preset.memory_end], "units": "m",
+                            "columns": [preset.carrot_end, preset.memory_end], "units": "m",
                             "order": "sector j covers bearings [-pi + j w, -pi + (j + 1) w), w = 2 pi / columns, in "
                                      "the robot frame (from straight behind, counter-clockwise); max_range where "
                                      "nothing is remembered",

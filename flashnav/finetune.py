@@ -147,6 +147,7 @@ def _layout_keys(robot) -> dict[str, Any]:
         "robot.observation.wall_map_visited": robot.observation.wall_map_visited,
         "robot.observation.wall_map_plan": robot.observation.wall_map_plan,
         "robot.observation.wall_map_plan_penalty": robot.observation.wall_map_plan_penalty,
+        "robot.observation.wall_map_carrot": robot.observation.wall_map_carrot,
     }
 
 

@@ -34,8 +34,10 @@ def sample_observations(preset: RobotPreset, n: int, generator: torch.Generator 
     history = [_readings(n, s, r_in, r_max, u) for _ in range(preset.observation.scan_history)]
     bound = trail_bound(preset)
     trail = bound * (2.0 * u(n, 2 * preset.observation.pose_trail) - 1.0)
+    carrot = preset.observation.wall_map_carrot  # within that many metres of the robot, each axis uniform
+    carrot = [carrot * (2.0 * u(n, 2) - 1.0)] if carrot else []
     memory = [_readings(n, s, r_in, r_max, u)] if preset.observation.memory_frames else []
-    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u), trail, *memory,
+    return torch.cat([ranges, dist, angle, *velocity, *history, _tracks(preset, n, u), trail, *carrot, *memory,
                       _wall_map(preset, n, u)], dim=1)
 
 

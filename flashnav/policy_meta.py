@@ -174,6 +174,22 @@ def wall_map_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple
     return (cells, *values)
 
 
+def wall_map_carrot(meta: dict[str, Any], path: str | Path = "<policy>") -> float:
+    """Metres along the plan of the policy's carrot (``observation.wall_map_carrot``; 0 = none): the metadata's
+    ``observation.carrot.length_m``, else the exported preset's, else 0 (files written before the carrot existed).
+    Raises ValueError naming ``path`` unless it is a finite number >= 0 (> 0 needs the wall map's plan channel)."""
+    value = _metadata_field(meta, "carrot", "length_m")
+    if value is None:
+        value = ((meta.get("preset") or {}).get("observation") or {}).get("wall_map_carrot", 0.0)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{path}: the policy's metadata records observation.carrot.length_m {value!r}; expected a "
+                         "finite number >= 0 (metres)")
+    if value and "plan" not in wall_map_channel_list(meta, path):
+        raise ValueError(f"{path}: the policy's metadata records a carrot {value:g} m along the plan but no plan "
+                         "channel in its wall map")
+    return float(value)
+
+
 def _recorded_count(meta: dict[str, Any], option: str, field: str, path: str | Path) -> int:
     """``observation.<option>.<field>`` of the metadata, else the preset block's ``observation.<option>``,
     else 0; a ValueError naming ``path`` unless it is an integer >= 0."""

@@ -16,7 +16,7 @@ from scipy.sparse.csgraph import dijkstra
 from test_wall_visited import env_third_channel, random_marked_grid, random_poses
 
 from flashnav.maps.graph import grid_graph
-from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
+from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells, plan_route
 from flashnav.presets import load_robot
 from flashnav.sim.memory import WallGrid, wall_image
 
@@ -24,10 +24,16 @@ MOVES = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 
 
 def check_shortest(known: np.ndarray, start, goal, margin: int, marks: np.ndarray, penalty: float = 0.0) -> int:
+    """The number of cells of :func:`shortest_walk` (its checks made)."""
+    return len(shortest_walk(known, start, goal, margin, marks, penalty))
+
+
+def shortest_walk(known: np.ndarray, start, goal, margin: int, marks: np.ndarray, penalty: float = 0.0) -> list:
     """Asserts that ``marks`` [H W] (one slot's plan on the grid ``known`` [H, W]) is exactly the cells of a shortest
     8-connected path (no corner cut) from ``start`` to ``goal`` over the unmarked cells of the box around both
     (the two cells always free), by scipy's Dijkstra on the box - the cheapest, with a cell beside a marked cell of
-    the box costing 1 + ``penalty`` times a move into it; returns the path's cells, 0 where scipy finds none."""
+    the box costing 1 + ``penalty`` times a move into it; returns the path's cells from the robot's to the goal's,
+    none where scipy finds none."""
     h, w = known.shape
     (sr, sc), (gr, gc) = start, goal
     r0, r1 = max(0, min(sr, gr) - margin), min(h - 1, max(sr, gr) + margin)
@@ -44,7 +50,7 @@ def check_shortest(known: np.ndarray, start, goal, margin: int, marks: np.ndarra
     marked = {divmod(int(f), w) for f in np.flatnonzero(marks)}
     if not np.isfinite(dist[sr - r0, sc - c0]):
         assert not marked
-        return 0
+        return []
     assert all(r0 <= r <= r1 and c0 <= c <= c1 and free[r - r0, c - c0] for r, c in marked)
     at, walked = (sr, sc), [(sr, sc)]
     while at != (gr, gc):  # the next cell: a marked neighbour one step of a cheapest way nearer the goal
@@ -59,7 +65,7 @@ def check_shortest(known: np.ndarray, start, goal, margin: int, marks: np.ndarra
         at = (at[0] + di, at[1] + dj)
         walked.append(at)
     assert set(walked) == marked
-    return len(walked)
+    return walked
 
 
 @pytest.mark.parametrize("penalty", [0.0, 2.0])
@@ -79,6 +85,34 @@ def test_the_plan_is_a_shortest_path_over_the_unmarked_cells_of_its_box_against_
     lengths = [check_shortest(known[r, :-1].reshape(h, w), start[i], goal[i], margin, out[i, :-1], penalty)
                for i, r in enumerate(rows)]
     assert sum(n > 0 for n in lengths) >= 5 and max(lengths) > 8  # paths found, some long
+
+
+@pytest.mark.parametrize("penalty", [0.0, 2.0])
+def test_the_carrot_is_the_first_cell_of_the_walked_plan_at_its_path_length(penalty):
+    rng = np.random.default_rng(11)
+    num, (h, w) = 30, (25, 35)
+    known = np.zeros((num, h * w + 1), dtype=bool)
+    known[:, :-1] = rng.random((num, h * w)) < 0.3
+    rows = rng.permutation(num)[:24]
+    start = np.stack([rng.integers(0, h, 24), rng.integers(0, w, 24)], 1)
+    goal = np.clip(start + rng.integers(-10, 11, (24, 2)), 0, [h - 1, w - 1])
+    kinds = set()
+    for carrot in (0.0, 1.0, 4.0, 5.5):
+        cells, carrots = plan_route(known, rows, start, goal, (h, w), 3, penalty, carrot)
+        assert np.array_equal(cells, plan_cells(known, rows, start, goal, (h, w), 3, penalty))
+        for i, r in enumerate(rows):
+            walk = shortest_walk(known[r, :-1].reshape(h, w), start[i], goal[i], 3, cells[i, :-1], penalty)
+            if not walk or carrot == 0.0:
+                assert tuple(carrots[i]) == (-1, -1, -1)
+                continue
+            along = np.cumsum([0.0] + [math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(walk, walk[1:])])
+            at = np.flatnonzero(along >= carrot - 1e-9)
+            want = (*walk[at[0]], 1) if len(at) else (*walk[-1], 0)
+            assert tuple(carrots[i]) == want
+            kinds.add(want[2])
+    assert kinds == {0, 1}  # both kinds met: along the plan, and the goal's cell of a shorter plan
+    with pytest.raises(ValueError, match=r"carrot must be a finite number of cells >= 0, got -1"):
+        plan_route(known, rows, start, goal, (h, w), 3, penalty, -1.0)
 
 
 def test_a_walled_off_goal_gets_no_plan_and_an_open_grid_the_straight_way():

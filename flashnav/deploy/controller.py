@@ -154,7 +154,7 @@ class Controller:
                                   rt.layout.fov_deg, rt.layout.max_range) if rt.memory_frames else None)
         self.walls = (WallCells(rt.wall_map, rt.wall_cell, rt.wall_grid, rt.layout.max_range, rt.wall_beyond,
                                 visited="visited" in rt.wall_channel_names, plan="plan" in rt.wall_channel_names,
-                                plan_penalty=rt.plan_penalty)
+                                plan_penalty=rt.plan_penalty, carrot=rt.carrot)
                       if rt.wall_map else None)
 
     # ---- inputs ---------------------------------------------------------------------------------
@@ -238,7 +238,7 @@ class Controller:
             walls = self.walls.step(self.pose, angles, beams, target)
         try:
             d = self.rt.decide(sectors, self.pose, target, self.velocity, self._history(sectors), self._tracks(),
-                               self._trail(), memory, walls)
+                               self._trail(), memory, walls, self.walls.carrot_xy if self.walls is not None else None)
         except ValueError as exc:  # (an observation that is not finite, say): stopped, not the last command kept
             self.fault = str(exc)
             return self._stop("fault")

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from flashnav.deploy.runtime import robot_frame
-from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
+from flashnav.maps.seen_plan import PLAN_MARGIN_M, carrot_points, plan_route
 
 #: Metres along each axis from the robot within which :meth:`WallCells.plan_centres` takes the goal (a farther one is
 #: brought onto that square's edge): the largest generated map's side, which bounds the simulator's plans.
@@ -118,10 +118,12 @@ class WallCells:
     cells' centres. The simulator's grid starts at its map's corner, the robot's at the odometry origin: the
     same kind of grid, placed elsewhere against the walls. With ``visited`` it also keeps the cells the robot's
     odometry pose has been in at each control step since the goal, drawn as a third channel. With ``plan`` the
-    plan's cells (:meth:`plan_centres`) are drawn as the last channel."""
+    plan's cells (:meth:`plan_centres`) are drawn as the last channel; with ``carrot`` (metres) every :meth:`step`
+    also leaves the plan's carrot in :attr:`carrot_xy` (as the simulator's grid does:
+    :func:`flashnav.maps.seen_plan.carrot_points`)."""
 
     def __init__(self, cells: int, cell: float, grid: float, max_range: float, beyond: float = 0.0,
-                 visited: bool = False, plan: bool = False, plan_penalty: float = 0.0):
+                 visited: bool = False, plan: bool = False, plan_penalty: float = 0.0, carrot: float = 0.0):
         if cells < 2 or not (cell > 0 and grid > 0 and max_range > 0 and beyond >= 0):
             raise ValueError(f"WallCells needs >= 2 squares a side, cells and grid > 0 m, max_range > 0 and beyond "
                              f">= 0, got {cells}, {cell}, {grid}, {max_range}, {beyond}")
@@ -131,6 +133,11 @@ class WallCells:
         self.visited = np.zeros((0, 2), np.int64) if visited else None  # the cells the robot has been in
         self.plan = bool(plan)
         self.plan_penalty = float(plan_penalty)  # seen_plan.plan_cells' penalty: the policy's, from its metadata
+        if not (math.isfinite(carrot) and carrot >= 0) or (carrot and not plan):
+            raise ValueError(f"WallCells: carrot must be 0 or, with plan, metres > 0, got {carrot}")
+        self.carrot = float(carrot)
+        #: [2] the carrot (x, y m in the robot frame) of the last :meth:`step`, None without ``carrot``
+        self.carrot_xy: np.ndarray | None = None
 
     def forget(self) -> None:
         """A new goal: no wall is known (and the robot has been nowhere)."""
@@ -152,7 +159,7 @@ class WallCells:
         """[L, 2] the centres of the plan's cells from the cell of ``pose`` to the cell of ``goal`` (odometry frame):
         :func:`flashnav.maps.seen_plan.plan_cells` on the marked cells of the box it searches (the simulator's grid
         also clips that box onto its map; here a goal farther than :data:`PLAN_REACH_M` along an axis is first
-        brought within it, so that the box stays bounded)."""
+        brought within it, so that the box stays bounded). With :attr:`carrot`, sets :attr:`carrot_xy`."""
         g = self.grid
         start = np.floor(np.array([float(pose[1]), float(pose[0])]) / g).astype(np.int64)  # (row, column)
         reach = int(math.ceil(PLAN_REACH_M / g))
@@ -165,8 +172,11 @@ class WallCells:
         r, c = self.known[:, 1] - lo[0], self.known[:, 0] - lo[1]
         inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
         known[0, r[inside] * w + c[inside]] = True
-        out = plan_cells(known, np.zeros(1, np.int64), (start - lo)[None], (goal_rc - lo)[None], (h, w), margin,
-                         self.plan_penalty)
+        out, carrots = plan_route(known, np.zeros(1, np.int64), (start - lo)[None], (goal_rc - lo)[None], (h, w),
+                                  margin, self.plan_penalty, self.carrot / g)
+        if self.carrot:
+            self.carrot_xy = carrot_points(carrots, lo[::-1][None] * g, g, np.asarray(pose, np.float64)[None],
+                                           np.asarray(goal, np.float64)[None], self.carrot)[0]
         at = np.flatnonzero(out[0, :-1])
         return (np.stack([at % w + lo[1], at // w + lo[0]], axis=1) + 0.5) * g
 

@@ -34,7 +34,7 @@ import numpy as np
 from flashnav.deploy.scan import Mount, ScanAdapter, SectorLayout
 from flashnav.maps.seen_plan import PLAN_MARGIN_M
 from flashnav.policy_meta import (agent_track_count, memory_scan_shape, open_onnx, pose_trail_shape,
-                                  scan_history_frames, wall_map_channel_list, wall_map_shape)
+                                  scan_history_frames, wall_map_carrot, wall_map_channel_list, wall_map_shape)
 
 #: columns per agent track (flashnav.config.TRACK_FEATURES: present, x, y, vx, vy, radius)
 TRACK_WIDTH = 6
@@ -117,13 +117,16 @@ class PolicyRuntime:
         if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not 0 <= penalty < math.inf:
             raise ValueError(f"{path}: observation.wall_map.plan_penalty must be a number >= 0, got {penalty!r}")
         self.plan_penalty = float(penalty)
+        self.carrot = wall_map_carrot(meta, path)  # metres along the plan: two columns after the trail (0 = none)
         squares = self.wall_channels * self.wall_map ** 2
         self.velocity_dims = (self.obs_dim - (1 + self.scan_history) * self.layout.sectors - 2
-                              - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - memory - squares)
+                              - TRACK_WIDTH * self.agent_tracks - 2 * self.pose_trail - 2 * bool(self.carrot) - memory
+                              - squares)
         if self.velocity_dims not in (2, 3):
             raise ValueError(f"{path}: obs_dim {self.obs_dim} does not fit {self.layout.sectors} sectors + goal + "
                              f"velocity + {self.scan_history} history frames + {self.agent_tracks} agent tracks + "
-                             f"{self.pose_trail} pose-trail breadcrumbs + {memory} memory-scan sectors + "
+                             f"{self.pose_trail} pose-trail breadcrumbs + {2 * bool(self.carrot)} carrot columns + "
+                             f"{memory} memory-scan sectors + "
                              f"{squares} wall-map squares")
         bounds = meta.get("command_bounds") or {}
         self.v_limit = float(bounds.get("max_linear_velocity", math.inf))
@@ -163,15 +166,17 @@ class PolicyRuntime:
         return math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - float(pose[2]))
 
     def observation(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None,
-                    memory=None, wall_map=None) -> np.ndarray:
+                    memory=None, wall_map=None, carrot=None) -> np.ndarray:
         """[obs_dim] float32: sectors [S] m, goal from pose, ``velocity`` (v m/s, w rad/s) last executed,
         then ``history`` [k, S] m (the sectors of the k previous control steps, newest first; None
         when the policy has no scan history), then the policy's M agent tracks from ``tracks`` (the
         people a tracker reports, rows of (x, y, vx, vy, radius) in the robot frame; an empty list when
         it reports nobody; None when the policy has no tracks), then ``trail`` [P, 2] (the robot's
         earlier positions in the pose's frame, newest first; None when the policy has no pose trail)
-        in the robot frame of ``pose``, then ``memory`` [S] m (the memory scan,
-        :class:`flashnav.deploy.memory.ScanMemory`; None when the policy has none), then ``wall_map`` [2 C^2] of
+        in the robot frame of ``pose``, then ``carrot`` [2] m (the point along the wall map's plan in the robot
+        frame, :attr:`flashnav.deploy.memory.WallCells.carrot_xy`; None when the policy has none), then ``memory``
+        [S] m (the memory scan, :class:`flashnav.deploy.memory.ScanMemory`; None when the policy has none), then
+        ``wall_map`` [2 C^2] of
         0 / 1 (3 C^2 with a visited channel; :class:`flashnav.deploy.memory.WallCells`; None when the policy has
         none)."""
         sectors = np.asarray(sectors, np.float32).reshape(-1)
@@ -206,6 +211,13 @@ class PolicyRuntime:
                 raise ValueError(f"trail must be [{self.pose_trail}, 2] finite (x, y) positions (the policy's "
                                  f"observation.pose_trail breadcrumbs, newest first), got {got}")
             parts.append(trail_columns(crumbs, pose))
+        if carrot is not None or self.carrot:
+            point = np.asarray(carrot, np.float64).reshape(-1) if carrot is not None else None
+            if point is None or point.size != 2 or not self.carrot or not np.isfinite(point).all():
+                got = None if point is None else (point.tolist() if np.isfinite(point).all() else "not finite")
+                raise ValueError(f"carrot must be 2 finite numbers (x, y m in the robot frame: the policy's "
+                                 f"observation.wall_map_carrot {self.carrot:g} m), got {got}")
+            parts.append(point.astype(np.float32))
         if memory is not None or self.memory_frames:
             mem = np.asarray(memory, np.float32).reshape(-1) if memory is not None else None
             want_mem = self.layout.sectors if self.memory_frames else 0
@@ -237,10 +249,10 @@ class PolicyRuntime:
         return action[0], v, w
 
     def decide(self, sectors, pose, goal, velocity, history=None, tracks=None, trail=None, memory=None,
-               wall_map=None) -> Decision:
+               wall_map=None, carrot=None) -> Decision:
         """One control step: stop inside the goal radius, else the policy's command (``history``,
-        ``tracks``, ``trail``, ``memory`` and ``wall_map`` as in :meth:`observation`)."""
-        obs = self.observation(sectors, pose, goal, velocity, history, tracks, trail, memory, wall_map)
+        ``tracks``, ``trail``, ``memory``, ``wall_map`` and ``carrot`` as in :meth:`observation`)."""
+        obs = self.observation(sectors, pose, goal, velocity, history, tracks, trail, memory, wall_map, carrot)
         dist, angle = float(obs[self.layout.sectors]), float(obs[self.layout.sectors + 1])
         if dist < self.goal_threshold:
             return Decision("reached", 0.0, 0.0, dist, angle, None, obs)

@@ -45,7 +45,9 @@ class ObsLayout:
     ``track_scales``: the divisors of one track's columns (:func:`flashnav.sim.tracks.track_scales`).
     ``pose_trail``: breadcrumbs P after the tracks (2 P columns, x and y; 0 = none).
     ``trail_scale``: the divisor of every breadcrumb column, metres (:func:`flashnav.sim.trail.trail_bound`).
-    ``memory_sectors``: the memory scan's columns after the trail (LiDAR-like, :mod:`flashnav.sim.memory`; 0 = none).
+    ``carrot``: the plan's carrot after the trail (2 columns, x and y in metres, each divided by this many metres, its
+    bound; 0 = none; needs ``wall_plan``; :func:`flashnav.maps.seen_plan.carrot_points`).
+    ``memory_sectors``: the memory scan's columns after the carrot (LiDAR-like, :mod:`flashnav.sim.memory`; 0 = none).
     ``wall_map``: the wall map's squares a side C after the memory scan (2 C^2 columns of 0 / 1, an image read by
     :class:`flashnav.learn.wall_map.WallMapEncoder`, not by IPAPRec; 0 = none).
     ``wall_visited``: the wall map has a third channel, the squares the robot has been in (3 C^2 columns).
@@ -66,6 +68,7 @@ class ObsLayout:
     track_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     pose_trail: int = 0
     trail_scale: float = 1.0
+    carrot: float = 0.0
     memory_sectors: int = 0
     goal_sincos: bool = False
     wall_map: int = 0
@@ -101,6 +104,8 @@ class ObsLayout:
             raise ValueError(f"ObsLayout.wall_map must be 0 or an integer >= 2, got {self.wall_map!r}")
         if (self.wall_visited or self.wall_plan) and not self.wall_map:
             raise ValueError("ObsLayout.wall_visited and wall_plan need a wall map (wall_map >= 2)")
+        if not (math.isfinite(self.carrot) and self.carrot >= 0) or (self.carrot and not self.wall_plan):
+            raise ValueError(f"ObsLayout.carrot must be 0 or, with wall_plan, metres > 0, got {self.carrot!r}")
 
     @property
     def base_dim(self) -> int:
@@ -114,8 +119,10 @@ class ObsLayout:
 
     @property
     def trail_end(self) -> int:
-        """The end of the agent tracks and the pose trail (the scaled columns), where the memory scan starts."""
-        return self.history_end + self.agent_tracks * len(self.track_scales) + 2 * self.pose_trail
+        """The end of the agent tracks, the pose trail and the carrot (the scaled columns), where the memory scan
+        starts."""
+        return (self.history_end + self.agent_tracks * len(self.track_scales) + 2 * self.pose_trail
+                + (2 if self.carrot else 0))
 
     @property
     def memory_end(self) -> int:
@@ -124,8 +131,8 @@ class ObsLayout:
 
     @property
     def obs_dim(self) -> int:
-        """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail + memory_sectors
-        + wall_channels * wall_map^2."""
+        """D = B + scan_history * sectors + agent_tracks * len(track_scales) + 2 * pose_trail (+ 2 with a carrot)
+        + memory_sectors + wall_channels * wall_map^2."""
         return self.memory_end + self.wall_channels * self.wall_map ** 2
 
     @property
@@ -147,10 +154,11 @@ class ObsLayout:
         return self.vector_feature_dim + (WALL_MAP_FEATURES if self.wall_map else 0)
 
     def feature_scales(self) -> torch.Tensor:
-        """Divisors for the scaled columns: goal distance, angle, velocities, then the agent tracks' and
-        the pose trail's."""
+        """Divisors for the scaled columns: goal distance, angle, velocities, then the agent tracks', the
+        pose trail's and the carrot's."""
         return torch.tensor((*self.goal_scale, *self.velocity_scales, *self.track_scales * self.agent_tracks,
-                             *(self.trail_scale,) * (2 * self.pose_trail)), dtype=torch.float32)
+                             *(self.trail_scale,) * (2 * self.pose_trail), *(self.carrot,) * (2 if self.carrot else 0)),
+                            dtype=torch.float32)
 
     @classmethod
     def from_robot(cls, preset, goal_distance_max: float) -> "ObsLayout":
@@ -169,6 +177,7 @@ class ObsLayout:
                    velocity_scales=velocity, scan_history=preset.observation.scan_history,
                    agent_tracks=preset.observation.agent_tracks, track_scales=track_scales(preset),
                    pose_trail=preset.observation.pose_trail, trail_scale=trail_bound(preset),
+                   carrot=preset.observation.wall_map_carrot,
                    memory_sectors=preset.lidar.sectors if preset.observation.memory_frames else 0,
                    wall_map=preset.observation.wall_map, wall_visited=preset.observation.wall_map_visited,
                    wall_plan=preset.observation.wall_map_plan)
@@ -203,7 +212,7 @@ class IPAPRec(nn.Module):
         self.base_dim, self.history_end, self.trail_end = layout.base_dim, layout.history_end, layout.trail_end
         # Python bools: tracing records one path
         self.history = layout.history_end > layout.base_dim
-        self.tracks = layout.trail_end > layout.history_end  # agent tracks and / or the pose trail
+        self.tracks = layout.trail_end > layout.history_end  # agent tracks, the pose trail and / or the carrot
         self.memory = layout.memory_end > layout.trail_end
         self.vector_end = layout.memory_end  # the wall map's columns after it are the encoder's, not IPAPRec's
         self.wall_map = layout.wall_map > 0

@@ -17,6 +17,7 @@ The observation columns (:attr:`flashnav.config.RobotPreset.obs_dim`) and what t
 - velocity state (v, w) or (vx, vy, w): v and vx kept, vy and w negated;
 - agent tracks (present, x, y, vx, vy, radius): y and vy negated;
 - pose-trail breadcrumbs (x, y): y negated;
+- the plan's carrot (x, y): y negated;
 - the memory scan (360 deg from straight behind): reversed in order;
 - the wall map's squares, every channel (walls, goal, visited): rows (across the robot, row 0 rightmost)
   reversed, columns kept.
@@ -101,8 +102,11 @@ def mirror_for(preset: RobotPreset, fraction: float, device: torch.device | str 
         start = preset.tracks_end + 2 * crumb
         index += [start, start + 1]
         sign += [1.0, -1.0]
+    if preset.observation.wall_map_carrot:
+        index += [preset.trail_end, preset.trail_end + 1]
+        sign += [1.0, -1.0]
     if preset.observation.memory_frames:  # 360 deg from straight behind: a mirror image reverses the sectors
-        index += list(range(preset.trail_end, preset.trail_end + s))[::-1]
+        index += list(range(preset.carrot_end, preset.carrot_end + s))[::-1]
         sign += [1.0] * s
     cells = preset.observation.wall_map
     # rows run across the robot (row 0 rightmost): a mirror reverses them

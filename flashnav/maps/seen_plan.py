@@ -18,6 +18,9 @@ when the goal cannot be reached inside the box. The plan ignores the robot's bod
 as open): it is a direction, and the policy keeps to the walls it sees. ``observation.wall_map_plan_penalty``
 (``penalty`` here) makes a cell beside a marked one dearer, as a costmap's inflation does: the plan then runs down
 the middle of a corridor and through the wider of two gaps, and takes a narrow gap only where it is the way.
+``observation.wall_map_carrot`` (L metres) hands the policy the plan's direction as two columns too: the point L
+metres of path along it from the robot (:func:`plan_route`'s carrot, :func:`carrot_points`), the pure-pursuit
+carrot of :mod:`flashnav.guidance` computed from the policy's own wall memory.
 
 numpy and numba only (the deploy side has no torch): the simulator's :class:`flashnav.sim.memory.WallGrid` and a
 robot's :class:`flashnav.deploy.memory.WallCells` call the same kernel.
@@ -53,7 +56,7 @@ def _cost(known, slot, w, r, c, sr, sc, gr, gc, r0, r1, c0, c1, penalty):
 
 
 @njit(cache=True)
-def _plan_paths(known, rows, start, goal, h, w, margin, penalty, out):
+def _plan_paths(known, rows, start, goal, h, w, margin, penalty, out, carrot, carrots):
     step = np.empty(8)
     for k in range(8):
         step[k] = np.sqrt(float(_DI[k] * _DI[k] + _DJ[k] * _DJ[k]))
@@ -100,6 +103,7 @@ def _plan_paths(known, rows, start, goal, h, w, margin, penalty, out):
         r, c = sr, sc
         out[i, r * w + c] = True
         here = dist[target]
+        walked = 0.0  # cells of path length from the robot's cell
         while here > 0.0:
             best, bi, bj = np.inf, -1, -1
             entered = _cost(known, slot, w, r, c, sr, sc, gr, gc, r0, r1, c0, c1, penalty)  # this cell's, from each
@@ -115,8 +119,13 @@ def _plan_paths(known, rows, start, goal, h, w, margin, penalty, out):
                     best, bi, bj = through, ii, jj
             if bi < 0:
                 break
+            walked += np.sqrt(float((bi - r) * (bi - r) + (bj - c) * (bj - c)))
             r, c, here = bi, bj, dist[bi * w + bj]
             out[i, r * w + c] = True
+            if carrot > 0.0 and carrots[i, 2] < 0 and walked >= carrot - 1e-9:
+                carrots[i, 0], carrots[i, 1], carrots[i, 2] = r, c, 1
+        if carrot > 0.0 and carrots[i, 2] < 0:  # the plan ends nearer than the carrot: its end, the goal's cell
+            carrots[i, 0], carrots[i, 1], carrots[i, 2] = r, c, 0
 
 
 def plan_cells(known: np.ndarray, rows: np.ndarray, start: np.ndarray, goal: np.ndarray, shape: tuple[int, int],
@@ -128,9 +137,20 @@ def plan_cells(known: np.ndarray, rows: np.ndarray, start: np.ndarray, goal: np.
     move into a cell beside a marked cell of the box (8-neighbourhood) costs its length times 1 + ``penalty`` (the
     inflation cost of a costmap, one cell wide), so the plan keeps off the walls where there is room and still
     passes every gap the plain plan passes."""
-    penalty = float(penalty)
+    return plan_route(known, rows, start, goal, shape, margin, penalty)[0]
+
+
+def plan_route(known: np.ndarray, rows: np.ndarray, start: np.ndarray, goal: np.ndarray, shape: tuple[int, int],
+               margin: int, penalty: float = 0.0, carrot: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`plan_cells` (``cells``) and, per slot, its carrot (``carrots [k, 3]`` int64: row, column, kind): with
+    ``carrot`` > 0 (cells of path length), the first cell of the plan, walked from the robot's cell, at least
+    ``carrot`` cells of path (moves of 1 and sqrt 2) from it, kind 1; where the whole plan is shorter, its last
+    cell (the goal's), kind 0; where there is no plan (or ``carrot`` is 0), (-1, -1, -1)."""
+    penalty, carrot = float(penalty), float(carrot)
     if not (np.isfinite(penalty) and penalty >= 0.0):
         raise ValueError(f"plan_cells: penalty must be a finite number >= 0, got {penalty}")
+    if not (np.isfinite(carrot) and carrot >= 0.0):
+        raise ValueError(f"plan_route: carrot must be a finite number of cells >= 0, got {carrot}")
     h, w = (int(v) for v in shape)
     known = np.ascontiguousarray(known, dtype=np.bool_)
     if known.ndim != 2 or known.shape[1] != h * w + 1:
@@ -141,6 +161,26 @@ def plan_cells(known: np.ndarray, rows: np.ndarray, start: np.ndarray, goal: np.
     start = np.clip(np.asarray(start, dtype=np.int64).reshape(k, 2), 0, lim)
     goal = np.clip(np.asarray(goal, dtype=np.int64).reshape(k, 2), 0, lim)
     out = np.zeros((k, h * w + 1), dtype=np.bool_)
+    carrots = np.full((k, 3), -1, dtype=np.int64)
     if k:
-        _plan_paths(known, rows, start, goal, h, w, max(0, int(margin)), penalty, out)
-    return out
+        _plan_paths(known, rows, start, goal, h, w, max(0, int(margin)), penalty, out, carrot, carrots)
+    return out, carrots
+
+
+def carrot_points(carrots: np.ndarray, origin: np.ndarray, cell: float, pose: np.ndarray, goal: np.ndarray,
+                  length: float) -> np.ndarray:
+    """[k, 2] float64: each slot's carrot (``observation.wall_map_carrot``) in its robot's frame (x ahead, y to the
+    left), metres: the centre of its carrot cell (``carrots`` of :func:`plan_route`, kind 1: row and column on a
+    grid of ``cell`` metres whose cell (0, 0) has its corner at ``origin [k, 2]``), else (a shorter plan, or none)
+    the goal ``goal [k, 2]``; seen from ``pose [k, 3]`` and brought within ``length`` metres of the robot along its
+    bearing (a goal with no plan to it is a direction)."""
+    carrots = np.asarray(carrots, dtype=np.int64).reshape(-1, 3)
+    origin, pose = np.asarray(origin, np.float64).reshape(-1, 2), np.asarray(pose, np.float64).reshape(-1, 3)
+    goal = np.asarray(goal, np.float64).reshape(-1, 2)
+    centre = np.stack([(carrots[:, 1] + 0.5) * cell + origin[:, 0], (carrots[:, 0] + 0.5) * cell + origin[:, 1]], 1)
+    d = np.where(carrots[:, 2:3] == 1, centre, goal) - pose[:, :2]
+    cos, sin = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    x, y = cos * d[:, 0] + sin * d[:, 1], cos * d[:, 1] - sin * d[:, 0]
+    norm = np.hypot(x, y)
+    shrink = np.where(norm > length, length / np.maximum(norm, 1e-300), 1.0)
+    return np.stack([x * shrink, y * shrink], axis=1)

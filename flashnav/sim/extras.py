@@ -1,6 +1,7 @@
 """The opt-in columns after the paper's observation (:mod:`flashnav.sim.env`'s layout): the scan history
 (:mod:`flashnav.sim.history`), the agent tracks (:mod:`flashnav.sim.tracks`), the pose trail
-(:mod:`flashnav.sim.trail`), the memory scan and the wall map (:mod:`flashnav.sim.memory`), in that order.
+(:mod:`flashnav.sim.trail`), the plan's carrot, the memory scan and the wall map (:mod:`flashnav.sim.memory`), in that
+order.
 Each is None where its option is 0: then the step is exactly the paper's."""
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class ObservationExtras:
             return
         self.walls = WallGrid(self.n, grid_shape(maps, o.wall_map_grid), o.wall_map_grid, self.preset.lidar.max_range,
                               self.beam_angles, self.device, HIT_BEYOND_M, o.wall_map_visited, o.wall_map_plan,
-                              o.wall_map_plan_penalty)
+                              o.wall_map_plan_penalty, o.wall_map_carrot)
         self._origins = torch.tensor([g.origin for g in maps], dtype=torch.float32, device=self.device)
 
     def append(self, obs: torch.Tensor, sel, agents, pose: torch.Tensor, ranges: torch.Tensor, start: bool,
@@ -45,16 +46,14 @@ class ObservationExtras:
         history (a new episode, ``start``, fills it; a step gives the frames before it, then this scan joins
         them), the ``agents`` seen, as a tracker reports them, the pose trail, the memory scan (``steps``
         [k]: the slots' episode steps after this step; not needed at a start) and the wall map (``goal`` [k, 2]
-        the slots' goals; ``maps`` [k] their map indices, None with one map)."""
+        the slots' goals; ``maps`` [k] their map indices, None with one map; the carrot is the wall map's)."""
         if self.history is not None:
             obs = (self.history.start if start else self.history.push)(sel, obs)
         if self.tracks is not None:
             obs = torch.cat([obs, self.tracks.observe(sel, agents, pose, ranges, fresh=start)], dim=1)
         if self.trail is not None:
             obs = torch.cat([obs, self.trail.start(sel, pose) if start else self.trail.push(sel, pose, steps)], dim=1)
-        if self.memory is not None:
-            m = self.memory
-            obs = torch.cat([obs, m.start(sel, pose, ranges) if start else m.push(sel, pose, ranges, steps)], dim=1)
+        image = None
         if self.walls is not None:
             o = self.preset.observation
             if start:
@@ -62,6 +61,12 @@ class ObservationExtras:
                 self.walls.start(sel, pose, ranges, origin.expand(pose.shape[0], 2))
             else:
                 self.walls.push(sel, pose, ranges)
-            image = self.walls.image(sel, pose, goal, o.wall_map, o.wall_map_cell)
-            obs = torch.cat([obs, image.reshape(pose.shape[0], -1)], dim=1)
+            image = self.walls.image(sel, pose, goal, o.wall_map, o.wall_map_cell).reshape(pose.shape[0], -1)
+            if self.walls.carrot:  # left by the image's plan
+                obs = torch.cat([obs, self.walls.carrots.to(obs.dtype)], dim=1)
+        if self.memory is not None:
+            m = self.memory
+            obs = torch.cat([obs, m.start(sel, pose, ranges) if start else m.push(sel, pose, ranges, steps)], dim=1)
+        if image is not None:
+            obs = torch.cat([obs, image], dim=1)
         return obs

@@ -11,7 +11,7 @@ points the robot's LiDAR has hit in its last F stored frames::
                   point whose bearing in the robot frame lies in [-pi + j w, -pi + (j + 1) w), w = 2 pi / S;
                   ``lidar.max_range`` where no remembered point lies (and no farther than it)
 
-with M = ``preset.trail_end`` (after every other column) and S = ``lidar.sectors``. The columns are
+with M = ``preset.carrot_end`` (after every other column) and S = ``lidar.sectors``. The columns are
 LiDAR-like: the networks give them IPAPRec's ``1 / (l - beta)`` with the scan's beta. Sector 0 starts
 straight behind (-pi) and sectors go counter-clockwise, so a mirror image reverses their order.
 
@@ -231,14 +231,16 @@ class WallGrid:
     0.25 m cells and 0.05 m a step at most, the cells of its path, with no gap). With ``plan`` its image has one more
     channel, last: the cells of the slot's plan from the robot's cell to its goal's over the cells not marked
     (:mod:`flashnav.maps.seen_plan`, computed when the image is drawn, on the CPU: a host sync on a GPU), the
-    cheapest way with ``plan_penalty`` > 0 (a cell beside a marked one dearer).
+    cheapest way with ``plan_penalty`` > 0 (a cell beside a marked one dearer). With ``carrot`` > 0 (metres, needs
+    ``plan``) every :meth:`image` also leaves the drawn slots' carrots in :attr:`carrots`
+    (:func:`flashnav.maps.seen_plan.carrot_points`: the point that far along the plan, in the robot frame).
 
     :meth:`image` draws the marked cells' centres as :func:`wall_image` draws points, reading only the window of
     cells whose centres can fall in the image, so its cost is the image's, not the map's."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], cell: float, max_range: float,
                  beam_angles: torch.Tensor, device: torch.device, beyond: float = 0.0, visited: bool = False,
-                 plan: bool = False, plan_penalty: float = 0.0):
+                 plan: bool = False, plan_penalty: float = 0.0, carrot: float = 0.0):
         h, w = (int(v) for v in shape)
         if num_envs < 1 or h < 1 or w < 1 or not (math.isfinite(cell) and cell > 0):
             raise ValueError(f"WallGrid needs num_envs >= 1, a shape of >= 1 x 1 cells and cells of > 0 metres, "
@@ -256,6 +258,10 @@ class WallGrid:
         self.plan = bool(plan)
         #: what a move into a cell beside a marked one costs the plan on top of its length, times it
         self.plan_penalty = float(plan_penalty)
+        if not (math.isfinite(carrot) and carrot >= 0) or (carrot and not plan):
+            raise ValueError(f"WallGrid: carrot must be 0 or, with plan, metres > 0, got {carrot}")
+        #: metres along the plan of the carrot (0 = none) and the carrots [k, 2] of the last :meth:`image`'s slots
+        self.carrot, self.carrots = float(carrot), None
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
         self.rows = torch.arange(num_envs, device=device)
         #: how :meth:`image` draws: "numba" (the CPU default: :mod:`flashnav.sim.wall_numba`, the marked cells only)
@@ -331,8 +337,8 @@ class WallGrid:
         """[k, H W + 1] bool (the layout of :attr:`known`, the spare column never set; on the grid's device): the cells
         of the plan of slots ``idx`` from the cell of ``pose [k, 3]`` to the cell of ``goal [k, 2]`` (both clipped onto
         the grid), :func:`flashnav.maps.seen_plan.plan_cells` within :data:`~flashnav.maps.seen_plan.PLAN_MARGIN_M`
-        (at :attr:`plan_penalty`)."""
-        from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells
+        (at :attr:`plan_penalty`); with :attr:`carrot`, :attr:`carrots` set to the slots' carrots."""
+        from flashnav.maps.seen_plan import PLAN_MARGIN_M, carrot_points, plan_route
 
         rows = self.rows[idx]
         org = self.origin[rows].to(pose.dtype)
@@ -341,8 +347,13 @@ class WallGrid:
             rc = torch.stack(self._cell_rc(xy, org), -1)
             return torch.nan_to_num(rc, nan=0.0, posinf=1e9, neginf=-1e9).clamp(-1e9, 1e9).long().cpu().numpy()
 
-        out = plan_cells(self.known.cpu().numpy(), rows.cpu().numpy(), cell_of(pose[:, :2]), cell_of(goal),
-                         self.shape, math.ceil(PLAN_MARGIN_M / self.cell - 1e-9), self.plan_penalty)
+        out, carrots = plan_route(self.known.cpu().numpy(), rows.cpu().numpy(), cell_of(pose[:, :2]), cell_of(goal),
+                                  self.shape, math.ceil(PLAN_MARGIN_M / self.cell - 1e-9), self.plan_penalty,
+                                  self.carrot / self.cell)
+        if self.carrot:
+            xy = carrot_points(carrots, org.cpu().numpy(), self.cell, pose.detach().cpu().numpy(),
+                               goal.detach().cpu().numpy(), self.carrot)
+            self.carrots = torch.from_numpy(xy).to(device=pose.device, dtype=pose.dtype)
         return torch.from_numpy(out).to(self.known.device)
 
     def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:

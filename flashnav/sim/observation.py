@@ -18,6 +18,9 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     then, only with ``observation.pose_trail`` P > 0, the robot's own earlier positions, one every
     ``observation.trail_every`` steps, newest first (x, y in the robot frame; :mod:`flashnav.sim.trail`;
     a new episode starts with its start position repeated); obs_dim += 2 P
+    then, only with ``observation.wall_map_carrot`` L > 0, the plan's carrot: the point L metres of path along
+    the wall map's plan (x, y in the robot frame, within L metres; :func:`flashnav.maps.seen_plan.carrot_points`);
+    obs_dim += 2
     then, only with ``observation.memory_frames`` F > 0, the memory scan: a 360-deg pooled scan of the wall
     points hit in the last F stored scans (:mod:`flashnav.sim.memory`); obs_dim += S
     then, only with ``observation.wall_map`` C > 0, the wall map: an egocentric image of C x C squares of
@@ -50,7 +53,7 @@ def beam_angles(fov_deg: float, beams: int) -> torch.Tensor:
 def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) [obs_dim] float32 of the observation space; history frames repeat the LiDAR bounds,
     agent tracks :func:`flashnav.sim.tracks.track_bounds`, pose-trail breadcrumbs
-    +-:func:`flashnav.sim.trail.trail_bound`, the memory scan the LiDAR's, the wall map's squares [0, 1]."""
+    +-:func:`flashnav.sim.trail.trail_bound`, the carrot +-``observation.wall_map_carrot``, the memory scan the LiDAR's, the wall map's squares [0, 1]."""
     s = preset.lidar.sectors
     (v_lo, v_hi), (w_lo, w_hi) = preset.motion.v_bounds, preset.motion.w_bounds
     vel_lo, vel_hi = ([v_lo, w_lo], [v_hi, w_hi]) if preset.motion.velocity_state_dims == 2 else (
@@ -60,6 +63,8 @@ def observation_bounds(preset: RobotPreset, goal_distance_max: float) -> tuple[n
     k, m = preset.observation.scan_history, preset.observation.agent_tracks
     t_lo, t_hi = track_bounds(preset)
     trail = np.full(2 * preset.observation.pose_trail, trail_bound(preset), dtype=np.float32)
+    carrot = preset.observation.wall_map_carrot  # its two columns lie within that many metres of the robot
+    trail = np.concatenate([trail, np.full(2 if carrot else 0, carrot, dtype=np.float32)])
     mem = int(preset.observation.memory_frames > 0)  # the memory scan: LiDAR bounds, one frame
     squares = preset.observation.wall_map_channels * preset.observation.wall_map ** 2
     return (np.concatenate([low, np.tile(low[:s], k), np.tile(np.array(t_lo, np.float32), m), -trail,
