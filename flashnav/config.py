@@ -292,17 +292,18 @@ class Observation(Strict):
                               "one frame per control step, a new episode starts with its first scan repeated")
     agent_tracks: int = Field(0, ge=0, le=MAX_AGENT_TRACKS, description="the M nearest agents the robot can see, "
                               "as a people tracker on the robot reports them (present, x, y, vx, vy, radius in "
-                              "the robot frame; flashnav.sim.tracks), appended last; 0 = none, the paper's "
+                              "the robot frame; flashnav.sim.tracks), appended after the scan history; 0 = none, "
+                              "the paper's "
                               "observation")
     pose_trail: int = Field(0, ge=0, le=MAX_POSE_TRAIL, description="the robot's own earlier positions (x, y in "
                             "the robot frame of the current pose; flashnav.sim.trail), one every trail_every "
-                            "control steps, newest first, appended after everything else: a memory of where it "
+                            "control steps, newest first, appended after the agent tracks: a memory of where it "
                             "has been that odometry gives any robot; 0 = none, the paper's observation")
     trail_every: int = Field(10, ge=1, le=1000, description="control steps between two breadcrumbs of the pose "
                              "trail (the trail covers pose_trail * trail_every steps)")
     memory_frames: int = Field(0, ge=0, le=MAX_MEMORY_FRAMES, description="the memory scan (flashnav.sim.memory): "
                                "a 360-deg pooled scan of lidar.sectors columns of the wall points the LiDAR hit in "
-                               "the last memory_frames stored scans, appended after everything else: a memory of "
+                               "the last memory_frames stored scans, appended before the wall map: a memory of "
                                "walls; 0 = none, the paper's observation")
     memory_every: int = Field(10, ge=1, le=1000, description="control steps between two stored scans of the memory "
                               "scan (it remembers memory_frames * memory_every steps)")
@@ -329,8 +330,8 @@ class Observation(Strict):
                                          "shortest way")
     wall_map_carrot: float = Field(0.0, ge=0, le=MAX_WALL_MAP_CARROT, description="with wall_map_plan: two more "
                                    "columns after the pose trail, the point this many metres of path along the plan "
-                                   "from the robot (the goal where the plan is shorter or there is none), x and y "
-                                   "in the robot frame, brought within this many metres of the robot "
+                                   "from the robot's grid cell (the goal where the plan is shorter or there is none), "
+                                   "x and y in the robot frame, brought within this many metres of the robot "
                                    "(flashnav.maps.seen_plan.carrot_points): the plan's direction as numbers; 0 = "
                                    "none")
 

@@ -178,12 +178,13 @@ def wall_map_carrot(meta: dict[str, Any], path: str | Path = "<policy>") -> floa
     """Metres along the plan of the policy's carrot (``observation.wall_map_carrot``; 0 = none): the metadata's
     ``observation.carrot.length_m``, else the exported preset's, else 0 (files written before the carrot existed).
     Raises ValueError naming ``path`` unless it is a finite number >= 0 (> 0 needs the wall map's plan channel)."""
-    value = _metadata_field(meta, "carrot", "length_m")
+    value, key = _metadata_field(meta, "carrot", "length_m"), "observation.carrot.length_m"
     if value is None:
         value = ((meta.get("preset") or {}).get("observation") or {}).get("wall_map_carrot", 0.0)
+        key = "preset.observation.wall_map_carrot"
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"{path}: the policy's metadata records observation.carrot.length_m {value!r}; expected a "
-                         "finite number >= 0 (metres)")
+        raise ValueError(f"{path}: the policy's metadata records {key} {value!r}; expected a finite number >= 0 "
+                         "(metres)")
     if value and "plan" not in wall_map_channel_list(meta, path):
         raise ValueError(f"{path}: the policy's metadata records a carrot {value:g} m along the plan but no plan "
                          "channel in its wall map")

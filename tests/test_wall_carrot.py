@@ -170,6 +170,15 @@ def test_the_setting_the_metadata_and_the_runtime_name_a_bad_carrot(tmp_path):
         meta["observation"]["carrot"]["length_m"] = bad
         with pytest.raises(ValueError, match="policy.onnx: the policy's metadata records observation.carrot.length_m"):
             PolicyRuntime(rt.session, meta, "policy.onnx")
+    plain = load_robot("turtlebot2", **PLAN)  # a policy without a carrot refuses one
+    plain_rt = PolicyRuntime.load(export_policy(random_actor(plain, seed=2), plain, tmp_path / "plain")["onnx"])
+    with pytest.raises(ValueError, match=r"carrot: the policy has no carrot \(observation.wall_map_carrot 0\), "
+                                         r"got \[0.5, 0.0\]"):
+        plain_rt.observation(sectors, pose, goal, (0.0, 0.0), wall_map=walls, carrot=[0.5, 0.0])
+    meta["observation"]["carrot"] = None  # the preset's value is named where the metadata block is missing
+    meta["preset"]["observation"]["wall_map_carrot"] = -2.0
+    with pytest.raises(ValueError, match="records preset.observation.wall_map_carrot -2.0"):
+        PolicyRuntime(rt.session, meta, "policy.onnx")
     # a policy exported before the carrot: none (the preset block has no such key either)
     del meta["observation"]["carrot"]
     del meta["preset"]["observation"]["wall_map_carrot"]

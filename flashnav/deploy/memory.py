@@ -134,7 +134,8 @@ class WallCells:
         self.plan = bool(plan)
         self.plan_penalty = float(plan_penalty)  # seen_plan.plan_cells' penalty: the policy's, from its metadata
         if not (math.isfinite(carrot) and carrot >= 0) or (carrot and not plan):
-            raise ValueError(f"WallCells: carrot must be 0 or, with plan, metres > 0, got {carrot}")
+            raise ValueError(f"WallCells: carrot must be 0 or, with plan, metres > 0, got carrot={carrot} with "
+                             f"plan={plan}")
         self.carrot = float(carrot)
         #: [2] the carrot (x, y m in the robot frame) of the last :meth:`step`, None without ``carrot``
         self.carrot_xy: np.ndarray | None = None

@@ -17,7 +17,9 @@ policy trained with ``observation.agent_tracks`` M > 0, the M nearest people a t
 for a policy trained with ``observation.pose_trail`` P > 0, the robot's own P earlier positions
 (``trail`` [P, 2], x and y in the same fixed frame as the pose, newest first, one every ``trail_every``
 control steps; kept by the controller; :mod:`flashnav.sim.trail`), which the runtime turns into the
-robot frame.
+robot frame, then, for a policy trained with ``observation.wall_map_carrot`` L > 0, the point L m of path along the
+wall map's plan (``carrot`` [2], x and y m in the robot frame: :attr:`flashnav.deploy.memory.WallCells.carrot_xy`,
+which the controller keeps), then the memory scan and the wall map (``memory``, ``wall_map``).
 The network holds its own input scaling, so the runtime passes physical units. Inside the goal radius
 the runtime commands (0, 0) without running the network.
 """
@@ -213,7 +215,10 @@ class PolicyRuntime:
             parts.append(trail_columns(crumbs, pose))
         if carrot is not None or self.carrot:
             point = np.asarray(carrot, np.float64).reshape(-1) if carrot is not None else None
-            if point is None or point.size != 2 or not self.carrot or not np.isfinite(point).all():
+            if not self.carrot:
+                raise ValueError(f"carrot: the policy has no carrot (observation.wall_map_carrot 0), got "
+                                 f"{point.tolist()}")
+            if point is None or point.size != 2 or not np.isfinite(point).all():
                 got = None if point is None else (point.tolist() if np.isfinite(point).all() else "not finite")
                 raise ValueError(f"carrot must be 2 finite numbers (x, y m in the robot frame: the policy's "
                                  f"observation.wall_map_carrot {self.carrot:g} m), got {got}")

@@ -105,7 +105,8 @@ class ObsLayout:
         if (self.wall_visited or self.wall_plan) and not self.wall_map:
             raise ValueError("ObsLayout.wall_visited and wall_plan need a wall map (wall_map >= 2)")
         if not (math.isfinite(self.carrot) and self.carrot >= 0) or (self.carrot and not self.wall_plan):
-            raise ValueError(f"ObsLayout.carrot must be 0 or, with wall_plan, metres > 0, got {self.carrot!r}")
+            raise ValueError(f"ObsLayout.carrot must be 0 or, with wall_plan, metres > 0, got carrot={self.carrot!r} "
+                             f"with wall_plan={self.wall_plan}")
 
     @property
     def base_dim(self) -> int:
@@ -120,7 +121,7 @@ class ObsLayout:
     @property
     def trail_end(self) -> int:
         """The end of the agent tracks, the pose trail and the carrot (the scaled columns), where the memory scan
-        starts."""
+        starts: :attr:`flashnav.config.RobotPreset.carrot_end`, not its ``trail_end`` (which is before the carrot)."""
         return (self.history_end + self.agent_tracks * len(self.track_scales) + 2 * self.pose_trail
                 + (2 if self.carrot else 0))
 
@@ -195,7 +196,8 @@ class IPAPRec(nn.Module):
     History frames (columns from ``layout.base_dim`` on) get the same ``1 / (l - beta)`` with the same
     beta: one reading means the same distance whenever it was taken, and sharing keeps one parameter
     per transform; agent tracks (the last columns) are divided by their bounds like the goal and
-    velocity columns, and so are the pose trail's breadcrumbs after them; the memory scan (last) is LiDAR-like:
+    velocity columns, and so are the pose trail's breadcrumbs and the carrot after them; the memory scan (next) is
+    LiDAR-like:
     ``1 / (l - beta)`` with the same beta; a wall map's columns (after it) are not read here
     (:class:`flashnav.learn.wall_map.WallMapEncoder` reads them). The output keeps the input's
     column order; with ``layout.goal_sincos`` the goal angle's column holds sin(angle) and cos(angle) follows it

@@ -11,7 +11,7 @@ points the robot's LiDAR has hit in its last F stored frames::
                   point whose bearing in the robot frame lies in [-pi + j w, -pi + (j + 1) w), w = 2 pi / S;
                   ``lidar.max_range`` where no remembered point lies (and no farther than it)
 
-with M = ``preset.carrot_end`` (after every other column) and S = ``lidar.sectors``. The columns are
+with M = ``preset.carrot_end`` (after every column but the wall map's) and S = ``lidar.sectors``. The columns are
 LiDAR-like: the networks give them IPAPRec's ``1 / (l - beta)`` with the scan's beta. Sector 0 starts
 straight behind (-pi) and sectors go counter-clockwise, so a mirror image reverses their order.
 
@@ -259,7 +259,8 @@ class WallGrid:
         #: what a move into a cell beside a marked one costs the plan on top of its length, times it
         self.plan_penalty = float(plan_penalty)
         if not (math.isfinite(carrot) and carrot >= 0) or (carrot and not plan):
-            raise ValueError(f"WallGrid: carrot must be 0 or, with plan, metres > 0, got {carrot}")
+            raise ValueError(f"WallGrid: carrot must be 0 or, with plan, metres > 0, got carrot={carrot} with "
+                             f"plan={plan}")
         #: metres along the plan of the carrot (0 = none) and the carrots [k, 2] of the last :meth:`image`'s slots
         self.carrot, self.carrots = float(carrot), None
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
