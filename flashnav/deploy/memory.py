@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from flashnav.deploy.runtime import robot_frame
-from flashnav.maps.seen_plan import PLAN_MARGIN_M, carrot_points, plan_route
+from flashnav.maps.seen_plan import PLAN_MARGIN_M, carrot_points, check_carrot, plan_route
 
 #: Metres along each axis from the robot within which :meth:`WallCells.plan_centres` takes the goal (a farther one is
 #: brought onto that square's edge): the largest generated map's side, which bounds the simulator's plans.
@@ -133,10 +133,7 @@ class WallCells:
         self.visited = np.zeros((0, 2), np.int64) if visited else None  # the cells the robot has been in
         self.plan = bool(plan)
         self.plan_penalty = float(plan_penalty)  # seen_plan.plan_cells' penalty: the policy's, from its metadata
-        if not (math.isfinite(carrot) and carrot >= 0) or (carrot and not plan):
-            raise ValueError(f"WallCells: carrot must be 0 or, with plan, metres > 0, got carrot={carrot} with "
-                             f"plan={plan}")
-        self.carrot = float(carrot)
+        self.carrot = check_carrot("WallCells", carrot, plan)
         #: [2] the carrot (x, y m in the robot frame) of the last :meth:`step`, None without ``carrot``
         self.carrot_xy: np.ndarray | None = None
 

@@ -17,6 +17,7 @@ from torch import nn
 
 from flashnav.learn.hparams import WALL_MAP_CONVS
 from flashnav.learn.wall_map import WALL_MAP_FEATURES
+from flashnav.maps.seen_plan import check_carrot
 from flashnav.policy_meta import wall_map_channel_names
 from flashnav.sim.tracks import track_scales
 from flashnav.sim.trail import trail_bound
@@ -104,9 +105,7 @@ class ObsLayout:
             raise ValueError(f"ObsLayout.wall_map must be 0 or an integer >= 2, got {self.wall_map!r}")
         if (self.wall_visited or self.wall_plan) and not self.wall_map:
             raise ValueError("ObsLayout.wall_visited and wall_plan need a wall map (wall_map >= 2)")
-        if not (math.isfinite(self.carrot) and self.carrot >= 0) or (self.carrot and not self.wall_plan):
-            raise ValueError(f"ObsLayout.carrot must be 0 or, with wall_plan, metres > 0, got carrot={self.carrot!r} "
-                             f"with wall_plan={self.wall_plan}")
+        check_carrot("ObsLayout", self.carrot, self.wall_plan, "wall_plan")
 
     @property
     def base_dim(self) -> int:

@@ -28,6 +28,8 @@ robot's :class:`flashnav.deploy.memory.WallCells` call the same kernel.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -126,6 +128,15 @@ def _plan_paths(known, rows, start, goal, h, w, margin, penalty, out, carrot, ca
                 carrots[i, 0], carrots[i, 1], carrots[i, 2] = r, c, 1
         if carrot > 0.0 and carrots[i, 2] < 0:  # the plan ends nearer than the carrot: its end, the goal's cell
             carrots[i, 0], carrots[i, 1], carrots[i, 2] = r, c, 0
+
+
+def check_carrot(owner: str, carrot: float, plan: bool, plan_name: str = "plan") -> float:
+    """``carrot`` (metres along the plan) as a float: 0, or a finite number > 0 with the plan on; else a ValueError
+    naming ``owner`` and both settings (``plan_name``: what the owner calls its plan switch)."""
+    if not (math.isfinite(carrot) and carrot >= 0) or (carrot and not plan):
+        raise ValueError(f"{owner}: carrot must be 0 or, with {plan_name}, metres > 0, got carrot={carrot!r} with "
+                         f"{plan_name}={plan}")
+    return float(carrot)
 
 
 def plan_cells(known: np.ndarray, rows: np.ndarray, start: np.ndarray, goal: np.ndarray, shape: tuple[int, int],

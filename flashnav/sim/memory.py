@@ -258,11 +258,10 @@ class WallGrid:
         self.plan = bool(plan)
         #: what a move into a cell beside a marked one costs the plan on top of its length, times it
         self.plan_penalty = float(plan_penalty)
-        if not (math.isfinite(carrot) and carrot >= 0) or (carrot and not plan):
-            raise ValueError(f"WallGrid: carrot must be 0 or, with plan, metres > 0, got carrot={carrot} with "
-                             f"plan={plan}")
+        from flashnav.maps.seen_plan import check_carrot
+
         #: metres along the plan of the carrot (0 = none) and the carrots [k, 2] of the last :meth:`image`'s slots
-        self.carrot, self.carrots = float(carrot), None
+        self.carrot, self.carrots = check_carrot("WallGrid", carrot, plan), None
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
         self.rows = torch.arange(num_envs, device=device)
         #: how :meth:`image` draws: "numba" (the CPU default: :mod:`flashnav.sim.wall_numba`, the marked cells only)
