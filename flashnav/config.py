@@ -307,7 +307,7 @@ class Observation(Strict):
                                "walls; 0 = none, the paper's observation")
     memory_every: int = Field(10, ge=1, le=1000, description="control steps between two stored scans of the memory "
                               "scan (it remembers memory_frames * memory_every steps)")
-    wall_map: int = Field(0, ge=0, le=MAX_WALL_MAP, description="the wall map (flashnav.sim.memory.WallGrid): an "
+    wall_map: int = Field(0, ge=0, le=MAX_WALL_MAP, description="the wall map (flashnav.sim.wall_grid.WallGrid): an "
                           "egocentric image of wall_map x wall_map squares of wall_map_cell metres around the robot, "
                           "turned with it, 1 where a wall its LiDAR hit this episode lies and, in a second channel, "
                           "1 in the goal's square; 2 x wall_map^2 columns appended after everything else; 0 = none, "

@@ -35,7 +35,8 @@ from flashnav.observation_samples import sample_observations
 from flashnav.policy_meta import METADATA_KEY, POLICY_FORMAT_VERSION, first_sentence, open_onnx  # noqa: F401
 from flashnav.policy_meta import wall_map_channel_names
 from flashnav.policy_meta import parse_metadata as _parse_metadata
-from flashnav.sim.memory import HIT_BEYOND_M, points_per_frame
+from flashnav.sim.memory import points_per_frame
+from flashnav.sim.wall_grid import HIT_BEYOND_M
 
 #: ONNX opset: well inside what onnxruntime >= 1.18 implements, and every op used here exists in it.
 ONNX_OPSET = 17
@@ -159,7 +160,7 @@ def policy_metadata(preset: RobotPreset, goal_distance_max: float | None = None)
                                        "a scan is stored after every 'every'-th control step of the episode, as "
                                        "'points_per_frame' points (the nearest hit of each group of consecutive beams)",
                             "reset": "a new episode (goal) stores its first scan and forgets the rest"},
-            # always written (0 = none): the egocentric wall map (flashnav.sim.memory.WallGrid, wall_image)
+            # always written (0 = none): the egocentric wall map (flashnav.sim.wall_grid.WallGrid, wall_image)
             "wall_map": {"cells": preset.observation.wall_map, "cell_m": preset.observation.wall_map_cell,
                          "grid_m": preset.observation.wall_map_grid, "beyond_m": HIT_BEYOND_M,
                          "columns": [preset.memory_end, preset.obs_dim],

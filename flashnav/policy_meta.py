@@ -154,7 +154,7 @@ def wall_map_channels(meta: dict[str, Any], path: str | Path = "<policy>") -> in
 
 def wall_map_shape(meta: dict[str, Any], path: str | Path = "<policy>") -> tuple[int, float, float, float]:
     """``(cells, cell_m, grid_m, beyond_m)`` of the policy's wall map (``observation.wall_map``,
-    :class:`flashnav.sim.memory.WallGrid`): the metadata's ``observation.wall_map``; ``(0, 0, 0, 0)`` for a policy
+    :class:`flashnav.sim.wall_grid.WallGrid`): the metadata's ``observation.wall_map``; ``(0, 0, 0, 0)`` for a policy
     without one or a file written before the wall map existed.
 
     Raises ValueError naming ``path`` when a recorded value has the wrong type or range."""

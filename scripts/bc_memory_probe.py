@@ -63,7 +63,9 @@ from flashnav.names import EVAL_SEED, VALIDATION_SEEDS  # noqa: E402
 from flashnav.presets import load_robot  # noqa: E402
 from flashnav.sim.env import make_env  # noqa: E402
 from flashnav.sim.goal_fields import evaluation_preset  # noqa: E402
-from flashnav.sim.memory import WallGrid, WallMemory, check_wall_image, points_per_frame, wall_image  # noqa: E402
+from flashnav.sim.memory import WallMemory, points_per_frame  # noqa: E402
+from flashnav.sim.wall_grid import WallGrid  # noqa: E402
+from flashnav.sim.wall_image import check_wall_image, wall_image  # noqa: E402
 
 GOAL_BOUND_M = 10.0  # the goal-distance divisor of the students' input (goals are 1-5 m by path length)
 ENCODERS = ("flat", "cnn", "small")  # how a student reads the wall map (--map-encoder)
@@ -84,9 +86,9 @@ class WallMap:
     memory); ``frames=F > 0`` the simulator's sparse memory points (:class:`flashnav.sim.memory.WallMemory`: the
     nearest hit of each group of beams, 60 points a scan, one scan stored every ``every`` steps, the last F kept),
     the form a simulator slot and a robot can keep cheaply; ``grid=G > 0`` the simulator's dense memory of hits
-    (:class:`flashnav.sim.memory.WallGrid`: every beam's hit of every scan, kept as the cells of a coarse grid of
+    (:class:`flashnav.sim.wall_grid.WallGrid`: every beam's hit of every scan, kept as the cells of a coarse grid of
     G metres over the map, drawn at the marked cells' centres; a hit marked at its return, where the env's
-    ``observation.wall_map`` marks it 1 mm past: :data:`flashnav.sim.memory.HIT_BEYOND_M`), the form a wall-map
+    ``observation.wall_map`` marks it 1 mm past: :data:`flashnav.sim.wall_grid.HIT_BEYOND_M`), the form a wall-map
     observation keeps."""
 
     cells: int
@@ -111,7 +113,7 @@ class WallMap:
         return 2 * self.cells * self.cells
 
     def _draw(self, xy: np.ndarray, pose: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """[N, 2 cells^2] float32: :func:`flashnav.sim.memory.wall_image` of N slots' wall points ``xy``
+        """[N, 2 cells^2] float32: :func:`flashnav.sim.wall_image.wall_image` of N slots' wall points ``xy``
         [N, Q, 2] (``inf`` = none), poses [N, 3] and goals [N, 2], in float64 (then stored as float32)."""
         img = wall_image(torch.from_numpy(np.asarray(xy, dtype=np.float64)), torch.from_numpy(pose),
                          torch.from_numpy(goal), self.cells, self.cell)
@@ -409,7 +411,7 @@ def main() -> None:
     p.add_argument("--wall-map-every", type=int, default=None, metavar="E",
                    help=f"with --wall-map-frames: control steps between two stored scans (default {MEMORY_EVERY})")
     p.add_argument("--wall-map-grid", type=float, default=None, metavar="G",
-                   help="draw the wall map from the simulator's dense memory of hits (flashnav.sim.memory.WallGrid: "
+                   help="draw the wall map from the simulator's dense memory of hits (flashnav.sim.wall_grid.WallGrid: "
                         "every beam's hit, kept as cells of G metres) instead of the teacher's memory (default: the "
                         "teacher's)")
     p.add_argument("--map-encoder", default=None, choices=ENCODERS,

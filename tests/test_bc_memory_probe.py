@@ -256,7 +256,7 @@ def test_the_grid_wall_map_draws_the_hits_the_teachers_memory_draws(maze, monkey
     off for this check); a coarser grid draws a map of its own cells."""
     from flashnav.guidance import EnvScans
     from flashnav.maps.ros import load_ros_map
-    from flashnav.sim.memory import WallGrid
+    from flashnav.sim.wall_grid import WallGrid
 
     grid = load_ros_map(maze)
     walls_of = EnvScans.walls

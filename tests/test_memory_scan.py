@@ -378,7 +378,7 @@ def test_the_wall_image_against_a_point_by_point_reference(dtype):
     """Random points (some none: inf or NaN in either coordinate, a slot with none at all), poses and goals (some
     far outside): every square the batched image marks is the reference's, and a quarter turn of the robot
     turns the image a quarter (a point ahead lands to the right)."""
-    from flashnav.sim.memory import wall_image
+    from flashnav.sim.wall_image import wall_image
 
     rng = np.random.default_rng(11)
     k, q, cells, cell = 5, 300, 9, 0.4
@@ -414,7 +414,7 @@ def test_the_wall_image_against_a_point_by_point_reference(dtype):
 def test_a_slots_wall_image_draws_its_stored_points():
     """:meth:`WallMemory.image` of some slots is :func:`wall_image` of those slots' stored points, from the
     env's own memory after some steps."""
-    from flashnav.sim.memory import wall_image
+    from flashnav.sim.wall_image import wall_image
 
     preset = load_robot("turtlebot2", **{"observation.memory_frames": 3, "observation.memory_every": 2})
     env = make_env(preset, 6, map=generate_map(8.0, 8.0, 0.05, seed=2, robot_radius=0.3), seed=0)

@@ -1,4 +1,4 @@
-"""The dense memory of hits (flashnav.sim.memory.WallGrid): the cells it marks are those of every beam's hit,
+"""The dense memory of hits (flashnav.sim.wall_grid.WallGrid): the cells it marks are those of every beam's hit,
 against a beam-by-beam float64 reference (up to points within EDGE of a cell's edge, which float32 may put on
 either side); its image is :func:`wall_image` of every marked cell's centre, drawn from a window; a start or a
 push of some slots leaves the others bit-identical; fed from an env's scans, it marks walls."""
@@ -15,7 +15,8 @@ from test_pose_trail import forward_actions  # seeded, forward-biased actions: e
 from flashnav.maps import generate_map
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
-from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, wall_image
+from flashnav.sim.wall_grid import HIT_BEYOND_M, WallGrid
+from flashnav.sim.wall_image import wall_image
 from flashnav.sim.observation import beam_angles
 
 #: metres: a hit this close to a cell's edge may fall in either cell in float32

@@ -181,7 +181,7 @@ def test_a_run_with_the_wall_map_trains_saves_and_exports_what_it_reads(tmp_path
     from flashnav.deploy.runtime import PolicyRuntime
     from flashnav.export import load_policy
     from flashnav.learn.artefacts import save_run
-    from flashnav.sim.memory import HIT_BEYOND_M
+    from flashnav.sim.wall_grid import HIT_BEYOND_M
     from tests.test_train import TINY, tiny
 
     result = train(tiny(overrides={**TINY, "robot.observation.wall_map": 6, "algo.mirror": 0.5}), keep_replay=True)
@@ -210,7 +210,7 @@ def test_a_run_with_the_wall_map_trains_saves_and_exports_what_it_reads(tmp_path
 def test_the_robot_wall_image_is_the_simulators():
     """numpy's wall image (the robot's) against the simulator's torch one, on random points, poses and goals."""
     from flashnav.deploy.memory import wall_image as robot_image
-    from flashnav.sim.memory import wall_image
+    from flashnav.sim.wall_image import wall_image
 
     rng = np.random.default_rng(2)
     for cells, cell in ((24, 0.5), (7, 0.3)):

@@ -18,7 +18,8 @@ from test_wall_visited import env_third_channel, random_marked_grid, random_pose
 from flashnav.maps.graph import grid_graph
 from flashnav.maps.seen_plan import PLAN_MARGIN_M, plan_cells, plan_route
 from flashnav.presets import load_robot
-from flashnav.sim.memory import WallGrid, wall_image
+from flashnav.sim.wall_grid import WallGrid
+from flashnav.sim.wall_image import wall_image
 
 MOVES = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 

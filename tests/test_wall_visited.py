@@ -15,7 +15,8 @@ from test_wall_grid import random_grid, random_scans, step_pair
 
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
-from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, wall_image
+from flashnav.sim.wall_grid import HIT_BEYOND_M, WallGrid
+from flashnav.sim.wall_image import wall_image
 from flashnav.sim.observation import beam_angles
 
 CPU = torch.device("cpu")

@@ -61,7 +61,7 @@ A policy with a memory scan (``observation.memory_frames`` F > 0, :mod:`flashnav
 :class:`flashnav.deploy.memory.ScanMemory`: the goal's first control step's scan is stored, then that of
 every ``memory_every``-th control step since the goal (its wall hits in the odometry frame, the last F
 kept); only a new goal forgets them.
-A policy with a wall map (``observation.wall_map`` C > 0, :class:`flashnav.sim.memory.WallGrid`) gets it from
+A policy with a wall map (``observation.wall_map`` C > 0, :class:`flashnav.sim.wall_grid.WallGrid`) gets it from
 :class:`flashnav.deploy.memory.WallCells`: every beam's return of every control step since the goal marks a cell of
 the policy's grid in the odometry frame, and the marked cells' centres are drawn as the C x C squares around the
 robot with the goal's square (the target's, with guidance), and, with a visited channel, the cells its odometry pose

@@ -81,7 +81,7 @@ class ScanMemory:
 
 def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float,
                visited: np.ndarray | None = None, plan: np.ndarray | None = None) -> np.ndarray:
-    """[2, cells, cells] float32: :func:`flashnav.sim.memory.wall_image` of one robot in numpy (float64), the
+    """[2, cells, cells] float32: :func:`flashnav.sim.wall_image.wall_image` of one robot in numpy (float64), the
     wall ``points`` [Q, 2] and ``goal`` (x, y) in the frame of ``pose`` (x, y, yaw): channel 0 is 1 in each square
     a point falls in, channel 1 in the goal's square (clipped onto the edge); row = left (row 0 rightmost),
     column = forward (column 0 behind). With ``visited`` [V, 2] (where the robot has been) a third channel
@@ -112,7 +112,7 @@ def wall_image(points: np.ndarray, pose, goal, cells: int, cell: float,
 
 
 class WallCells:
-    """The wall map on the robot (:class:`flashnav.sim.memory.WallGrid`'s): the cells of a grid of ``grid``
+    """The wall map on the robot (:class:`flashnav.sim.wall_grid.WallGrid`'s): the cells of a grid of ``grid``
     metres in the odometry frame (cell (0, 0) from its origin) in which a beam ended, ``beyond`` metres past its
     return, since the goal; drawn as the policy's ``cells`` x ``cells`` squares of ``cell`` metres at the marked
     cells' centres. The simulator's grid starts at its map's corner, the robot's at the odometry origin: the

@@ -7,7 +7,7 @@ sector minima (metres, ``(0, max_range]``), ``S`` goal distance (metres), ``S+1`
 scan history of k frames (:mod:`flashnav.sim.history`) k * S more LiDAR columns follow, the previous pooled scans
 newest first; with M agent tracks (:mod:`flashnav.sim.tracks`) 6 M columns follow (present, x, y, vx, vy, radius
 each); with a pose trail of P breadcrumbs (:mod:`flashnav.sim.trail`) 2 P columns follow (x, y each, metres); with a
-memory scan S more LiDAR-like columns; with a wall map of C x C squares (:mod:`flashnav.sim.memory`) 2 C^2 columns
+memory scan S more LiDAR-like columns; with a wall map of C x C squares (:mod:`flashnav.sim.wall_grid`) 2 C^2 columns
 (3 C^2 with the visited squares) of 0 / 1 end it, read by a CNN (:class:`flashnav.learn.wall_map.WallMapEncoder`, one
 shared by a learner's actor and critics) whose features join IPAPRec's.
 Actions are ``[N, A]`` in ``[-1, 1]``.

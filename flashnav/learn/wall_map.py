@@ -1,4 +1,4 @@
-"""The networks' reader of the wall map (``observation.wall_map``, :mod:`flashnav.sim.memory`): a small CNN, one
+"""The networks' reader of the wall map (``observation.wall_map``, :mod:`flashnav.sim.wall_grid`): a small CNN, one
 per learner, shared by the actor and the critics.
 
 The wall map is the observation's last ``2 C^2`` columns: an egocentric image of C x C squares, channel 0 the walls

@@ -11,7 +11,7 @@ drawn, a 0 is what the map already says there, and a replicated goal square woul
 0.5 m squares and k = 1 the robot's place in its map moves by at most one square (DrQ's 4 of 84 pixels are about 1.1
 of 24 squares); the scan and the goal's distance and angle, the rest of the observation, stay exact.
 
-Rows of the map run across the robot, columns along its heading (:func:`flashnav.sim.memory.wall_image`); a shift
+Rows of the map run across the robot, columns along its heading (:func:`flashnav.sim.wall_image.wall_image`); a shift
 moves both. The actor step reads the same shifted squares as the critic (:func:`flashnav.learn.common.actor_view`
 re-encodes the batch's own squares), as in DrQ-v2. ``tests/test_wall_shift.py`` checks the shift against a
 square-by-square loop.

@@ -22,7 +22,7 @@ the middle of a corridor and through the wider of two gaps, and takes a narrow g
 metres of path along it from the robot (:func:`plan_route`'s carrot, :func:`carrot_points`), the pure-pursuit
 carrot of :mod:`flashnav.guidance` computed from the policy's own wall memory.
 
-numpy and numba only (the deploy side has no torch): the simulator's :class:`flashnav.sim.memory.WallGrid` and a
+numpy and numba only (the deploy side has no torch): the simulator's :class:`flashnav.sim.wall_grid.WallGrid` and a
 robot's :class:`flashnav.deploy.memory.WallCells` call the same kernel.
 """
 

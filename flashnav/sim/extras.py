@@ -1,7 +1,7 @@
 """The opt-in columns after the paper's observation (:mod:`flashnav.sim.env`'s layout): the scan history
 (:mod:`flashnav.sim.history`), the agent tracks (:mod:`flashnav.sim.tracks`), the pose trail
-(:mod:`flashnav.sim.trail`), the plan's carrot, the memory scan and the wall map (:mod:`flashnav.sim.memory`), in that
-order.
+(:mod:`flashnav.sim.trail`), the plan's carrot, the memory scan (:mod:`flashnav.sim.memory`) and the wall map
+(:mod:`flashnav.sim.wall_grid`), in that order.
 Each is None where its option is 0: then the step is exactly the paper's."""
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ import torch
 
 from flashnav.config import RobotPreset
 from flashnav.sim.history import ScanHistory
-from flashnav.sim.memory import HIT_BEYOND_M, WallGrid, WallMemory, grid_shape
+from flashnav.sim.memory import WallMemory
+from flashnav.sim.wall_grid import HIT_BEYOND_M, WallGrid, grid_shape
 from flashnav.sim.tracks import AgentTracks
 from flashnav.sim.trail import PoseTrail
 

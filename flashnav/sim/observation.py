@@ -25,8 +25,8 @@ Observation layout (``obs_dim`` = sectors + 2 + velocity dims; 34 for TurtleBot2
     points hit in the last F stored scans (:mod:`flashnav.sim.memory`); obs_dim += S
     then, only with ``observation.wall_map`` C > 0, the wall map: an egocentric image of C x C squares of
     ``observation.wall_map_cell`` metres, 1 where a wall hit this episode lies (kept per slot in a grid of
-    ``observation.wall_map_grid`` metres: :class:`flashnav.sim.memory.WallGrid`), then 1 in the goal's square
-    (:func:`flashnav.sim.memory.wall_image`), then, with ``observation.wall_map_visited``, 1 in the squares the
+    ``observation.wall_map_grid`` metres: :class:`flashnav.sim.wall_grid.WallGrid`), then 1 in the goal's square
+    (:func:`flashnav.sim.wall_image.wall_image`), then, with ``observation.wall_map_visited``, 1 in the squares the
     robot's centre has passed this episode; obs_dim += 2 C^2 (3 C^2 with the visited squares)
 """
 

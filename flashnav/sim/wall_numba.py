@@ -1,4 +1,4 @@
-"""The CPU kernel of the wall map's image (numba): :meth:`flashnav.sim.memory.WallGrid.image` without the window's
+"""The CPU kernel of the wall map's image (numba): :meth:`flashnav.sim.wall_grid.WallGrid.image` without the window's
 unmarked cells.
 
 The torch path turns every cell centre of a square window around the robot into the robot's frame (71 x 71 cells
@@ -6,7 +6,7 @@ for the 24 x 24 map of 0.5 m squares on the 0.25 m grid: 5,041 points a slot and
 each) and drops the unmarked ones at the end; most cells of a window are unmarked. This kernel visits the same
 window and does the arithmetic for the marked cells only, with the same float operations in the same order (the
 cosine and sine of the heading, and the window's first cell, come from torch), so it draws the same squares bit for
-bit (tests/test_wall_grid.py checks both paths against :func:`flashnav.sim.memory.wall_image` of every marked
+bit (tests/test_wall_grid.py checks both paths against :func:`flashnav.sim.wall_image.wall_image` of every marked
 centre). Serial, as :mod:`flashnav.sim.agent_numba` (a parallel launch measured slower on the 2-core CPU).
 """
 
