@@ -76,7 +76,7 @@ def error_line(exc: BaseException) -> str:
     from pydantic import ValidationError
 
     if isinstance(exc, ValidationError):
-        from flashnav.config import error_lines
+        from flashnav.config_base import error_lines
 
         return f"invalid {exc.title}: " + "; ".join(error_lines(exc))
     text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)

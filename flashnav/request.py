@@ -13,7 +13,7 @@ from typing import Any, Literal
 
 from pydantic import Field, StrictInt, ValidationError, ValidationInfo, field_validator, model_validator
 
-from flashnav.config import KnownKeys, error_lines
+from flashnav.config_base import KnownKeys, error_lines
 from flashnav.learn.hparams import override_section
 from flashnav.machine import MACHINE_KEYS, check_device_name
 from flashnav.maps.stream import GeneratedMaps, parse_family_maps

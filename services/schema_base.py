@@ -7,7 +7,7 @@ importing each other.
 
 from __future__ import annotations
 
-from flashnav.config import Strict  # noqa: F401  (the sweep schema's base: one strict model for the project)
+from flashnav.config_base import Strict  # noqa: F401  (the sweep schema's base: one strict model for the project)
 from flashnav.names import ALGORITHMS, THRESHOLD_TAGS
 
 #: what a trial's final report carries to MLflow (services.tracking logs them; services.report reads them)

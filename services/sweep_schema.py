@@ -22,7 +22,7 @@ import yaml
 from pydantic import Field, StrictInt, ValidationError, field_serializer, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from flashnav.config import problems
+from flashnav.config_base import problems
 from flashnav.names import check_robot
 from flashnav.spec import Budget, TrainConfig
 from flashnav.yamlio import load_yaml, parse_assignment, set_dotted

@@ -12,7 +12,7 @@ from typing import Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from flashnav.config import Strict, error_lines
+from flashnav.config_base import Strict, error_lines
 from flashnav.names import ALGORITHMS, PRECISIONS, RECIPES, check_name
 from flashnav.presets import load_preset_file
 from flashnav.yamlio import set_dotted

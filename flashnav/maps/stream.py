@@ -22,7 +22,7 @@ from typing import Any, Callable
 
 from pydantic import Field, field_validator
 
-from flashnav.config import KnownKeys
+from flashnav.config_base import KnownKeys
 from flashnav.maps.families import RESERVED_SEED_START, SIZE_RANGE, check_training_seed, generate_family
 from flashnav.machine import numba_threads
 from flashnav.maps.grid import OccupancyMap

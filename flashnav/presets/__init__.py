@@ -14,7 +14,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from flashnav.config import RobotPreset, error_lines
+from flashnav.config import RobotPreset
+from flashnav.config_base import error_lines
 from flashnav.names import DEFAULT_ROBOT, RECIPES, ROBOTS, check_robot
 from flashnav.yamlio import deep_merge, load_yaml, set_dotted
 
