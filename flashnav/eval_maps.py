@@ -30,7 +30,7 @@ from pathlib import Path
 
 import torch
 
-from flashnav.evaluate import episode_rates, play_episodes
+from flashnav.evaluate import STALL_M, episode_rates, play_episodes, stalled
 from flashnav.guidance import PathGuide
 from flashnav.maps.grid import OccupancyMap
 from flashnav.maps.validation import spread_episodes
@@ -44,7 +44,7 @@ from flashnav.sim.mapset import sim_frame
 #: --generalisation``). Rows written before 2026-11-27 have no ``outcomes``.
 EVAL_MAPS_FORMAT = 1
 EVAL_MAPS_KIND = "flashnav.eval_maps"
-RATES = ("success_rate", "collision_rate", "timeout_rate")
+RATES = ("success_rate", "collision_rate", "timeout_rate", "stalled_rate")
 
 
 def suite_path(maps: str) -> str:
@@ -146,8 +146,9 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
 
     Returns a dict: ``maps`` (one entry per map, in order: label, source, size, resolution, diagonal,
     ``beyond_scale`` = diagonal > ``goal_distance_scale``, ``episodes_beyond_scale`` = episodes whose goal
-    distance input exceeded the scale, the three rates as fractions, the success rate's 95 % interval
-    (:func:`success_interval`), mean steps and return) and
+    distance input exceeded the scale, the three rates as fractions and ``stalled_rate``, the share of episodes
+    that timed out with the robot parked (:func:`flashnav.evaluate.stalled`; part of the timeouts), the success
+    rate's 95 % interval (:func:`success_interval`), mean steps and return) and
     ``aggregate`` (``mean`` over maps, ``pooled`` over all episodes, the ``worst`` map by success).
     """
     if episodes < 1:
@@ -165,6 +166,7 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
         obs = env.set_state(torch.cat(poses), torch.cat(goals), map_index=map_index if m > 1 else None)
         e = play_episodes(policy, env, obs, guide=None if guide is None else PathGuide(env, lookahead=guide))
     rows = []
+    parked = stalled(e)
     for k, (g, label) in enumerate(zip(grids, map_labels(grids))):
         sl = slice(k * episodes, (k + 1) * episodes)
         success, collision = e["success"][sl], e["collision"][sl]
@@ -178,6 +180,7 @@ def evaluate_maps(policy, preset, grids: list[OccupancyMap], episodes: int, seed
             "success_interval": success_interval(int(success.sum()), episodes),
             "collision_rate": collision.float().mean().item(),
             "timeout_rate": (~success & ~collision).float().mean().item(),
+            "stalled_rate": parked[sl].float().mean().item(),
             "mean_steps": e["episode_steps"][sl].mean().item(),
             "mean_return": e["episode_return"][sl].mean().item(),
             "outcomes": outcome_letters(success, collision),
@@ -243,8 +246,9 @@ def aggregate(rows: list[dict]) -> dict:
     """``mean``: each rate averaged over maps; ``pooled``: over all episodes (the two agree when every map
     has as many episodes); ``worst``: the map with the lowest success rate (the first of equals)."""
     total = sum(r["episodes"] for r in rows)
-    mean = {k: sum(r[k] for r in rows) / len(rows) for k in RATES}
-    pooled = {k: sum(r[k] * r["episodes"] for r in rows) / total for k in RATES}
+    rates = [k for k in RATES if all(k in r for r in rows)]  # a report written before stalled_rate has none
+    mean = {k: sum(r[k] for r in rows) / len(rows) for k in rates}
+    pooled = {k: sum(r[k] * r["episodes"] for r in rows) / total for k in rates}
     worst = min(rows, key=lambda r: r["success_rate"])
     return {"maps": len(rows), "episodes": total, "mean": mean, "pooled": pooled,
             "worst": {"map": worst["map"], "success_rate": worst["success_rate"]},
@@ -330,7 +334,7 @@ def print_report(report: dict) -> None:
     table.add_column("map", no_wrap=True)
     for col, justify in ( ("size m", "right"), ("cell m", "right"), ("success", "right"),
                          ("95 % interval", "right"), ("collision", "right"), ("timeout", "right"),
-                         ("episodes", "right"), ("beyond scale", "right")):
+                         ("of them stalled", "right"), ("episodes", "right"), ("beyond scale", "right")):
         table.add_column(col, justify=justify)
     for r in report["maps"]:
         beyond = (f"{r['episodes_beyond_scale']} ep" if r["beyond_scale"] else "-")
@@ -338,15 +342,16 @@ def print_report(report: dict) -> None:
         interval = f"{100 * low_high[0]:.1f}-{100 * low_high[1]:.1f}" if low_high else "-"
         table.add_row(r["map"], f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution']:g}",
                       pct(r["success_rate"]), interval, pct(r["collision_rate"]), pct(r["timeout_rate"]),
-                      str(r["episodes"]), beyond)
+                      pct(r["stalled_rate"]) if "stalled_rate" in r else "-", str(r["episodes"]), beyond)
     agg = report["aggregate"]
     table.add_section()
     for name in ("mean", "pooled"):
         a = agg[name]
         table.add_row(f"{name} over maps" if name == "mean" else "pooled", "", "",
                       pct(a["success_rate"]), "", pct(a["collision_rate"]), pct(a["timeout_rate"]),
-                      str(agg["episodes"]), "")
-    table.add_row(f"worst map: {agg['worst']['map']}", "", "", pct(agg["worst"]["success_rate"]), "", "", "", "", "")
+                      pct(a["stalled_rate"]) if "stalled_rate" in a else "-", str(agg["episodes"]), "")
+    table.add_row(f"worst map: {agg['worst']['map']}", "", "", pct(agg["worst"]["success_rate"]), "", "", "", "", "",
+                  "")
     console.print(table)
     under, surely = maps_under(report["maps"]), maps_surely_under(report["maps"])
     line = f"maps under {100 * MAP_BAR:g} % success: {len(under)} of {agg['maps']}"
@@ -360,4 +365,6 @@ def print_report(report: dict) -> None:
                       f"goal-distance scale ({scale:.2f} m, its training map's diagonal): 'beyond scale' counts the "
                       f"episodes whose goal-distance input exceeded it ({agg['episodes_beyond_scale']} in all); "
                       f"the input is passed unclipped, as on a robot.")
+    console.print(f"'of them stalled': timeouts whose robot drove under {STALL_M:g} m in the second half of the "
+                  "horizon (parked, or turning back and forth on the spot); the other timeouts wandered")
     console.print(f"wall time {report['seconds']:.1f} s on {report['machine']}")

@@ -17,6 +17,12 @@ from flashnav.sim.env import NavVecEnv
 #: An evaluation lists its failed episodes' indices (``failed_episodes``) when at most this many failed.
 FAILED_LISTED_MAX = 32
 
+#: A timeout "stalled" when its robot drove less than this, metres, in the second half of the horizon (of the 5 m a
+#: TurtleBot2's top speed allows there): a deterministic policy parked in front of an obstacle or turning back and
+#: forth on the spot, where the other timeouts wandered (docs/benchmarks.md "The last 0.1-1 %: parked robots and the
+#: discount")
+STALL_M = 0.5
+
 
 @torch.no_grad()
 def evaluate(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv, seed: int, *,
@@ -54,9 +60,16 @@ def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv
     ``set_state``; ``obs`` [N, D] their observations): one episode per slot, same returns. ``guide``:
     a :class:`flashnav.guidance.PathGuide` whose carrots the policy sees instead of the goals (the
     recorded goal distances stay the environment's). ``shield``: a callable (running slots [k], actions [k, A])
-    -> actions played instead (:class:`flashnav.shield.SimShield`)."""
+    -> actions played instead (:class:`flashnav.shield.SimShield`).
+
+    Also ``late_m`` [N]: metres each episode's robot drove in the steps of the horizon's second half (the last
+    ``horizon // 2`` steps of a timeout; 0 for an episode that ended before them), what :func:`stalled` reads."""
     start_pose, goal = env.world_pose(), env.world_goal()
     n, dev = env.num_envs, env.device
+    horizon = env.preset.episode.horizon
+    late_from = horizon - horizon // 2  # the first step whose driving counts towards late_m
+    late = torch.zeros(n, device=dev)
+    xy = env.pose[:, :2].clone()
     col = env.preset.lidar.sectors  # the goal-distance column
     success = torch.zeros(n, dtype=torch.bool, device=dev)
     collision = torch.zeros(n, dtype=torch.bool, device=dev)
@@ -65,9 +78,12 @@ def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv
     steps = torch.zeros(n, device=dev)
     max_goal = obs[:, col].clone()
     active = torch.arange(n, device=dev)
-    for _ in range(env.preset.episode.horizon):
+    for step in range(horizon):
         action = policy(obs if guide is None else guide.observe(obs, active))
         t = env.step_slots(active, action if shield is None else shield(active, action))
+        if step >= late_from:
+            late[active] += torch.linalg.vector_norm(t["pose"][:, :2] - xy[active], dim=1)
+        xy[active] = t["pose"][:, :2]
         max_goal[active] = torch.maximum(max_goal[active], t["obs"][:, col])
         done = t["terminated"] | t["truncated"]
         ended = active[done]
@@ -82,7 +98,13 @@ def play_episodes(policy: Callable[[torch.Tensor], torch.Tensor], env: NavVecEnv
             break
     return {"success": success, "collision": collision, "collision_agent": collision_agent,
             "episode_return": returns, "episode_steps": steps,
-            "start_pose": start_pose, "goal": goal, "max_goal_distance": max_goal}
+            "start_pose": start_pose, "goal": goal, "max_goal_distance": max_goal, "late_m": late}
+
+
+def stalled(e: dict[str, torch.Tensor]) -> torch.Tensor:
+    """[N] bool: the episodes of :func:`play_episodes`' ``e`` that timed out (neither success nor collision) with
+    their robot having driven under :data:`STALL_M` metres in the second half of the horizon."""
+    return ~e["success"] & ~e["collision"] & (e["late_m"] < STALL_M)
 
 
 def _evaluate_dense(policy, env: NavVecEnv, seed: int) -> dict[str, float]:

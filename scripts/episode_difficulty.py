@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from failure_kinds import drive  # scripts/: the same replay from given starts and goals
 
-from flashnav.evaluate import evaluate_episodes
+from flashnav.evaluate import STALL_M, evaluate_episodes  # a timeout under STALL_M m late "stalled"
 from flashnav.export import evaluated_robot, load_policy
 from flashnav.sim.env import make_env
 from flashnav.maps.graph import grid_graph
@@ -68,9 +68,6 @@ def replay_failures(policy, robot, start_pose: np.ndarray, goal: np.ndarray):
     _, _, paths = drive(env, policy, torch.as_tensor(start_pose), torch.as_tensor(goal))
     closest = np.nanmin(np.linalg.norm(paths - np.asarray(goal)[None], axis=2), axis=0)
     return paths, closest
-
-
-STALL_M = 0.5  # a timeout that drove less than this (of the 5 m top speed allows) in the second half of its horizon "stalled"
 
 
 def stalled_metres(paths: np.ndarray, steps: int) -> np.ndarray:

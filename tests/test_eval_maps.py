@@ -14,7 +14,7 @@ from conftest import SMALL_HELDOUT
 from flashnav.cli import main
 from flashnav.eval_maps import (EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, aggregate, evaluate_maps, maps_surely_under,
                                 maps_under, success_interval, suite_path)
-from flashnav.evaluate import evaluate_episodes
+from flashnav.evaluate import evaluate_episodes, stalled
 from flashnav.maps import bundled_map, load_ros_map
 from flashnav.presets import load_robot
 from flashnav.sim.env import make_env
@@ -53,6 +53,7 @@ def test_each_maps_row_equals_that_map_evaluated_alone(sampling):
         assert row["success_interval"] == success_interval(int(success.sum()), episodes)
         assert row["collision_rate"] == collision.float().mean().item()
         assert row["timeout_rate"] == (~success & ~collision).float().mean().item()
+        assert row["stalled_rate"] == stalled(ref).float().mean().item() <= row["timeout_rate"]
         assert row["outcomes"] == "".join("s" if a else "c" if b else "t" for a, b in zip(success.tolist(),
                                                                                          collision.tolist()))
         assert row["mean_steps"] == pytest.approx(ref["episode_steps"].mean().item())
@@ -103,6 +104,10 @@ def test_aggregate_by_hand():
     assert a["pooled"]["timeout_rate"] == pytest.approx(15 / 40)
     assert a["worst"] == {"map": "b", "success_rate": 0.5}
     assert (a["maps"], a["episodes"], a["maps_beyond_scale"], a["episodes_beyond_scale"]) == (2, 40, 1, 2)
+    assert "stalled_rate" not in a["mean"]  # rows written before the stalled share: the rates they have
+    rows[0]["stalled_rate"], rows[1]["stalled_rate"] = 0.0, 0.2
+    a = aggregate(rows)
+    assert a["mean"]["stalled_rate"] == pytest.approx(0.1) and a["pooled"]["stalled_rate"] == pytest.approx(6 / 40)
 
 
 def test_success_interval_is_wilsons_score_interval_by_hand():
@@ -143,6 +148,7 @@ def test_command_line_table_and_json(tmp_path, capsys, small_heldout_maps):
         assert r["map"] in text
     assert "goal sampling geodesic" in " ".join(text.split())
     assert "95 % interval" in text and f"maps under 95 % success: {len(maps_under(doc['maps']))} of 2" in text
+    assert "of them stalled" in text and all(0 <= r["stalled_rate"] <= r["timeout_rate"] for r in doc["maps"])
     for r in doc["maps"]:
         low, high = r["success_interval"]
         assert f"{100 * low:.1f}-{100 * high:.1f}" in text

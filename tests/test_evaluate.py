@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from flashnav.evaluate import FAILED_LISTED_MAX, episode_rates, evaluate, evaluate_episodes
+from flashnav.evaluate import FAILED_LISTED_MAX, STALL_M, episode_rates, evaluate, evaluate_episodes, stalled
 from flashnav.sim.env import make_env
 
 
@@ -65,6 +65,41 @@ def test_each_episode_replayed_alone_from_its_start_ends_the_same_way():
                 break
         assert bool(t["success"][0]) == bool(e["success"][k]) and bool(t["collision"][0]) == bool(e["collision"][k])
         assert int(t["episode_steps"][0]) == int(e["episode_steps"][k])
+
+
+def circler(obs: torch.Tensor) -> torch.Tensor:
+    """:func:`heading_controller` within 2.5 m of the goal; farther, a slow circle (0.1 m/s, turning at full rate):
+    row-wise, with timeouts that keep driving besides the ones parked in front of a wall."""
+    circle = torch.tensor([-0.6, 1.0]).expand(len(obs), 2)
+    return torch.where((obs[:, 30] > 2.5)[:, None], circle, heading_controller(obs))
+
+
+def test_late_metres_equal_each_episode_replayed_alone_and_name_the_parked_timeouts():
+    env = make_env("turtlebot2", 48, seed=0)
+    e = evaluate_episodes(circler, env, seed=3)
+    horizon = env.preset.episode.horizon
+    timeout = ~e["success"] & ~e["collision"]
+    assert e["success"].any() and e["collision"].any()
+    assert stalled(e).any() and (e["late_m"][timeout] >= STALL_M).any()  # parked timeouts and driving ones
+    # the slow reference: each episode alone, summing its moves over the horizon's last horizon // 2 steps
+    for k in range(48):
+        one = make_env("turtlebot2", 1, seed=0)
+        one.reset(seed=0)
+        obs = one.set_state(e["start_pose"][k:k + 1], e["goal"][k:k + 1])
+        xy, late = one.world_pose()[0, :2].clone(), 0.0
+        for step in range(horizon):
+            t = one.step_slots(torch.tensor([0]), circler(obs))
+            obs, now = t["obs"], one.world_pose()[0, :2]
+            if step >= horizon - horizon // 2:
+                late += float(torch.linalg.vector_norm(now - xy))
+            xy = now.clone()
+            if bool(t["terminated"][0] | t["truncated"][0]):
+                break
+        assert e["late_m"][k].item() == pytest.approx(late, abs=1e-4)
+    assert torch.equal(stalled(e), timeout & (e["late_m"] < STALL_M))
+    # a robot that only turns on the spot never drives: every episode is a stalled timeout
+    spin = evaluate_episodes(lambda o: torch.stack([-torch.ones(len(o)), torch.ones(len(o))], dim=1), env, seed=3)
+    assert torch.equal(spin["late_m"], torch.zeros(48)) and stalled(spin).all()
 
 
 def test_step_slots_equals_step_on_those_slots_and_leaves_the_others():
