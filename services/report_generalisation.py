@@ -30,7 +30,7 @@ MEAN_ROW = "mean over maps"  # the per-map table's closing row of each suite
 BAR = 0.95  # flashnav/eval_maps.py's MAP_BAR (the test checks that they agree)
 SUMMARY_COLUMNS = ["policy", "suite", "robot", "goal_sampling", "maps", "episodes_per_map", "success_mean",
                    "success_pooled", "success_worst", "worst_map", "maps_under_bar", "maps_surely_under_bar",
-                   "collision_mean", "timeout_mean",
+                   "collision_mean", "timeout_mean", "stalled_mean",
                    "maps_beyond_scale", "episodes_beyond_scale", "goal_distance_scale", "machine", "date"]
 
 
@@ -127,6 +127,8 @@ def summary_table(docs: list[dict]) -> pd.DataFrame:
             "maps_under_bar": sum(r["success_rate"] < BAR for r in d["maps"]),
             "maps_surely_under_bar": sum(_high(r) < BAR for r in d["maps"]),
             "collision_mean": a["mean"]["collision_rate"], "timeout_mean": a["mean"]["timeout_rate"],
+            # the timeouts that stalled (flashnav eval counts them since 2026-12-04; None in older files)
+            "stalled_mean": a["mean"].get("stalled_rate"),
             "maps_beyond_scale": a["maps_beyond_scale"], "episodes_beyond_scale": a["episodes_beyond_scale"],
             "goal_distance_scale": d["goal_distance_scale"], "machine": d["machine"], "date": d["date"]})
     return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
@@ -195,7 +197,8 @@ def interval_lookup(intervals: pd.DataFrame | None) -> dict[tuple[str, str, str]
 
 def summary_markdown(table: pd.DataFrame) -> str:
     head = ["Policy", "Suite", "Robot", "Goals", "Maps x episodes", "Success mean %", "Pooled %", "Worst map %",
-            f"Maps < {100 * BAR:g} % (wholly)", "Collision %", "Timeout %", "Beyond goal scale", "Machine", "Date"]
+            f"Maps < {100 * BAR:g} % (wholly)", "Collision %", "Timeout % (stalled)", "Beyond goal scale", "Machine",
+            "Date"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 5 + "--:|" * 7 + "---|" * 2]
     for r in table.to_dict("records"):
         beyond = (f"{r['maps_beyond_scale']}/{r['maps']} maps, {r['episodes_beyond_scale']} ep"
@@ -204,7 +207,8 @@ def summary_markdown(table: pd.DataFrame) -> str:
             r["policy"], r["suite"], r["robot"], r["goal_sampling"], f"{r['maps']} x {r['episodes_per_map']}",
             _pct(r["success_mean"]), _pct(r["success_pooled"]), f"{_pct(r['success_worst'])} ({r['worst_map']})",
             f"{r['maps_under_bar']} ({r['maps_surely_under_bar']})", _pct(r["collision_mean"]),
-            _pct(r["timeout_mean"]), beyond, r["machine"], r["date"]]) + " |")
+            _pct(r["timeout_mean"]) + (f" ({_pct(r['stalled_mean'])})" if pd.notna(r["stalled_mean"]) else ""),
+            beyond, r["machine"], r["date"]]) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -236,7 +240,9 @@ def markdown(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = Non
         "same fixed episodes per map for every policy, deterministic policy. Mean: over maps; pooled: over all "
         "episodes; worst: the map with the lowest success. Maps < 95 %: the maps under the bar, in brackets "
         "those whose whole 95 % success interval (Wilson) lies under it, so that another draw of as many episodes "
-        "would not lift them over it. 'Beyond goal scale': maps whose diagonal exceeds the "
+        "would not lift them over it. Timeout: in brackets the timeouts that stalled (the robot drove under 0.5 m "
+        "in the second half of the horizon: parked or turning on the spot). 'Beyond goal scale': maps whose diagonal "
+        "exceeds the "
         "policy's goal-distance scale (its training map's diagonal), and the episodes whose goal-distance input "
         "went beyond it (passed unclipped). Per map: the success and, in brackets, its 95 % interval (the "
         "figure's vertical lines; its dotted line is the 95 % bar).", "",
@@ -250,7 +256,8 @@ def html(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = None,
     to the page) where one was drawn."""
     shown = f"<img src='{escape(figure, quote=True)}' alt='success per map'>" if figure else ""
     summary = summary.assign(**{c: summary[c].map(_pct) for c in
-                                ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean")})
+                                ("success_mean", "success_pooled", "success_worst", "collision_mean", "timeout_mean",
+                                 "stalled_mean")})
     known = interval_lookup(intervals)
     maps = maps.assign(**{p: [_cell(rate, known.get((suite, name, p)))
                               for suite, name, rate in zip(maps["suite"], maps["map"], maps[p])]

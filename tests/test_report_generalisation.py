@@ -50,6 +50,11 @@ def test_summary_rows_per_policy_and_suite():
     assert "| general | heldout | turtlebot2 | geodesic | 1 x 8 | 87.5 | 87.5 | 87.5 (a) | 1 (0) |" in md
     old = [{**d, "maps": [{k: v for k, v in r.items() if k != "success_interval"} for r in d["maps"]]} for d in DOCS]
     assert list(summary_table(old)["maps_surely_under_bar"]) == [1, 1, 1]   # files from before the interval
+    assert t["stalled_mean"].isna().all()  # files from before the stalled share: none, and no bracket above
+    rows = [{**r, "stalled_rate": 0.125 if r["map"] == "big" else 0.0} for r in DOCS[0]["maps"]]
+    counted = summary_table([{**DOCS[0], "maps": rows, "aggregate": aggregate(rows)}])
+    assert counted["stalled_mean"].iloc[0] == pytest.approx(0.0625)
+    assert "| 1 (1) | 12.5 | 12.5 (6.2) | 1/2 maps, 3 ep |" in summary_markdown(counted)
 
 
 def test_per_map_cells_and_suite_means():
