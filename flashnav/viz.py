@@ -21,6 +21,26 @@ OUTCOME_COLOURS = {"success": "tab:green", "collision": "tab:red", "timeout": "t
 #: Characters per line of a trajectory picture's title (7 inches wide at 10 pt): a longer title (a map's whole
 #: path, the overrides) is wrapped, not cut at the figure's edges.
 TITLE_WIDTH = 80
+#: Metres of map drawn round the free space and the trajectories (:func:`view_bounds`)
+VIEW_MARGIN_M = 0.5
+
+
+def view_bounds(grid: OccupancyMap, points: np.ndarray, margin: float = VIEW_MARGIN_M) -> tuple[float, ...]:
+    """(xmin, ymin, xmax, ymax), metres: the box round ``grid``'s free cells and ``points`` [K, 2] (the paths, goals
+    and agents drawn; non-finite rows ignored), ``margin`` metres wider, inside the map's bounds: a 5 m arena in a
+    19 m ROS map (nav2_tb3_sandbox) fills the picture instead of a fifth of it. The whole map where no cell is free."""
+    xmin, ymin, xmax, ymax = grid.bounds
+    rows, cols = np.nonzero(~grid.occupied)
+    if rows.size == 0:
+        return xmin, ymin, xmax, ymax
+    half = grid.resolution / 2
+    x, y = grid.cell_centres(rows, cols)
+    lo, hi = np.array([x.min() - half, y.min() - half]), np.array([x.max() + half, y.max() + half])
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    points = points[np.isfinite(points).all(axis=1)]
+    if len(points):
+        lo, hi = np.minimum(lo, points.min(axis=0)), np.maximum(hi, points.max(axis=0))
+    return (max(xmin, lo[0] - margin), max(ymin, lo[1] - margin), min(xmax, hi[0] + margin), min(ymax, hi[1] + margin))
 
 
 def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.ndarray, outcomes: list[str],
@@ -32,13 +52,19 @@ def draw_trajectories(grid: OccupancyMap, paths: list[np.ndarray], goals: np.nda
 
     Paths and goals are in ``grid``'s coordinates: for an environment's state (``env.pose``,
     ``env.goal``, in its simulator frame) pass ``env.frame_map``, which is ``env.map`` itself unless
-    the map lies far from the world origin (then re-centred on it, see :mod:`flashnav.sim.env`)."""
-    xmin, ymin, xmax, ymax = grid.bounds
+    the map lies far from the world origin (then re-centred on it, see :mod:`flashnav.sim.env`). The picture
+    shows :func:`view_bounds`: the free space and everything drawn, not the occupied border round them."""
+    drawn = [np.asarray(p, dtype=float).reshape(-1, 2) for p in paths] + [np.asarray(goals, dtype=float).reshape(-1, 2)]
+    drawn += [np.asarray(track, dtype=float).reshape(-1, 2) for track, _ in agents]
+    x0, y0, x1, y1 = view_bounds(grid, np.concatenate(drawn))
     title = textwrap.fill(title, TITLE_WIDTH, break_on_hyphens=False)
     lines = title.count("\n") + 1 if title else 0  # 0.17 inch a line of 10 pt above the map
-    fig, ax = plt.subplots(figsize=(7, 7 * (ymax - ymin) / (xmax - xmin) + 0.4 + 0.17 * lines), dpi=110)
+    fig, ax = plt.subplots(figsize=(7, 7 * (y1 - y0) / (x1 - x0) + 0.4 + 0.17 * lines), dpi=110)
+    xmin, ymin, xmax, ymax = grid.bounds
     ax.imshow(grid.occupied, origin="lower", extent=(xmin, xmax, ymin, ymax), cmap="Greys", vmin=0, vmax=1.4,
               interpolation="nearest")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
     for track, radius in agents:
         ax.plot(track[:, 0], track[:, 1], color=AGENT_COLOUR, lw=0.7, alpha=0.6, ls=":")
         ax.add_patch(plt.Circle(tuple(track[-1]), radius, color=AGENT_COLOUR, alpha=0.5))

@@ -31,3 +31,28 @@ def test_a_long_trajectory_title_is_wrapped_inside_the_figure(tmp_path, monkeypa
     assert text.replace("\n", " ") == title and max(len(line) for line in text.split("\n")) <= viz.TITLE_WIDTH
     assert box.x0 >= x0 and box.x1 <= x0 + width and box.y1 <= y0 + height + 0.5, (box, width, height)  # 0.5 px
     assert axes.width >= 0.7 * width, (axes, width)  # the map keeps the figure's width: the title took no room from it
+
+
+def test_the_picture_shows_the_free_space_and_what_is_drawn_not_the_border_round_them(tmp_path, monkeypatch):
+    occupied = np.ones((400, 400), dtype=bool)
+    occupied[150:250, 100:200] = False  # a 5 x 5 m room in a 20 x 20 m map (a ROS map's unknown border)
+    grid = OccupancyMap(occupied, 0.05, name="room")
+    ox, oy = grid.origin
+    room = (ox + 5.0, oy + 7.5, ox + 10.0, oy + 12.5)  # columns 100-199, rows 150-249
+    m = viz.VIEW_MARGIN_M
+    assert viz.view_bounds(grid, np.empty((0, 2))) == pytest.approx(
+        (room[0] - m, room[1] - m, room[2] + m, room[3] + m))
+    # a drawn point outside the room widens the view; one off the map and a NaN row do not take it past the map
+    got = viz.view_bounds(grid, np.array([[ox + 11.0, oy + 8.0], [ox - 3.0, oy + 9.0], [np.nan, 0.0]]))
+    assert got == pytest.approx((ox, room[1] - m, ox + 11.0 + m, room[3] + m))
+    assert viz.view_bounds(OccupancyMap(np.ones((40, 60), dtype=bool), 0.1), np.zeros((1, 2))) == pytest.approx(
+        OccupancyMap(np.ones((40, 60), dtype=bool), 0.1).bounds)  # nothing free: the whole map
+    limits = []
+    real_save = viz._save
+    monkeypatch.setattr(viz, "_save", lambda fig, out, dpi=None: (limits.append((fig.axes[0].get_xlim(),
+                                                                                  fig.axes[0].get_ylim())),
+                                                                   real_save(fig, out, dpi))[1])
+    path = np.array([[ox + 6.0, oy + 8.0], [ox + 9.0, oy + 12.0]])
+    viz.draw_trajectories(grid, [path], path[-1:], ["timeout"], tmp_path / "room.png")
+    ((xlim, ylim),) = limits
+    assert (xlim + ylim) == pytest.approx((room[0] - m, room[2] + m, room[1] - m, room[3] + m))
