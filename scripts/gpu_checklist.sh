@@ -9,10 +9,11 @@
 #      encoder; session 71 on an H200: 2.3x with the CUDA graph), and the env step with the map and its plan at
 #      penalty 2 beside the step without them (`flashnav bench sim --wall-map 24 --plan --plan-penalty 2`: the plan
 #      runs on the CPU, a host sync a step on a GPU);
-#   3. issue 15 DM2's best recipe, `generalist-map` (the TurtleBot2 generalist with the wall map, its plan at penalty 2
-#      and DrQ's shift; four seeds on the CPU to its 163,840 env steps: held-out 98.0-99.1 %, mazes_900002 under 95 %
-#      on every seed, docs/benchmarks.md "The plan at a price beside the walls"), seeds 0 and 1 at once to the
-#      generalist's 409,600 env steps (does more data lift the maze?), then each on the held-out suite (128 episodes
+#   3. issue 15 DM2's best recipe, `generalist-map` (the TurtleBot2 generalist with the wall map, its plan at penalty 2,
+#      the plan's carrot at 0.5 m and DrQ's shift; three seeds on the CPU to its 163,840 env steps: held-out
+#      99.1-99.5 %, real 98.3-99.1 %, nav2_tb3_sandbox 93.8-98.4 %, docs/benchmarks.md "Stalls, counted; seed 3; the
+#      carrot at 0.5 m"), seeds 0 and 1 at once to the generalist's 409,600 env steps (does more data lift the
+#      sandbox and mazes_900002?), then each on the held-out suite (128 episodes
 #      a map, as on the CPU; the plan runs on the host); their validation curves, with the 163,840 point, are
 #      `flashnav bench runs OUT/gen-*/`;
 #   4. with what time is left, FastDSAC's `paper-mirror` on Go2 (issue 16 DM1's Go2 bar, 20/30 on the CPU) for seeds

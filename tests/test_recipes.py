@@ -79,23 +79,26 @@ def test_the_setup_fills_what_the_run_leaves_open_and_the_run_wins():
     assert TrainConfig(recipe="cpu") == TrainConfig(recipe="cpu", maps=None, overrides={})
 
 
-def test_generalist_map_is_the_turtlebot2_generalist_with_the_wall_map_and_its_plan():
+def test_generalist_map_is_the_turtlebot2_generalist_with_the_wall_map_its_plan_and_carrot():
     # hyperparameters: the generalist's and DrQ's shift of the wall map, nothing else
     generalist = load_hparams("fastdsac", "turtlebot2", "generalist").model_dump()
     mapped = load_hparams("fastdsac", "turtlebot2", "generalist-map").model_dump()
     assert {k for k in mapped if mapped[k] != generalist[k]} == {"wall_shift"} and mapped["wall_shift"] == 1
-    # setup: the generalist's maps, evaluation and task, the wall map with its priced plan, and the measured budget
+    # setup: the generalist's maps, evaluation and task, the wall map with its priced plan and its carrot at 0.5 m,
+    # and the measured budget
     setups = load_preset_file("setups")
     tb2, mine = setups["generalist"]["turtlebot2"], setups["generalist-map"]["turtlebot2"]
     assert mine["maps"] == tb2["maps"] and mine["eval"] == tb2["eval"]
     assert mine["overrides"] == {**tb2["overrides"], "robot.observation.wall_map": 24,
                                  "robot.observation.wall_map_plan": True,
-                                 "robot.observation.wall_map_plan_penalty": 2}
+                                 "robot.observation.wall_map_plan_penalty": 2,
+                                 "robot.observation.wall_map_carrot": 0.5}
     assert mine["budget"]["max_env_steps"] == 163840  # what docs/benchmarks.md measures
     spec = resolve(config_from_cli(None, {"recipe": "generalist-map", "device": "cpu"},
                                    ["maps.count=2", "eval.maps_per_family=1", "eval.episodes=16"]))
     o = spec.robot.observation
-    assert (o.wall_map, o.wall_map_cell, o.wall_map_plan, o.wall_map_plan_penalty) == (24, 0.5, True, 2.0)
+    assert (o.wall_map, o.wall_map_cell, o.wall_map_plan, o.wall_map_plan_penalty, o.wall_map_carrot) == \
+        (24, 0.5, True, 2.0, 0.5)
     assert spec.hparams.wall_shift == 1 and spec.robot.episode.goal_sampling == "geodesic"
     # measured on the TurtleBot2 only: Go2 is refused by name, by the setup and by the learner's recipe
     with pytest.raises(ValueError, match=r"recipe 'generalist-map' has a training setup for turtlebot2 only "
