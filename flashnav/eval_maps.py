@@ -342,14 +342,14 @@ def print_report(report: dict) -> None:
         interval = f"{100 * low_high[0]:.1f}-{100 * low_high[1]:.1f}" if low_high else "-"
         table.add_row(r["map"], f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution']:g}",
                       pct(r["success_rate"]), interval, pct(r["collision_rate"]), pct(r["timeout_rate"]),
-                      pct(r["stalled_rate"]) if "stalled_rate" in r else "-", str(r["episodes"]), beyond)
+                      pct(r["stalled_rate"]), str(r["episodes"]), beyond)
     agg = report["aggregate"]
     table.add_section()
     for name in ("mean", "pooled"):
         a = agg[name]
         table.add_row(f"{name} over maps" if name == "mean" else "pooled", "", "",
                       pct(a["success_rate"]), "", pct(a["collision_rate"]), pct(a["timeout_rate"]),
-                      pct(a["stalled_rate"]) if "stalled_rate" in a else "-", str(agg["episodes"]), "")
+                      pct(a["stalled_rate"]), str(agg["episodes"]), "")
     table.add_row(f"worst map: {agg['worst']['map']}", "", "", pct(agg["worst"]["success_rate"]), "", "", "", "", "",
                   "")
     console.print(table)

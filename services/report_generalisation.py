@@ -28,6 +28,7 @@ KIND = "flashnav.eval_maps"
 FORMAT = 1
 MEAN_ROW = "mean over maps"  # the per-map table's closing row of each suite
 BAR = 0.95  # flashnav/eval_maps.py's MAP_BAR (the test checks that they agree)
+STALL_M = 0.5  # flashnav/evaluate.py's STALL_M: a timeout under it in the horizon's second half stalled (tested too)
 SUMMARY_COLUMNS = ["policy", "suite", "robot", "goal_sampling", "maps", "episodes_per_map", "success_mean",
                    "success_pooled", "success_worst", "worst_map", "maps_under_bar", "maps_surely_under_bar",
                    "collision_mean", "timeout_mean", "stalled_mean",
@@ -240,9 +241,9 @@ def markdown(summary: pd.DataFrame, maps: pd.DataFrame, figure: str | None = Non
         "same fixed episodes per map for every policy, deterministic policy. Mean: over maps; pooled: over all "
         "episodes; worst: the map with the lowest success. Maps < 95 %: the maps under the bar, in brackets "
         "those whose whole 95 % success interval (Wilson) lies under it, so that another draw of as many episodes "
-        "would not lift them over it. Timeout: in brackets the timeouts that stalled (the robot drove under 0.5 m "
-        "in the second half of the horizon: parked or turning on the spot). 'Beyond goal scale': maps whose diagonal "
-        "exceeds the "
+        "would not lift them over it. Timeout: in brackets the timeouts that stalled (the robot drove under "
+        f"{STALL_M:g} m in the second half of the horizon: parked or turning on the spot). 'Beyond goal scale': maps "
+        "whose diagonal exceeds the "
         "policy's goal-distance scale (its training map's diagonal), and the episodes whose goal-distance input "
         "went beyond it (passed unclipped). Per map: the success and, in brackets, its 95 % interval (the "
         "figure's vertical lines; its dotted line is the 95 % bar).", "",

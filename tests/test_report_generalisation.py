@@ -9,9 +9,10 @@ import pandas as pd
 import pytest
 
 from flashnav.eval_maps import EVAL_MAPS_FORMAT, EVAL_MAPS_KIND, MAP_BAR, aggregate, success_interval
-from services.report_generalisation import (BAR, FORMAT, KIND, MEAN_ROW, html, interval_lookup, load_evals, markdown,
-                                            per_map_intervals, per_map_markdown, per_map_table, summary_markdown,
-                                            summary_table, write_generalisation)
+from flashnav.evaluate import STALL_M as EVAL_STALL_M
+from services.report_generalisation import (BAR, FORMAT, KIND, MEAN_ROW, STALL_M, html, interval_lookup, load_evals,
+                                            markdown, per_map_intervals, per_map_markdown, per_map_table,
+                                            summary_markdown, summary_table, write_generalisation)
 
 
 def _doc(label, suite, rates):
@@ -32,7 +33,7 @@ DOCS = [_doc("single", "heldout", [("a", 1.0, 0.0), ("big", 0.5, 0.25)]),
 
 
 def test_kind_and_format_agree_with_the_writer():
-    assert (KIND, FORMAT, BAR) == (EVAL_MAPS_KIND, EVAL_MAPS_FORMAT, MAP_BAR)
+    assert (KIND, FORMAT, BAR, STALL_M) == (EVAL_MAPS_KIND, EVAL_MAPS_FORMAT, MAP_BAR, EVAL_STALL_M)
 
 
 def test_summary_rows_per_policy_and_suite():
