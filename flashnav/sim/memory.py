@@ -36,7 +36,6 @@ import math
 
 import torch
 
-from flashnav.sim.trail import to_robot_frame
 from flashnav.sim.wall_image import wall_image
 
 #: Stored points per pooled sector of the live scan: a frame keeps ``sectors * POINTS_PER_SECTOR`` points
