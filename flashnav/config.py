@@ -154,6 +154,9 @@ class Reward(Strict):
                                      "c * d_new): 1 = the paper's; the learner's discount gamma makes it "
                                      "potential-based (Ng et al. 1999: the shaping changes no policy's ranking, "
                                      "so it cannot favour a longer route that gains ground sooner)")
+    step_cost: float = Field(0.0, ge=0, le=1, description="paid (subtracted) on every step that ends in neither "
+                             "goal nor collision: a price on time, against a robot that parks short of its goal "
+                             "(0 = the paper's reward; training only, an evaluation plays without it)")
 
 
 class Agents(Strict):

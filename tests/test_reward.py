@@ -96,3 +96,35 @@ def test_a_progress_discount_makes_the_shaping_potential_based():
     assert torch.allclose(total[alive], expected[alive], atol=1e-4)
     with pytest.raises(ValueError, match="progress_discount"):
         load_robot("turtlebot2", **{"reward.progress_discount": 1.5})
+
+
+def test_a_step_cost_is_paid_on_every_live_step_and_never_on_an_ending_one():
+    """``reward.step_cost`` k: a live step pays its shaping term minus k, truncation included; a goal or a collision
+    pays its terminal reward alone; k = 0 is the paper's reward; an evaluation plays without it."""
+    from flashnav.sim.goal_fields import evaluation_preset
+
+    assert P.reward.step_cost == 0.0
+    k = 0.05
+    priced = load_robot("turtlebot2", **{"reward.step_cost": k})
+    thr, h = P.episode.goal_threshold, P.episode.horizon
+    dist, steps = T([thr / 2, 2.0, 2.0, 2.0]), T([3, 3, 3, h])
+    static, agent = T([False, True, False, False]), T([False, False, False, False])
+    shaping = T([0.1, 0.2, 0.0, 0.3])
+    out = outcome(priced, dist, static, agent, steps, shaping)
+    assert torch.allclose(out["reward"], T([P.reward.goal, P.reward.collision, -k, 0.3 - k]))
+    assert out["truncated"].tolist() == [False, False, False, True]
+    env, paper = make_env(priced, 64, seed=4), make_env("turtlebot2", 64, seed=4)
+    env.reset(seed=4)
+    paper.reset(seed=4)
+    gen = torch.Generator().manual_seed(2)
+    for _ in range(30):  # the same transitions; only the live steps' rewards differ, by exactly k
+        action = torch.rand(64, 2, generator=gen) * 2 - 1
+        _, reward, term, trunc, _ = env.step(action)
+        _, paper_reward, paper_term, *_ = paper.step(action)
+        assert torch.equal(term, paper_term)
+        assert torch.allclose(reward[~term], paper_reward[~term] - k)
+        assert torch.equal(reward[term], paper_reward[term])
+    assert evaluation_preset(priced).reward == P.reward
+    for bad in (-0.1, 2.0):
+        with pytest.raises(ValueError, match="step_cost"):
+            load_robot("turtlebot2", **{"reward.step_cost": bad})

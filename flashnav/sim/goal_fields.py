@@ -53,15 +53,16 @@ def drive_bound(preset: RobotPreset) -> float:
 
 
 def evaluation_preset(preset: RobotPreset) -> RobotPreset:
-    """``preset`` with the paper's straight-line progress (``progress_discount`` 1) and the task's own episode
-    draws: what an evaluation plays. The reward does not change what is measured (its returns read as the
-    paper's), but the geodesic metric plays every pair from its source end, and ``episode.hard_share``
+    """``preset`` with the paper's reward (straight-line progress, ``progress_discount`` 1, no ``step_cost``) and the
+    task's own episode draws: what an evaluation plays. The reward does not change what is measured (its returns
+    read as the paper's), but the geodesic metric plays every pair from its source end, and ``episode.hard_share``
     re-weights the draws, which would change the episodes; evaluations keep the task's."""
     r = preset.reward
-    if r.progress_metric == "euclidean" and r.progress_discount == 1.0 and preset.episode.hard_share == 0:
+    if (r.progress_metric == "euclidean" and r.progress_discount == 1.0 and r.step_cost == 0
+            and preset.episode.hard_share == 0):
         return preset
     return preset.model_copy(update={
-        "reward": r.model_copy(update={"progress_metric": "euclidean", "progress_discount": 1.0}),
+        "reward": r.model_copy(update={"progress_metric": "euclidean", "progress_discount": 1.0, "step_cost": 0.0}),
         "episode": preset.episode.model_copy(update={"hard_share": 0.0})})
 
 

@@ -9,7 +9,9 @@ without a terminal event is a truncation. ``d`` is the straight-line goal distan
 ``reward.progress_metric: geodesic`` the path length to the goal through the robot's free space (:class:`Shaping`,
 :mod:`flashnav.sim.goal_fields`). With agents and ``reward.agent_proximity > 0`` (off by default) the
 shaping term also pays ``agent_proximity`` per metre by which the robot is nearer an agent than
-``agent_proximity_distance``.
+``agent_proximity_distance``. With ``reward.step_cost`` > 0 (0 by default, the paper's) every step that ends in
+neither goal nor collision pays that much on top (a price on time: a robot parked short of its goal earns 0 a step
+otherwise).
 """
 
 from __future__ import annotations
@@ -69,12 +71,14 @@ def outcome(preset: RobotPreset, dist: torch.Tensor, static: torch.Tensor, agent
             steps: torch.Tensor, shaping: torch.Tensor) -> dict[str, torch.Tensor]:
     """Flags and reward [k] of one step: ``dist`` the goal distance after it, ``static`` / ``agent`` the
     footprint's raw hits, ``steps`` the episode's step count after it, ``shaping`` the step's shaping
-    term. The goal is checked first: a step that reaches it is no collision."""
+    term (``reward.step_cost`` is subtracted from it). The goal is checked first: a step that reaches it is no
+    collision."""
     success = dist < preset.episode.goal_threshold
     static, agent = static & ~success, agent & ~success
     collision = static | agent
     terminated = success | collision
     truncated = (steps >= preset.episode.horizon) & ~terminated
-    reward = torch.where(success, preset.reward.goal, torch.where(collision, preset.reward.collision, shaping))
+    live = shaping - preset.reward.step_cost if preset.reward.step_cost else shaping
+    reward = torch.where(success, preset.reward.goal, torch.where(collision, preset.reward.collision, live))
     return {"reward": reward, "terminated": terminated, "truncated": truncated, "success": success,
             "collision": collision, "collision_static": static, "collision_agent": agent}
