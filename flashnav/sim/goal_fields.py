@@ -57,13 +57,11 @@ def evaluation_preset(preset: RobotPreset) -> RobotPreset:
     task's own episode draws: what an evaluation plays. The reward does not change what is measured (its returns
     read as the paper's), but the geodesic metric plays every pair from its source end, and ``episode.hard_share``
     re-weights the draws, which would change the episodes; evaluations keep the task's."""
-    r = preset.reward
-    if (r.progress_metric == "euclidean" and r.progress_discount == 1.0 and r.step_cost == 0
-            and preset.episode.hard_share == 0):
+    paper = preset.reward.model_copy(update={"progress_metric": "euclidean", "progress_discount": 1.0,
+                                             "step_cost": 0.0})
+    if paper == preset.reward and preset.episode.hard_share == 0:
         return preset
-    return preset.model_copy(update={
-        "reward": r.model_copy(update={"progress_metric": "euclidean", "progress_discount": 1.0, "step_cost": 0.0}),
-        "episode": preset.episode.model_copy(update={"hard_share": 0.0})})
+    return preset.model_copy(update={"reward": paper, "episode": preset.episode.model_copy(update={"hard_share": 0.0})})
 
 
 def source_fields(grid: OccupancyMap, sources: np.ndarray, radius: float, bound_m: float) -> tuple[np.ndarray, int]:
