@@ -23,11 +23,12 @@ import json
 import math
 
 import numpy as np
+import torch
 from scipy.sparse.csgraph import dijkstra
 
 from failure_kinds import drive  # scripts/: the same replay from given starts and goals
 
-from flashnav.evaluate import STALL_M, evaluate_episodes  # a timeout under STALL_M m late "stalled"
+from flashnav.evaluate import STALL_M, evaluate_episodes, stalled as stalled_episodes  # one reading of "stalled"
 from flashnav.export import evaluated_robot, load_policy
 from flashnav.sim.env import make_env
 from flashnav.maps.graph import grid_graph
@@ -59,8 +60,6 @@ def route_lengths(grid, radius: float, start_xy: np.ndarray, goal_xy: np.ndarray
 def replay_failures(policy, robot, start_pose: np.ndarray, goal: np.ndarray):
     """Replays episodes alone from ``start_pose [F, 3]`` / ``goal [F, 2]`` (world): their paths
     ``[T, F, 2]`` (NaN after the episode ended) and closest approach to the goal ``[F]`` (m)."""
-    import torch
-
     if len(goal) == 0:  # a policy that solved every episode: nothing to replay
         return np.zeros((0, 0, 2)), np.zeros(0)
     env = make_env(robot, len(goal), seed=0)
@@ -68,17 +67,6 @@ def replay_failures(policy, robot, start_pose: np.ndarray, goal: np.ndarray):
     _, _, paths = drive(env, policy, torch.as_tensor(start_pose), torch.as_tensor(goal))
     closest = np.nanmin(np.linalg.norm(paths - np.asarray(goal)[None], axis=2), axis=0)
     return paths, closest
-
-
-def stalled_metres(paths: np.ndarray, steps: int) -> np.ndarray:
-    """Metres each replayed episode drove in its last ``steps`` recorded steps (``paths [T, F, 2]``,
-    NaN after the episode ended): a timeout's deterministic policy that parks in front of an obstacle
-    drives almost nothing, one that wanders keeps driving."""
-    out = np.zeros(paths.shape[1])
-    for j in range(paths.shape[1]):
-        track = paths[:, j][~np.isnan(paths[:, j, 0])][-(steps + 1):]
-        out[j] = float(np.linalg.norm(np.diff(track, axis=0), axis=1).sum()) if len(track) > 1 else 0.0
-    return out
 
 
 def draw_failures(path: str, grid, paths: np.ndarray, goal: np.ndarray, near: np.ndarray, title: str) -> None:
@@ -151,8 +139,10 @@ def main() -> None:
     failed = np.nonzero(outcome != "success")[0]
     paths, closest = replay_failures(policy, preset, e["start_pose"][failed], goal[failed])
     near = closest < ep.goal_threshold + 0.1
-    late = stalled_metres(paths, ep.horizon // 2)
-    stalled = (outcome[failed] == "timeout") & ~near & (late < STALL_M)
+    # metres driven in the horizon's second half and "stalled" as flashnav eval reads them (near misses apart)
+    late = e["late_m"][failed]
+    stalled = stalled_episodes({k: torch.as_tensor(e[k]) for k in ("success", "collision", "late_m")}).numpy()[failed]
+    stalled &= ~near
     print(f"\nfailed episodes ({len(failed)}; {int(near.sum())} came within 0.1 m of the {ep.goal_threshold:g} m "
           f"goal radius; {int(stalled.sum())} stalled: under {STALL_M:g} m driven in their last {ep.horizon // 2} "
           "steps): " + ", ".join(f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f} "
