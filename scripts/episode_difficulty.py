@@ -10,9 +10,10 @@ the shortest 8-connected grid path from start to goal through the cells where th
 disc is collision-free (the oracle's graph, :func:`flashnav.maps.graph.grid_graph`). Prints success / collision
 / timeout by route length and by detour ratio (route / straight line), and the time the route needs at top speed
 against the horizon. The failed episodes are replayed alone (``set_state`` at their start and goal, the
-deterministic policy gives the same path) to find each one's closest approach to its goal and how far it drove in
-the second half of its horizon: a timeout that drove under 0.5 m there (of the 5 m its top speed allows) "stalled",
-the policy parked in front of an obstacle; the other timeouts "wandered". ``--failures`` draws their paths on the
+deterministic policy gives the same path) to find each one's closest approach to its goal; how far it drove in
+the second half of its horizon is the evaluation's own ``late_m``, and a timeout that drove under 0.5 m there
+"stalled" (:func:`flashnav.evaluate.stalled`, as ``flashnav eval --maps`` counts it), the policy parked in front
+of an obstacle; the other timeouts "wandered". ``--failures`` draws their paths on the
 map, split into near misses (within 0.1 m of the goal radius) and the rest.
 """
 
