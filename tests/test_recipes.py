@@ -80,10 +80,11 @@ def test_the_setup_fills_what_the_run_leaves_open_and_the_run_wins():
 
 
 def test_generalist_map_is_the_turtlebot2_generalist_with_the_wall_map_its_plan_and_carrot():
-    # hyperparameters: the generalist's and DrQ's shift of the wall map, nothing else
+    # hyperparameters: the generalist's, DrQ's shift of the wall map and the longer discount, nothing else
     generalist = load_hparams("fastdsac", "turtlebot2", "generalist").model_dump()
     mapped = load_hparams("fastdsac", "turtlebot2", "generalist-map").model_dump()
-    assert {k for k in mapped if mapped[k] != generalist[k]} == {"wall_shift"} and mapped["wall_shift"] == 1
+    assert {k for k in mapped if mapped[k] != generalist[k]} == {"wall_shift", "gamma"}
+    assert mapped["wall_shift"] == 1 and mapped["gamma"] == 0.995 and generalist["gamma"] == 0.99
     # setup: the generalist's maps, evaluation and task, the wall map with its priced plan and its carrot at 0.5 m,
     # and the measured budget
     setups = load_preset_file("setups")
