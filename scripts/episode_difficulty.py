@@ -120,7 +120,8 @@ def main() -> None:
     # the policy's own preset (its observation options: scan history, pose trail), evaluated with the paper's reward
     preset = evaluated_robot(meta)
     env = make_env(preset, args.episodes, seed=args.seed)
-    e = {k: v.cpu().numpy() for k, v in evaluate_episodes(policy, env, args.seed).items()}
+    played = evaluate_episodes(policy, env, args.seed)
+    e = {k: v.cpu().numpy() for k, v in played.items()}
     outcome = np.where(e["success"], "success", np.where(e["collision"], "collision", "timeout"))
     start, goal = e["start_pose"][:, :2], e["goal"]
     straight = np.linalg.norm(goal - start, axis=1)
@@ -142,8 +143,7 @@ def main() -> None:
     near = closest < ep.goal_threshold + 0.1
     # metres driven in the horizon's second half and "stalled" as flashnav eval reads them (near misses apart)
     late = e["late_m"][failed]
-    stalled = stalled_episodes({k: torch.as_tensor(e[k]) for k in ("success", "collision", "late_m")}).numpy()[failed]
-    stalled &= ~near
+    stalled = stalled_episodes(played).cpu().numpy()[failed] & ~near
     print(f"\nfailed episodes ({len(failed)}; {int(near.sum())} came within 0.1 m of the {ep.goal_threshold:g} m "
           f"goal radius; {int(stalled.sum())} stalled: under {STALL_M:g} m driven in their last {ep.horizon // 2} "
           "steps): " + ", ".join(f"#{k} {outcome[k]} route {route[k]:.2f} m detour {detour[k]:.2f} "
