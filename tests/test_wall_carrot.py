@@ -30,7 +30,7 @@ def reference_carrot(grid, slot: int, pose: np.ndarray, goal: np.ndarray, length
     h, w = grid.shape
     cell, org = grid.cell, grid.origin[slot].double().numpy()
     rc = [np.clip(np.floor((p[::-1] - org[::-1]) / cell).astype(int), 0, [h - 1, w - 1]) for p in (pose[:2], goal)]
-    marks = grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))[0, :-1]
+    marks = grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))[0][0, :-1]
     walk = shortest_walk(grid.known[slot, :-1].reshape(h, w).numpy(), tuple(rc[0]), tuple(rc[1]),
                          math.ceil(PLAN_MARGIN_M / cell - 1e-9), marks.numpy(), grid.plan_penalty)
     point = goal
@@ -52,8 +52,7 @@ def test_the_grids_carrot_is_the_walked_plans_cell_at_its_length_in_the_robot_fr
     grid = random_marked_grid(rng, 16, (40, 40), plan=True, plan_penalty=2.0, carrot=length)
     pose, goal, idx = random_poses(rng, grid, (0.3, 0.7), 3.0, torch.float64)
     goal[:4] = pose[:4, :2] + 0.3  # goals nearer than the carrot's length of path: the carrot is the goal
-    grid.image(idx, pose[idx], goal[idx], 10, 0.4)
-    carrots = grid.carrots  # (the reference's own plan sets the grid's carrots again)
+    _, carrots = grid.plan_cells(idx, pose[idx], goal[idx])
     assert carrots.shape == (16, 2) and carrots.dtype == torch.float64
     kinds = set()
     for i, slot in enumerate(idx.tolist()):
@@ -114,12 +113,12 @@ def test_the_robots_wall_cells_give_the_grids_carrot():
     for slot in range(10):
         xy = rng.uniform(6.5, 8.5, 2)
         pose, goal = np.array([*xy, rng.uniform(-3, 3)]), xy + rng.uniform(-2.5, 2.5, 2)
-        grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))
+        carrots = grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))[1]
         robot = WallCells(12, 0.5, g, 8.0, plan=True, plan_penalty=2.0, carrot=1.0)
         at = torch.nonzero(grid.known[slot, :-1]).flatten().numpy()
         robot.known = np.stack([at % shape[1], at // shape[1]], 1)
         robot.step(pose, np.zeros(0), np.zeros(0), goal)
-        np.testing.assert_allclose(robot.carrot_xy, grid.carrots[0].numpy(), atol=1e-9)
+        np.testing.assert_allclose(robot.carrot_xy, carrots[0].numpy(), atol=1e-9)
 
 
 def test_the_networks_scale_the_carrot_and_the_mirror_flips_its_y():

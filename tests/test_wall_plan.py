@@ -164,7 +164,10 @@ def test_the_plan_channel_is_the_image_of_the_plans_centres_by_either_kernel(dty
     got = grid.image(idx, pose, goal, cells, cell)
     grid.kernel = "torch"
     assert torch.equal(grid.image(idx, pose, goal, cells, cell), got)
-    marks = grid.plan_cells(idx, pose, goal)
+    marks = grid.plan_cells(idx, pose, goal)[0]
+    for kernel in ("torch", "numba"):  # the plan handed in (as the simulator's extras do) draws the same image
+        grid.kernel = kernel
+        assert torch.equal(grid.image(idx, pose, goal, cells, cell, marks), got)
     h, w = shape
     r, c = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
     centres = (torch.stack([c, r], -1).reshape(-1, 2).double() + 0.5) * 0.25 + grid.origin[idx].double()[:, None]
@@ -215,7 +218,7 @@ def test_the_robots_wall_cells_plan_the_grids_cells(penalty):
     for slot in range(12):
         xy = rng.uniform(6.5, 8.5, 2)
         pose, goal = np.array([*xy, 0.3]), xy + rng.uniform(-2.5, 2.5, 2)
-        marks = grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))[0, :-1]
+        marks = grid.plan_cells(torch.tensor([slot]), torch.tensor(pose[None]), torch.tensor(goal[None]))[0][0, :-1]
         want = {(int(f) % shape[1], int(f) // shape[1]) for f in torch.nonzero(marks).flatten()}
         robot = WallCells(12, 0.5, g, 8.0, plan=True, plan_penalty=penalty)
         at = torch.nonzero(grid.known[slot, :-1]).flatten().numpy()

@@ -62,9 +62,10 @@ class ObservationExtras:
                 self.walls.start(sel, pose, ranges, origin.expand(pose.shape[0], 2))
             else:
                 self.walls.push(sel, pose, ranges)
-            image = self.walls.image(sel, pose, goal, o.wall_map, o.wall_map_cell).reshape(pose.shape[0], -1)
-            if self.walls.carrot:  # left by the image's plan
-                obs = torch.cat([obs, self.walls.carrots.to(obs.dtype)], dim=1)
+            plan, carrots = self.walls.plan_cells(sel, pose, goal) if self.walls.plan else (None, None)
+            image = self.walls.image(sel, pose, goal, o.wall_map, o.wall_map_cell, plan).reshape(pose.shape[0], -1)
+            if carrots is not None:
+                obs = torch.cat([obs, carrots.to(obs.dtype)], dim=1)
         if self.memory is not None:
             m = self.memory
             obs = torch.cat([obs, m.start(sel, pose, ranges) if start else m.push(sel, pose, ranges, steps)], dim=1)

@@ -46,8 +46,8 @@ class WallGrid:
     channel, last: the cells of the slot's plan from the robot's cell to its goal's over the cells not marked
     (:mod:`flashnav.maps.seen_plan`, computed when the image is drawn, on the CPU: a host sync on a GPU), the
     cheapest way with ``plan_penalty`` > 0 (a cell beside a marked one dearer). With ``carrot`` > 0 (metres, needs
-    ``plan``) every :meth:`image` also leaves the drawn slots' carrots in :attr:`carrots`
-    (:func:`flashnav.maps.seen_plan.carrot_points`: the point that far along the plan, in the robot frame).
+    ``plan``) :meth:`plan_cells` also returns the slots' carrots (:func:`flashnav.maps.seen_plan.carrot_points`: the
+    point that far along the plan, in the robot frame); hand its cells to :meth:`image` to draw the same plan.
 
     :meth:`image` draws the marked cells' centres as :func:`wall_image` draws points, reading only the window of
     cells whose centres can fall in the image, so its cost is the image's, not the map's."""
@@ -74,8 +74,8 @@ class WallGrid:
         self.plan_penalty = float(plan_penalty)
         from flashnav.maps.seen_plan import check_carrot
 
-        #: metres along the plan of the carrot (0 = none) and the carrots [k, 2] of the last :meth:`image`'s slots
-        self.carrot, self.carrots = check_carrot("WallGrid", carrot, plan), None
+        #: metres along the plan of the carrot that :meth:`plan_cells` returns (0 = none)
+        self.carrot = check_carrot("WallGrid", carrot, plan)
         self.origin = torch.zeros(num_envs, 2, device=device, dtype=torch.float32)
         self.rows = torch.arange(num_envs, device=device)
         #: how :meth:`image` draws: "numba" (the CPU default: :mod:`flashnav.sim.wall_numba`, the marked cells only)
@@ -147,11 +147,12 @@ class WallGrid:
         xy = (torch.stack([c, r], -1).reshape(-1, 2).to(self.origin) + 0.5) * self.cell + self.origin[rows][:, None]
         return torch.where(marks[rows, :-1, None], xy, math.inf)
 
-    def plan_cells(self, idx, pose: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        """[k, H W + 1] bool (the layout of :attr:`known`, the spare column never set; on the grid's device): the cells
-        of the plan of slots ``idx`` from the cell of ``pose [k, 3]`` to the cell of ``goal [k, 2]`` (both clipped onto
-        the grid), :func:`flashnav.maps.seen_plan.plan_cells` within :data:`~flashnav.maps.seen_plan.PLAN_MARGIN_M`
-        (at :attr:`plan_penalty`); with :attr:`carrot`, :attr:`carrots` set to the slots' carrots."""
+    def plan_cells(self, idx, pose: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The plans of slots ``idx`` from the cell of ``pose [k, 3]`` to the cell of ``goal [k, 2]`` (both clipped
+        onto the grid), :func:`flashnav.maps.seen_plan.plan_cells` within :data:`~flashnav.maps.seen_plan.PLAN_MARGIN_M`
+        (at :attr:`plan_penalty`): their cells [k, H W + 1] bool (the layout of :attr:`known`, the spare column never
+        set; on the grid's device) and, with :attr:`carrot`, their carrots [k, 2] (x, y m in the robot frame, the
+        dtype and device of ``pose``; None without)."""
         from flashnav.maps.seen_plan import PLAN_MARGIN_M, carrot_points, plan_route
 
         rows = self.rows[idx]
@@ -164,16 +165,19 @@ class WallGrid:
         out, carrots = plan_route(self.known.cpu().numpy(), rows.cpu().numpy(), cell_of(pose[:, :2]), cell_of(goal),
                                   self.shape, math.ceil(PLAN_MARGIN_M / self.cell - 1e-9), self.plan_penalty,
                                   self.carrot / self.cell)
+        points = None
         if self.carrot:
             xy = carrot_points(carrots, org.cpu().numpy(), self.cell, pose.detach().cpu().numpy(),
                                goal.detach().cpu().numpy(), self.carrot)
-            self.carrots = torch.from_numpy(xy).to(device=pose.device, dtype=pose.dtype)
-        return torch.from_numpy(out).to(self.known.device)
+            points = torch.from_numpy(xy).to(device=pose.device, dtype=pose.dtype)
+        return torch.from_numpy(out).to(self.known.device), points
 
-    def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float) -> torch.Tensor:
+    def image(self, idx, pose: torch.Tensor, goal: torch.Tensor, cells: int, cell: float,
+              plan: torch.Tensor | None = None) -> torch.Tensor:
         """:func:`wall_image` [k, 2, cells, cells] of the marked cells' centres of slots ``idx``, seen from
         ``pose [k, 3]`` with goals ``goal [k, 2]`` (and, with ``visited``, the visited cells' centres as a third
-        channel; with ``plan``, the plan's cells (:meth:`plan_cells`) as the last): the same image as from every
+        channel; with ``plan``, the plan's cells as the last: the ``plan`` given, the cells that :meth:`plan_cells`
+        returned for the same slots and poses, else planned here): the same image as from every
         marked centre, drawn from the square window of cells around the robot that holds every centre within the
         image's half-diagonal."""
         check_wall_image(cells, cell)
@@ -183,6 +187,8 @@ class WallGrid:
         n = math.ceil(2 * reach / self.cell) + 3
         org = self.origin[rows].to(pose.dtype)
         base = torch.floor((pose[:, :2] - reach - org) / self.cell).long() - 1  # [k, 2]: first column, first row
+        if self.plan and plan is None:
+            plan = self.plan_cells(idx, pose, goal)[0]
         if self.kernel == "numba":
             from flashnav.sim.wall_numba import wall_squares
 
@@ -194,9 +200,8 @@ class WallGrid:
             if self.visited is not None:
                 channels.append(torch.from_numpy(wall_squares(self.visited.numpy(), *args)))
             if self.plan:
-                plan = self.plan_cells(idx, pose, goal).numpy()
                 args = (np.arange(len(rows)),) + args[1:]
-                channels.append(torch.from_numpy(wall_squares(plan, *args)))
+                channels.append(torch.from_numpy(wall_squares(plan.numpy(), *args)))
             return torch.stack(channels, dim=1)
         step = torch.arange(n, device=pose.device)
         c = (base[:, 0:1] + step)[:, None, :].expand(-1, n, -1)  # [k, n, n]: column varies along the last axis
@@ -211,5 +216,5 @@ class WallGrid:
             return torch.where((torch.gather(marks, 1, at) & inside)[..., None], xy, math.inf)
 
         visited = centres(self.visited[rows]) if self.visited is not None else None
-        plan = centres(self.plan_cells(idx, pose, goal)) if self.plan else None
+        plan = centres(plan) if self.plan else None
         return wall_image(centres(self.known[rows]), pose, goal, cells, cell, visited, plan)
