@@ -16,8 +16,9 @@
 #      sandbox and mazes_900002?), then each on the held-out suite (128 episodes
 #      a map, as on the CPU; the plan runs on the host); their validation curves, with the 163,840 point, are
 #      `flashnav bench runs OUT/gen-*/`;
-#   4. with what time is left, FastDSAC's `paper-mirror` on Go2 (issue 16 DM1's Go2 bar, 20/30 on the CPU) for seeds
-#      2-7 to the whole budget of 401,408 env steps (session 50 ran seeds 0-1 to it: 1/2), three lanes.
+#   4. with what time is left, FastDSAC's `paper-mirror` on Go2 (issue 16 DM1's Go2 bar; since session 76 with the
+#      plan's carrot, 10/10 on the CPU, its plan on the host at every step) for seeds 2-7 to the whole budget of
+#      401,408 env steps (session 50 ran seeds 0-1 of the recipe before the carrot to it: 1/2), three lanes.
 # Read every seconds figure as shared-GPU seconds (lanes run at once).
 # Each step has its own time limit, so a slow step costs its limit, not the rest; END (default 540 s) bounds the whole.
 # Writes under OUT (default runs/gpu).

@@ -165,23 +165,29 @@ def test_recipe_bases_that_go_round_in_a_circle_are_named(monkeypatch):
 @pytest.mark.parametrize("robot", ["turtlebot2", "go2"])
 def test_paper_mirror_is_the_paper_recipe_with_its_departures(robot):
     """Four departures for both robots (docs/benchmarks.md "The goal angle as sine and cosine"); Go2 adds pink
-    forward-speed noise to them, and two changes to its training task, more long detours and geodesic progress
-    (setups.yaml; "Go2: ten-step returns, 80 updates a step, and geodesic progress ..."). TurtleBot2 trains on the
-    paper's task."""
+    forward-speed noise to them, two changes to its training task, more long detours and geodesic progress
+    (setups.yaml; "Go2: ten-step returns, 80 updates a step, and geodesic progress ..."), and the plan's carrot in its
+    observation, in training and in every evaluation ("Go2: the plan's carrot"). TurtleBot2 trains on the paper's
+    task and observation."""
     paper = load_hparams("fastdsac", robot, "paper").model_dump()
     mirror = load_hparams("fastdsac", robot, "paper-mirror").model_dump()
     changed = {k: mirror[k] for k in paper if paper[k] != mirror[k]}
     assert changed == {"n_step": 5, "gamma": 0.99, "mirror": 0.5, "goal_sincos": True,
-                       **({"noise_color": (1.0, 0.0)} if robot == "go2" else {})}
+                       **({"noise_color": (1.0, 0.0), "wall_map_convs": ((8, 1),)} if robot == "go2" else {})}
     # the paper's own numbers, budget included, stay: the departures are only these
     assert mirror["total_env_steps"] == paper["total_env_steps"]
     # the task: the run's robot preset against the plain one, and what every evaluation plays
     spec = resolve(config_from_cli(None, {"robot": robot, "recipe": "paper-mirror", "device": "cpu"}))
     plain = load_robot(robot)
-    task = {"robot.episode.hard_share": 0.5, "robot.reward.progress_metric": "geodesic"} if robot == "go2" else {}
+    seen = {"robot.observation.wall_map": 2, "robot.observation.wall_map_plan": True,
+            "robot.observation.wall_map_plan_penalty": 2, "robot.observation.wall_map_carrot": 0.5}
+    task = ({"robot.episode.hard_share": 0.5, "robot.reward.progress_metric": "geodesic", **seen}
+            if robot == "go2" else {})
     assert spec.robot == load_robot(robot, **{k.removeprefix("robot."): v for k, v in task.items()})
     assert (spec.robot == plain) == (robot == "turtlebot2")
-    assert evaluation_preset(spec.robot) == plain
+    # every evaluation plays the task's episodes with the paper's reward, and the policy keeps what it sees
+    sees = load_robot(robot, **{k.removeprefix("robot."): v for k, v in seen.items()}) if robot == "go2" else plain
+    assert evaluation_preset(spec.robot) == sees
     # the run's own values win over the setup's
     own = resolve(config_from_cli(None, {"robot": robot, "recipe": "paper-mirror", "device": "cpu"},
                                   ["robot.episode.hard_share=0.25"]))
