@@ -369,14 +369,14 @@ def test_watchdog_survives_a_clock_that_restarts(ros, tmp_path):
     first = ros.flashnav("sim", "deploy", "sim-robot", "--start", start, "--goal-at", goal, "--duration", "3")
     _finished(ros, first, 120)  # simulated time ran to some seconds
     results = tmp_path / "restart.json"
-    second = ros.flashnav("sim2", "deploy", "sim-robot", "--start", f"{goal},0", "--goal-at", back,  # /clock from 1 s
-                          "--duration", "4", "--results", str(results))
-    _acknowledged(ros, second)
-    time.sleep(0.3)  # driving on the new clock
-    os.kill(second.pid, signal.SIGUSR1)  # the scan publisher goes away
+    # /clock from 1 s; the scan publisher goes away 3 simulated seconds on, while the robot drives the ~5 m back (a
+    # wall-time SIGUSR1 0.3 s after the goal came after the robot had arrived when the lock step ran fast: 4 of 6)
+    second = ros.flashnav("sim2", "deploy", "sim-robot", "--start", f"{goal},0", "--goal-at", back,
+                          "--scans-stop-after", "3", "--duration", "6", "--results", str(results))
     assert second.wait(60) == 0, ros.log("sim2")
     assert node.poll() is None, f"the node died: {ros.log('node')}"
     stop = json.loads(results.read_text())["scan_stop"]
+    assert stop is not None, f"the scans never stopped (3 simulated seconds not reached in 6 wall seconds): {ros.log('sim2')}"
     assert stop["command_before"][0] > 0.05, ros.log("node")  # it was driving
     # (no bound on the delay: without scans to answer the simulator no longer waits and races ahead in sim time)
     assert stop["stopped"], f"no zero command after the scans stopped: {ros.log('node')}"

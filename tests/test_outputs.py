@@ -133,6 +133,9 @@ def test_a_json_in_a_new_folder_is_written_after_the_rows(tmp_path):
     (["--duration", "-5"], "--duration must be a finite number of seconds >= 0"),
     (["--answer-timeout", "0"], "--answer-timeout must be a finite number of seconds > 0"),
     (["--episodes", "1", "--start", "1,1,0", "--goal-at", "2,2"], "--start, --goal-at drive the free-running mode"),
+    (["--scans-stop-after", "-1"], "--scans-stop-after must be a finite number of seconds >= 0, got -1.0"),
+    (["--scans-stop-after", "inf"], "--scans-stop-after must be a finite number of seconds >= 0, got inf"),
+    (["--episodes", "2", "--scans-stop-after", "0"], "--scans-stop-after drive the free-running mode"),
 ])
 def test_sim_robot_flags_are_checked_before_ros(flags, named, capsys):
     assert cli_main(["deploy", "sim-robot", *flags]) == 2

@@ -97,6 +97,10 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--goal-at", type=_floats(2, "--goal-at"), default=None, metavar="X,Y",
                    help="free running: send this goal (odom frame) once at the start")
     q.add_argument("--duration", type=float, default=0.0, help="free running: wall seconds to run (default 0: forever)")
+    q.add_argument("--scans-stop-after", type=float, default=None, metavar="SECONDS",
+                   help="free running: stop the scan publisher for good this many seconds of the sim-robot's own clock "
+                        "(simulated, or real with --real-time) after the start - a node's watchdog check that holds on "
+                        "any machine speed (SIGUSR1 does the same at once)")
     q.add_argument("--real-time", action="store_true",
                    help="step once per control period of wall time (default: simulated /clock in lock step with the node)")
     q.add_argument("--answer-timeout", type=float, default=2.0,
@@ -194,8 +198,11 @@ def run_sim_robot(args) -> int:
                          f"{args.duration}")
     if not (math.isfinite(args.answer_timeout) and args.answer_timeout > 0):
         raise ValueError(f"--answer-timeout must be a finite number of seconds > 0, got {args.answer_timeout}")
-    if args.episodes and (given := [flag for flag, value in (("--start", args.start), ("--goal-at", args.goal_at),
-                                                            ("--duration", args.duration or None)) if value]):
+    if args.scans_stop_after is not None and not (math.isfinite(args.scans_stop_after) and args.scans_stop_after >= 0):
+        raise ValueError(f"--scans-stop-after must be a finite number of seconds >= 0, got {args.scans_stop_after}")
+    free_flags = (("--start", args.start), ("--goal-at", args.goal_at), ("--duration", args.duration or None),
+                  ("--scans-stop-after", args.scans_stop_after))
+    if args.episodes and (given := [flag for flag, value in free_flags if value is not None]):
         raise ValueError(f"{', '.join(given)} drive the free-running mode; with --episodes {args.episodes} the "
                          f"episodes' own starts, goals and horizons are played: drop one or the other")
     if args.results:

@@ -17,7 +17,9 @@ With ``--episodes N`` it plays the N start/goal pairs that ``flashnav eval --epi
 plays (goal sent on the goal topic, frame ``odom``), each until the goal (< goal radius), a collision
 or the horizon, and writes the outcomes to ``--results``. Without it, the robot waits at ``--start``
 for goals sent by anyone (e.g. rviz). SIGUSR1 stops the scan publisher for good (the node's safety
-check): the results then hold how long after the last scan the robot's command became zero.
+check), as does ``--scans-stop-after S`` S seconds of its own clock after the start (the same point of the run on
+any machine: in lock step a fast node covers more simulated time in a wall second); the results then hold how long
+after the last scan the robot's command became zero.
 """
 
 from __future__ import annotations
@@ -89,7 +91,7 @@ class SimRobot:
         self.people_pub = rospy.Publisher(people, Float32MultiArray, queue_size=1, tcp_nodelay=True)
         self.cmd_sub = rospy.Subscriber(cmd, Twist, self._on_cmd, queue_size=10, tcp_nodelay=True)
         self.status_sub = rospy.Subscriber(status, String, self._on_status, queue_size=100, tcp_nodelay=True)
-        signal.signal(signal.SIGUSR1, lambda *_: self._scan_off())
+        signal.signal(signal.SIGUSR1, lambda *_: self.scan_off())
 
     # ---- callbacks ------------------------------------------------------------------------------
     def _on_cmd(self, msg) -> None:
@@ -104,7 +106,8 @@ class SimRobot:
             self.answer = json.loads(msg.data)
             self.cond.notify_all()
 
-    def _scan_off(self) -> None:
+    def scan_off(self) -> None:
+        """Stop the scan publisher for good (from the next step on), remembering the command in force."""
         self.command_at_scan_off = self.cmd
         self.scan_on = False
 
@@ -292,7 +295,10 @@ def run(args) -> dict:
             robot.send_goal(args.goal_at)
             print(f"goal acknowledged: {args.goal_at}", flush=True)
         end = math.inf if not args.duration else time.monotonic() + args.duration
+        scans_off_at = None if args.scans_stop_after is None else robot.t + args.scans_stop_after
         while time.monotonic() < end and not robot.rospy.is_shutdown():
+            if scans_off_at is not None and robot.scan_on and robot.t >= scans_off_at - 1e-9:
+                robot.scan_off()
             robot.step()
         report |= {"final_pose": robot.env.world_pose()[0].tolist(), "commands_received": robot.cmd_count,
                    "command_now": list(robot.cmd), "velocity_now": robot.env.velocity[0].tolist()}
