@@ -136,6 +136,9 @@ def test_a_json_in_a_new_folder_is_written_after_the_rows(tmp_path):
     (["--scans-stop-after", "-1"], "--scans-stop-after must be a finite number of seconds >= 0, got -1.0"),
     (["--scans-stop-after", "inf"], "--scans-stop-after must be a finite number of seconds >= 0, got inf"),
     (["--episodes", "2", "--scans-stop-after", "0"], "--scans-stop-after drive the free-running mode"),
+    (["--stall", "1,0"], "--stall AT,WALL_S must have AT >= 0 and WALL_S > 0 seconds, got [1.0, 0.0]"),
+    (["--stall=-1,2"], "--stall AT,WALL_S must have AT >= 0 and WALL_S > 0 seconds"),
+    (["--episodes", "2", "--stall", "1,1"], "--stall drive the free-running mode"),
 ])
 def test_sim_robot_flags_are_checked_before_ros(flags, named, capsys):
     assert cli_main(["deploy", "sim-robot", *flags]) == 2

@@ -101,6 +101,10 @@ def register_cli(sub: argparse._SubParsersAction) -> None:
                    help="free running: stop the scan publisher for good this many seconds of the sim-robot's own clock "
                         "(simulated, or real with --real-time) after the start - a node's watchdog check that holds on "
                         "any machine speed (SIGUSR1 does the same at once)")
+    q.add_argument("--stall", type=_floats(2, "--stall"), default=None, metavar="AT,WALL_S",
+                   help="free running: at AT seconds of its own clock the sim-robot publishes nothing (/clock, "
+                        "odometry, scans) for WALL_S wall seconds, then goes on: a simulator that hangs, at the same "
+                        "point of the run on any machine speed (the stall does not count towards --duration)")
     q.add_argument("--real-time", action="store_true",
                    help="step once per control period of wall time (default: simulated /clock in lock step with the node)")
     q.add_argument("--answer-timeout", type=float, default=2.0,
@@ -200,8 +204,10 @@ def run_sim_robot(args) -> int:
         raise ValueError(f"--answer-timeout must be a finite number of seconds > 0, got {args.answer_timeout}")
     if args.scans_stop_after is not None and not (math.isfinite(args.scans_stop_after) and args.scans_stop_after >= 0):
         raise ValueError(f"--scans-stop-after must be a finite number of seconds >= 0, got {args.scans_stop_after}")
+    if args.stall is not None and not (args.stall[0] >= 0 and args.stall[1] > 0):
+        raise ValueError(f"--stall AT,WALL_S must have AT >= 0 and WALL_S > 0 seconds, got {args.stall}")
     free_flags = (("--start", args.start), ("--goal-at", args.goal_at), ("--duration", args.duration or None),
-                  ("--scans-stop-after", args.scans_stop_after))
+                  ("--scans-stop-after", args.scans_stop_after), ("--stall", args.stall))
     if args.episodes and (given := [flag for flag, value in free_flags if value is not None]):
         raise ValueError(f"{', '.join(given)} drive the free-running mode; with --episodes {args.episodes} the "
                          f"episodes' own starts, goals and horizons are played: drop one or the other")

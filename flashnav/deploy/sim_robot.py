@@ -19,7 +19,8 @@ or the horizon, and writes the outcomes to ``--results``. Without it, the robot 
 for goals sent by anyone (e.g. rviz). SIGUSR1 stops the scan publisher for good (the node's safety
 check), as does ``--scans-stop-after S`` S seconds of its own clock after the start (the same point of the run on
 any machine: in lock step a fast node covers more simulated time in a wall second); the results then hold how long
-after the last scan the robot's command became zero.
+after the last scan the robot's command became zero. ``--stall AT,WALL_S`` has it publish nothing for WALL_S wall
+seconds from AT seconds of its clock on: a simulator that hangs (its /clock stands still).
 """
 
 from __future__ import annotations
@@ -296,9 +297,15 @@ def run(args) -> dict:
             print(f"goal acknowledged: {args.goal_at}", flush=True)
         end = math.inf if not args.duration else time.monotonic() + args.duration
         scans_off_at = None if args.scans_stop_after is None else robot.t + args.scans_stop_after
+        stall_at, stall_s = (None, 0.0) if args.stall is None else (robot.t + args.stall[0], args.stall[1])
         while time.monotonic() < end and not robot.rospy.is_shutdown():
             if scans_off_at is not None and robot.scan_on and robot.t >= scans_off_at - 1e-9:
                 robot.scan_off()
+            if stall_at is not None and robot.t >= stall_at - 1e-9:
+                print(f"stalled at {robot.t:.3f} s (its clock) for {stall_s:g} wall seconds", flush=True)
+                stall_at, end = None, end + stall_s
+                time.sleep(stall_s)
+                print("going on after the stall", flush=True)
             robot.step()
         report |= {"final_pose": robot.env.world_pose()[0].tolist(), "commands_received": robot.cmd_count,
                    "command_now": list(robot.cmd), "velocity_now": robot.env.velocity[0].tolist()}
