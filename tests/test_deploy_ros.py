@@ -192,12 +192,13 @@ def test_a_tracks_policy_drives_on_the_sim_robots_people(ros, tmp_path):
     assert sum(e["missed_answers"] for e in episodes) == 0, ros.log("node")
 
 
-def _acknowledged(ros, sim: subprocess.Popen) -> None:
-    """Wait until the free-running sim-robot ``sim`` says the node acknowledged its goal."""
+def _says(ros, sim: subprocess.Popen, text: str) -> None:
+    """Wait (90 s at most) until the free-running sim-robot ``sim`` prints ``text`` (e.g. "goal acknowledged": the
+    node acknowledged its goal); fail with both logs if it exits first."""
     deadline = time.monotonic() + 90
-    while "goal acknowledged" not in ros.log(sim.name):
+    while text not in ros.log(sim.name):
         assert sim.poll() is None, f"sim-robot failed: {ros.log(sim.name)}\nnode: {ros.log('node')}"
-        assert time.monotonic() < deadline, f"no goal acknowledged: {ros.log(sim.name)}\nnode: {ros.log('node')}"
+        assert time.monotonic() < deadline, f"no {text!r}: {ros.log(sim.name)}\nnode: {ros.log('node')}"
         time.sleep(0.1)
 
 
@@ -212,7 +213,7 @@ def _drive_far_goal(ros, results: Path):
     node = ros.flashnav("node", "deploy", "ros", str(POLICY), "--timeout", "0.3")
     sim = ros.flashnav("sim", "deploy", "sim-robot", "--real-time", "--start", start, "--goal-at", goal,
                        "--duration", "4", "--results", str(results))
-    _acknowledged(ros, sim)
+    _says(ros, sim, "goal acknowledged")
     time.sleep(1.5)  # driving
     return node, sim
 
@@ -396,11 +397,7 @@ def test_a_clock_that_stands_still_stops_the_robot(ros):
     # goal raced the lock step: the same wait in the clock-restart test came after the robot had arrived)
     sim = ros.flashnav("sim", "deploy", "sim-robot", "--start", start, "--goal-at", goal, "--duration", "3",
                        "--stall", "3,5")
-    deadline = time.monotonic() + 90
-    while "stalled at" not in ros.log("sim"):
-        assert sim.poll() is None and time.monotonic() < deadline, \
-            f"no stall: {ros.log('sim')}\nnode: {ros.log('node')}"
-        time.sleep(0.1)
+    _says(ros, sim, "stalled at")
     while "ROS time has stood at" not in ros.log("node"):  # (the sim-robot says when it goes on: 5 wall s at most)
         assert sim.poll() is None and "going on after the stall" not in ros.log("sim"), \
             f"no stop while the clock stood still for 5 s: {ros.log('node')}\nsim: {ros.log('sim')}"
